@@ -1,0 +1,148 @@
+"""Pinhole camera intrinsics and how they follow crops and resizes.
+
+Convention (OpenCV): pixel (u, v) with integer coordinates is the *centre* of the pixel
+in column u and row v; the image spans [-0.5, W-0.5] x [-0.5, H-0.5]. Focal lengths and
+principal point are in pixels. Depth is metres along the optical axis (z), camera frame
+x right, y down, z forward.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from c3f_slam.errors import InputError
+
+_REQUIRED = ("width", "height", "fx", "fy", "cx", "cy")
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """Intrinsics of a pinhole camera (pixels), optional distortion, depth PNG scale.
+
+    ``depth_scale`` is the number of depth-PNG units per metre (uint16 PNG value =
+    depth_m * depth_scale); it only matters for reading and writing depth files.
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple[float, ...] = field(default_factory=tuple)
+    depth_scale: float = 10000.0
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise InputError(f"camera size must be positive, got {self.width}x{self.height}")
+        for name in ("fx", "fy"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"camera {name} must be a positive finite number, got {v}")
+        for name in ("cx", "cy"):
+            if not math.isfinite(getattr(self, name)):
+                raise InputError(f"camera {name} must be finite, got {getattr(self, name)}")
+        if not (self.depth_scale > 0):
+            raise InputError(f"camera depth_scale must be positive, got {self.depth_scale}")
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_fov(cls, width: int, height: int, fov_deg: float, **kw: float) -> "PinholeCamera":
+        """Camera with square pixels whose *horizontal* field of view is ``fov_deg`` degrees."""
+        if not 0 < fov_deg < 180:
+            raise InputError(f"field of view must be in (0, 180) degrees, got {fov_deg}")
+        f = (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+        return cls(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0, **kw)
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> "PinholeCamera":
+        """Read ``camera.json`` of the project's sequence layout (SPEC §5.2)."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"{path}: camera file not found")
+        try:
+            data = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path}: not valid JSON ({exc})") from None
+        missing = [k for k in _REQUIRED if k not in data]
+        if missing:
+            raise InputError(f"{path}: missing key(s) {', '.join(missing)}")
+        try:
+            return cls(
+                width=int(data["width"]),
+                height=int(data["height"]),
+                fx=float(data["fx"]),
+                fy=float(data["fy"]),
+                cx=float(data["cx"]),
+                cy=float(data["cy"]),
+                distortion=tuple(float(d) for d in data.get("distortion", []) or []),
+                depth_scale=float(data.get("depth_scale", 10000.0)),
+            )
+        except InputError as exc:
+            raise InputError(f"{path}: {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{path}: bad value ({exc})") from None
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["distortion"] = list(self.distortion)
+        return d
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 intrinsic matrix (float64)."""
+        return np.array(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64
+        )
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return self.width, self.height
+
+    def fov_deg(self) -> tuple[float, float]:
+        """Horizontal and vertical field of view in degrees."""
+        return (
+            math.degrees(2 * math.atan(self.width / (2 * self.fx))),
+            math.degrees(2 * math.atan(self.height / (2 * self.fy))),
+        )
+
+    # ------------------------------------------------------------------ image ops
+    def crop(self, x0: int, y0: int, width: int, height: int) -> "PinholeCamera":
+        """Intrinsics of the sub-image whose top-left pixel is (x0, y0)."""
+        return replace(self, width=width, height=height, cx=self.cx - x0, cy=self.cy - y0)
+
+    def resize(self, width: int, height: int) -> "PinholeCamera":
+        """Intrinsics after resizing the whole image to ``width`` x ``height``."""
+        sx, sy = width / self.width, height / self.height
+        return replace(
+            self,
+            width=width,
+            height=height,
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+        )
+
+    def center_crop_box(self, crop_width: int, crop_height: int) -> tuple[int, int, int, int]:
+        """(x0, y0, w, h) of a centred crop; raises if the crop is larger than the image."""
+        if crop_width > self.width or crop_height > self.height:
+            raise InputError(
+                f"crop {crop_width}x{crop_height} is larger than the image {self.width}x{self.height}"
+            )
+        return (self.width - crop_width) // 2, (self.height - crop_height) // 2, crop_width, crop_height
+
+    def check_image(self, shape: tuple[int, ...], what: str) -> None:
+        """Raise InputError unless an (H, W[, C]) array matches this camera's size."""
+        h, w = shape[:2]
+        if (w, h) != (self.width, self.height):
+            raise InputError(
+                f"{what}: image is {w}x{h} but the camera intrinsics are for {self.width}x{self.height}"
+            )

@@ -1,0 +1,41 @@
+"""Atomic file writes: write to a temporary file beside the target, then rename.
+
+An interrupted or failed write never leaves a half-written file and never destroys the
+previous version of the target.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path; on success it replaces ``path`` atomically.
+
+    The temporary file keeps the target's suffix (or ``suffix``) so that libraries that
+    pick a format from the file name (OpenCV, Open3D) write the right one.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.stem}.", suffix=suffix if suffix is not None else path.suffix, dir=path.parent
+    )
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically."""
+    with atomic_write(path) as tmp:
+        tmp.write_text(text)

@@ -1,0 +1,68 @@
+"""Frame pre-processing shared by training and the runtime (NumPy/OpenCV, no torch).
+
+- :func:`center_crop_resize`: centre crop then resize, with the intrinsics updated to match.
+- :func:`specular_mask` / :func:`inpaint_specular`: SPEC §2, the specular highlights are the
+  pixels whose YUV luma Y exceeds 0.9 of full range, dilated with a 13-px kernel; they are
+  inpainted in the input (OpenCV Telea) and excluded from the losses.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from c3f_slam.camera import PinholeCamera
+
+SPECULAR_THRESHOLD = 0.9
+SPECULAR_DILATION_PX = 13
+
+
+def center_crop_resize(
+    image: np.ndarray,
+    camera: PinholeCamera,
+    crop: tuple[int, int] | None,
+    size: tuple[int, int] | None,
+    interpolation: int = cv2.INTER_AREA,
+) -> tuple[np.ndarray, PinholeCamera]:
+    """Centre-crop to ``crop`` = (width, height), then resize to ``size`` = (width, height).
+
+    Either step is skipped when its argument is None. Returns the image and the matching
+    intrinsics. Use ``cv2.INTER_NEAREST`` for depth maps so that depths across an edge are
+    never averaged.
+    """
+    camera.check_image(image.shape, "frame")
+    if crop is not None:
+        x0, y0, w, h = camera.center_crop_box(*crop)
+        image = image[y0 : y0 + h, x0 : x0 + w]
+        camera = camera.crop(x0, y0, w, h)
+    if size is not None and tuple(size) != (camera.width, camera.height):
+        image = cv2.resize(image, tuple(size), interpolation=interpolation)
+        camera = camera.resize(*size)
+    return image, camera
+
+
+def specular_mask(
+    rgb: np.ndarray,
+    threshold: float = SPECULAR_THRESHOLD,
+    dilation_px: int = SPECULAR_DILATION_PX,
+) -> np.ndarray:
+    """(H, W) bool mask of specular highlights of an (H, W, 3) uint8 RGB frame.
+
+    Y (BT.601 luma, full range) > ``threshold`` * 255, dilated by an elliptical
+    ``dilation_px`` x ``dilation_px`` kernel.
+    """
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"specular_mask expects (H, W, 3) uint8 RGB, got {rgb.dtype} {rgb.shape}")
+    y = cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV)[..., 0]
+    mask = (y > threshold * 255.0).astype(np.uint8)
+    if dilation_px > 1 and mask.any():
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (dilation_px, dilation_px))
+        mask = cv2.dilate(mask, kernel)
+    return mask.astype(bool)
+
+
+def inpaint_specular(rgb: np.ndarray, mask: np.ndarray, radius: int = 3) -> np.ndarray:
+    """Fill the masked pixels of an (H, W, 3) uint8 image from their surroundings (Telea)."""
+    if not mask.any():
+        return rgb
+    return cv2.inpaint(rgb, mask.astype(np.uint8), radius, cv2.INPAINT_TELEA)
