@@ -1,0 +1,93 @@
+"""The ``python -m c3f_models`` command line: one LightningCLI.
+
+Model and data are chosen by class path in the config (subclass mode), e.g.::
+
+    python -m c3f_models fit --config configs/trainer/cpu_smoke.yaml --config configs/depthnet/small.yaml
+
+Subcommands: ``fit``, ``validate``, ``test``, ``predict`` (Lightning's), plus whatever
+:data:`EXTRA_SUBCOMMANDS` adds (methods of :class:`C3FTrainer`). The resolved config is
+saved as ``config.yaml`` next to the TensorBoard logs of each run. Bad input
+(:class:`c3f_slam.errors.InputError`) ends the run with a one-line ``error: ...`` and
+exit status 2 instead of a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+
+
+
+import lightning as L
+from lightning.pytorch.cli import ArgsType, LightningCLI
+
+from c3f_models.trainer import C3FTrainer
+from c3f_slam.errors import InputError
+
+# Subcommands beyond Lightning's: name -> Trainer arguments the method takes from the
+# parsed config. The export issue adds "export" here (a method of C3FTrainer).
+EXTRA_SUBCOMMANDS: dict[str, set[str]] = {}
+
+SEED_DEFAULT = 42
+
+
+class C3FCLI(LightningCLI):
+    """LightningCLI with the project's defaults: subclass mode, seed 42, config saved."""
+
+    @staticmethod
+    def subcommands() -> dict[str, set[str]]:
+        return {**LightningCLI.subcommands(), **EXTRA_SUBCOMMANDS}
+
+
+def condense_parser_error(message: str) -> str:
+    """One line out of jsonargparse's multi-line validation message.
+
+    Keeps the key the parser complained about and the innermost real reason (an option
+    that is not accepted, a value of the wrong type), dropping the union-type noise.
+    """
+    lines = [ln.strip(" -") for ln in message.splitlines() if ln.strip()]
+    if not lines:
+        return "invalid arguments"
+    head = lines[0]
+    noise = ("Does not validate", "Subtypes:", "Errors:", "Given value", "Expected a <class 'NoneType'>")
+    reasons = [ln for ln in lines[1:] if not ln.startswith(noise)]
+    detail = reasons[-1] if reasons else ""
+    where = [m.group(1) for ln in reasons if (m := re.search(r"class_path '([^']+)'", ln))]
+    out = f"{head.rstrip(':')}: {detail}" if detail else head
+    return out + (f" (in {where[-1]})" if where else "")
+
+
+def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
+    """Entry point; ``args`` lets tests drive the CLI in-process (``main(['fit', ...])``)."""
+    no_exit = {"exit_on_error": False}
+    parser_kwargs = {
+        "prog": "python -m c3f_models",
+        "description": "C3Fusion model zoo: train, evaluate and export DepthNet and ContraFeat.",
+        **no_exit,
+        **{name: dict(no_exit) for name in C3FCLI.subcommands()},
+    }
+    try:
+        return C3FCLI(
+            L.LightningModule,
+            L.LightningDataModule,
+            trainer_class=C3FTrainer,
+            subclass_mode_model=True,
+            subclass_mode_data=True,
+            seed_everything_default=SEED_DEFAULT,
+            save_config_kwargs={"overwrite": True},
+            parser_kwargs=parser_kwargs,
+            args=args,
+            run=run,
+        )
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    except argparse.ArgumentError as exc:
+        print(f"error: {condense_parser_error(str(exc))} (see --help)", file=sys.stderr)
+        raise SystemExit(2) from None
+    except FileNotFoundError as exc:
+        print(f"error: {exc.filename or exc}: file not found", file=sys.stderr)
+        raise SystemExit(2) from None
+
+__all__ = ["C3FCLI", "main", "EXTRA_SUBCOMMANDS"]

@@ -1,0 +1,1 @@
+"""ONNX export of the trained networks (see the export issue)."""

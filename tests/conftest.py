@@ -1,0 +1,21 @@
+"""Shared pytest fixtures: tiny sequences made on the fly (nothing is downloaded)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from tests.scenes import plane_sequence
+
+os.environ.setdefault("PYTHONHASHSEED", "0")
+
+
+@pytest.fixture(scope="session")
+def plane_dataset(tmp_path_factory) -> Path:
+    """A data folder with three short analytic plane sequences (exact depth and poses)."""
+    root = tmp_path_factory.mktemp("plane_data")
+    for k in range(3):
+        plane_sequence(root / f"plane{k}", frames=6, size=48, seed=k)
+    return root

@@ -1,0 +1,66 @@
+"""The `python -m c3f_models` CLI: help without data, clear one-line errors."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from c3f_models.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+BORING = "lightning.pytorch.demos.boring_classes.BoringModel"
+DATA = "datamodules.sequence.C3FSequenceDataModule"
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "c3f_models", *args], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
+
+
+def test_help_without_data():
+    out = _cli("--help")
+    assert out.returncode == 0
+    for sub in ("fit", "validate", "test", "predict"):
+        assert sub in out.stdout
+    out = _cli("fit", "--help")
+    assert out.returncode == 0 and "--ckpt_path" in out.stdout and "--seed_everything" in out.stdout
+
+
+def test_missing_data_dir_one_line_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "--model", BORING, "--data", DATA, "--data.data_dir", str(tmp_path / "nowhere"),
+              "--trainer.default_root_dir", str(tmp_path), "--trainer.logger", "false"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: data.data_dir: folder not found: {tmp_path / 'nowhere'}"]
+
+
+def test_unknown_config_key(tmp_path, capsys):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(f"model:\n  class_path: {BORING}\ndata:\n  class_path: {DATA}\n  init_args:\n    data_dir: x\n    no_such_option: 3\n")
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "--config", str(cfg)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "'no_such_option' is not accepted" in err[0]
+
+
+def test_missing_config_file(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "--config", str(tmp_path / "nope.yaml")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope.yaml" in err[0]
+
+
+def test_condense_keeps_innermost_reason():
+    from c3f_models.cli import condense_parser_error
+
+    msg = (
+        'Parser key "data":\n  Does not validate against any of the Union subtypes\n  Subtypes: [...]\n'
+        "  Errors:\n    - Problem with given class_path 'a.B':\n        Option 'x' is not accepted\n"
+        "    - Expected a <class 'NoneType'>\n  Given value type: <class 'dict'>\n"
+    )
+    assert condense_parser_error(msg) == 'Parser key "data": Option \'x\' is not accepted (in a.B)'
