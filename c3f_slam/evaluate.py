@@ -1,0 +1,362 @@
+"""Trajectory and reconstruction metrics (SPEC §4.4).
+
+- :func:`associate`: pair estimated and ground-truth frames by timestamp.
+- :func:`umeyama`: least-squares similarity (or rigid) fit between point sets.
+- :func:`ate`: absolute trajectory error after Sim(3) (scale, monocular) or SE(3) alignment.
+- :func:`rpe`: relative pose error over a fixed frame delta.
+- :func:`surface_coverage` / :func:`coverage_mesh`: share of the ground-truth surface that
+  the reconstruction reaches, and a copy of the ground-truth mesh painted seen / unseen.
+- :func:`plot_trajectories`: PNG of estimated vs ground-truth positions (top and side view).
+
+Poses are camera-to-world 4x4 matrices; all lengths are metres (callers print cm or mm);
+rotation errors are reported in degrees where the field name says ``deg``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from c3f_slam.geometry import invert_pose, matrix_to_axis_angle
+from c3f_slam.io.atomic import atomic_write
+
+# ---------------------------------------------------------------------- association
+
+
+def associate(t_est: np.ndarray, t_gt: np.ndarray, max_dt: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one pairs (idx_est, idx_gt) of timestamps closer than ``max_dt`` seconds.
+
+    Exact matches always pair. Otherwise pairs are taken greedily by increasing |dt| (as
+    TUM's ``associate.py``), each stamp used once. Returned sorted by estimated index.
+    """
+    t_est = np.asarray(t_est, dtype=np.float64).ravel()
+    t_gt = np.asarray(t_gt, dtype=np.float64).ravel()
+    if len(t_est) == 0 or len(t_gt) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    order = np.argsort(t_gt)
+    sorted_gt = t_gt[order]
+    cands: list[tuple[float, int, int]] = []
+    for i, t in enumerate(t_est):
+        lo = np.searchsorted(sorted_gt, t - max_dt, side="left")
+        hi = np.searchsorted(sorted_gt, t + max_dt, side="right")
+        for k in range(lo, hi):
+            cands.append((abs(sorted_gt[k] - t), i, int(order[k])))
+    cands.sort()
+    used_e, used_g, pairs = set(), set(), []
+    for dt, i, j in cands:
+        if dt <= max_dt and i not in used_e and j not in used_g:
+            used_e.add(i)
+            used_g.add(j)
+            pairs.append((i, j))
+    pairs.sort()
+    if not pairs:
+        return np.zeros(0, int), np.zeros(0, int)
+    a = np.array(pairs, dtype=int)
+    return a[:, 0], a[:, 1]
+
+
+# ---------------------------------------------------------------------- alignment
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+    """(s, R, t) minimising sum ||dst - (s R src + t)||^2 (Umeyama 1991); s = 1 if not ``with_scale``."""
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
+        raise ValueError(f"need two (N, 3) arrays of equal shape, got {src.shape} and {dst.shape}")
+    if len(src) < 3:
+        raise ValueError(f"alignment needs at least 3 positions, got {len(src)}")
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1
+    R = U @ S @ Vt
+    if with_scale:
+        var_s = (xs**2).sum() / len(src)
+        if var_s <= 0:
+            raise ValueError("source positions are all identical: scale undefined")
+        s = float(np.trace(np.diag(D) @ S) / var_s)
+    else:
+        s = 1.0
+    t = mu_d - s * R @ mu_s
+    return s, R, t
+
+
+def apply_sim3(s: float, R: np.ndarray, t: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Apply x -> s R x + t to camera-to-world poses (rotations rotate, positions move)."""
+    out = np.array(poses, dtype=np.float64, copy=True)
+    out[:, :3, :3] = R @ out[:, :3, :3]
+    out[:, :3, 3] = s * out[:, :3, 3] @ R.T + t
+    return out
+
+
+@dataclass
+class ErrorStats:
+    """Summary of non-negative errors (same unit as the input)."""
+
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    max: float
+    n: int
+
+    @classmethod
+    def of(cls, e: np.ndarray) -> "ErrorStats":
+        e = np.asarray(e, dtype=np.float64)
+        if len(e) == 0:
+            nan = float("nan")
+            return cls(nan, nan, nan, nan, nan, 0)
+        return cls(
+            float(np.sqrt(np.mean(e**2))), float(e.mean()), float(np.median(e)), float(e.std()), float(e.max()), len(e)
+        )
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class ATEResult:
+    """ATE (metres) after alignment ``mode``; ``errors`` per pose, ``aligned`` the moved estimate."""
+
+    mode: str
+    stats: ErrorStats
+    scale: float
+    R: np.ndarray
+    t: np.ndarray
+    errors: np.ndarray
+    aligned: np.ndarray
+
+    def as_dict(self) -> dict:
+        stats = {f"{k}_m": v for k, v in self.stats.as_dict().items() if k != "n"}
+        return {"align": self.mode, "scale": self.scale, **stats, "n": self.stats.n}
+
+
+def ate(est_poses: np.ndarray, gt_poses: np.ndarray, align: str = "sim3") -> ATEResult:
+    """Absolute trajectory error of associated camera-to-world poses (same length).
+
+    ``align``: "sim3" (Umeyama with scale; monocular), "se3" (rigid) or "none".
+    Errors are ||p_gt - (s R p_est + t)|| in metres.
+    """
+    est = np.asarray(est_poses, dtype=np.float64).reshape(-1, 4, 4)
+    gt = np.asarray(gt_poses, dtype=np.float64).reshape(-1, 4, 4)
+    if len(est) != len(gt):
+        raise ValueError(f"{len(est)} estimated poses for {len(gt)} ground-truth poses")
+    if align == "none":
+        s, R, t = 1.0, np.eye(3), np.zeros(3)
+    elif align in ("sim3", "se3"):
+        s, R, t = umeyama(est[:, :3, 3], gt[:, :3, 3], with_scale=align == "sim3")
+    else:
+        raise ValueError(f"align must be sim3, se3 or none, got {align!r}")
+    aligned = apply_sim3(s, R, t, est)
+    err = np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1)
+    return ATEResult(align, ErrorStats.of(err), s, R, t, err, aligned)
+
+
+@dataclass
+class RPEResult:
+    """Relative pose error over ``delta`` frames: translation (m) and rotation (degrees)."""
+
+    delta: int
+    trans: ErrorStats
+    rot_deg: ErrorStats
+
+    def as_dict(self) -> dict:
+        return {
+            "delta": self.delta,
+            **{f"trans_{k}_m": v for k, v in self.trans.as_dict().items() if k != "n"},
+            **{f"rot_{k}_deg": v for k, v in self.rot_deg.as_dict().items() if k != "n"},
+            "n": self.trans.n,
+        }
+
+
+def rpe(est_poses: np.ndarray, gt_poses: np.ndarray, delta: int = 1, scale: float = 1.0) -> RPEResult:
+    """RPE of associated camera-to-world poses: E = inv(Q_i^-1 Q_{i+d}) (P_i^-1 P_{i+d}).
+
+    ``scale`` multiplies estimated translations first (use the Sim(3) scale of :func:`ate`
+    for monocular estimates).
+    """
+    est = np.array(est_poses, dtype=np.float64).reshape(-1, 4, 4)
+    gt = np.asarray(gt_poses, dtype=np.float64).reshape(-1, 4, 4)
+    if len(est) != len(gt):
+        raise ValueError(f"{len(est)} estimated poses for {len(gt)} ground-truth poses")
+    if delta < 1:
+        raise ValueError(f"delta must be >= 1, got {delta}")
+    est[:, :3, 3] *= scale
+    n = len(est) - delta
+    if n <= 0:
+        return RPEResult(delta, ErrorStats.of(np.zeros(0)), ErrorStats.of(np.zeros(0)))
+    d_est = invert_pose(est[:-delta]) @ est[delta:]
+    d_gt = invert_pose(gt[:-delta]) @ gt[delta:]
+    E = invert_pose(d_gt) @ d_est
+    trans = np.linalg.norm(E[:, :3, 3], axis=1)
+    rot = np.degrees([np.linalg.norm(matrix_to_axis_angle(M[:3, :3])) for M in E])
+    return RPEResult(delta, ErrorStats.of(trans), ErrorStats.of(np.asarray(rot)))
+
+
+def registered_share(n_registered: int, n_frames: int) -> float:
+    """Share of input frames that ended up registered (in the main component), in [0, 1]."""
+    if n_frames <= 0:
+        return 0.0
+    return float(min(max(n_registered, 0), n_frames) / n_frames)
+
+
+def evaluate_trajectory(
+    est_stamps: np.ndarray,
+    est_poses: np.ndarray,
+    gt_stamps: np.ndarray,
+    gt_poses: np.ndarray,
+    n_frames: int | None = None,
+    max_dt: float = 0.02,
+    rpe_delta: int = 1,
+) -> dict:
+    """Associate, then ATE (Sim(3) and SE(3)), RPE (after the Sim(3) scale), registered share.
+
+    ``n_frames``: number of input frames (default: number of ground-truth poses). Returns a
+    JSON-ready dict; lengths in metres, rotations in degrees.
+    """
+    ie, ig = associate(est_stamps, gt_stamps, max_dt)
+    total = len(gt_stamps) if n_frames is None else n_frames
+    out: dict = {"n_associated": int(len(ie)), "n_estimated": int(len(est_stamps)),
+                 "registered_share": registered_share(len(est_stamps), total)}
+    if len(ie) < 3:
+        out["error"] = f"only {len(ie)} poses associated with the ground truth (need 3)"
+        return out
+    E, G = np.asarray(est_poses)[ie], np.asarray(gt_poses)[ig]
+    a_sim3, a_se3 = ate(E, G, "sim3"), ate(E, G, "se3")
+    out["ate_sim3"] = a_sim3.as_dict()
+    out["ate_se3"] = a_se3.as_dict()
+    out["rpe"] = rpe(E, G, rpe_delta, scale=a_sim3.scale).as_dict()
+    out["gt_length_m"] = float(np.linalg.norm(np.diff(G[:, :3, 3], axis=0), axis=1).sum())
+    return out
+
+
+# ---------------------------------------------------------------------- plots
+
+
+def plot_trajectories(path: str | Path, gt_positions: np.ndarray, est_positions: np.ndarray | None = None,
+                      title: str = "") -> None:
+    """Write a PNG with a top view (x vs z) and a side view (z vs -y) of the trajectories.
+
+    Positions are (N, 3) world coordinates in metres (plotted in cm); the world frame is
+    the first camera's (x right, y down, z forward), so "up" in the side view is -y.
+    Give the estimate already aligned (``ATEResult.aligned[:, :3, 3]``).
+    """
+    from matplotlib.figure import Figure  # no pyplot: renders with Agg, no display needed
+
+    fig = Figure(figsize=(10, 4.5), dpi=100)
+    views = (("top view", 0, 2, 1.0, "x [cm]", "z [cm]"), ("side view", 2, 1, -1.0, "z [cm]", "-y (up) [cm]"))
+    for k, (name, a, b, sb, la, lb) in enumerate(views):
+        ax = fig.add_subplot(1, 2, k + 1)
+        for pos, label, style in ((gt_positions, "ground truth", "k-"), (est_positions, "estimate", "r-")):
+            if pos is None or len(pos) == 0:
+                continue
+            p = np.asarray(pos) * 100.0
+            ax.plot(p[:, a], sb * p[:, b], style, lw=1.2, label=label)
+            ax.plot(p[0, a], sb * p[0, b], style[0] + "o", ms=4)
+        ax.set_title(name)
+        ax.set_xlabel(la)
+        ax.set_ylabel(lb)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="best", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_write(Path(path), suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+
+
+# ---------------------------------------------------------------------- coverage
+
+SEEN_COLOUR = (0.55, 0.75, 0.55)  # grey-green
+UNSEEN_COLOUR = (0.9, 0.1, 0.1)  # red
+
+
+def sample_surface(mesh: o3d.geometry.TriangleMesh, n: int, seed: int = 0) -> tuple[np.ndarray, float]:
+    """(n, 3) points uniformly distributed over the mesh area (deterministic); total area (m^2)."""
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    F = np.asarray(mesh.triangles, dtype=np.int64)
+    if len(F) == 0:
+        raise ValueError("ground-truth mesh has no triangles")
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    areas = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    total = float(areas.sum())
+    if total <= 0:
+        raise ValueError("ground-truth mesh has zero area")
+    rng = np.random.default_rng(seed)
+    tri = rng.choice(len(F), size=n, p=areas / total)
+    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
+    pts = (1 - r1)[:, None] * a[tri] + (r1 * (1 - r2))[:, None] * b[tri] + (r1 * r2)[:, None] * c[tri]
+    return pts, total
+
+
+def distance_to_mesh(points: np.ndarray, mesh: o3d.geometry.TriangleMesh) -> np.ndarray:
+    """Unsigned distance (m) from each point to the nearest triangle; inf for an empty mesh."""
+    pts = np.asarray(points, dtype=np.float32)
+    if len(mesh.triangles) == 0:
+        return np.full(len(pts), np.inf)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return scene.compute_distance(o3d.core.Tensor(pts)).numpy().astype(np.float64)
+
+
+@dataclass
+class CoverageResult:
+    """Share of the ground-truth area within ``threshold`` metres of the reconstruction."""
+
+    share: float
+    threshold: float
+    gt_area_m2: float
+    n_samples: int
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def surface_coverage(
+    gt_mesh: o3d.geometry.TriangleMesh,
+    recon_mesh: o3d.geometry.TriangleMesh,
+    threshold: float = 0.0025,
+    n_samples: int = 100_000,
+    seed: int = 0,
+) -> CoverageResult:
+    """Coverage: share of points sampled uniformly on the ground-truth surface that lie within
+    ``threshold`` metres (default 2.5 mm, about 2.5 voxels of the colon TSDF) of the
+    reconstructed mesh. Both meshes in the same (ground-truth) frame: align the
+    reconstruction first (e.g. with the ATE's Sim(3))."""
+    pts, area = sample_surface(gt_mesh, n_samples, seed)
+    d = distance_to_mesh(pts, recon_mesh)
+    return CoverageResult(float(np.mean(d <= threshold)), float(threshold), area, int(n_samples))
+
+
+def coverage_mesh(
+    gt_mesh: o3d.geometry.TriangleMesh,
+    recon_mesh: o3d.geometry.TriangleMesh,
+    threshold: float = 0.0025,
+    max_edge: float | None = None,
+) -> o3d.geometry.TriangleMesh:
+    """Copy of the ground-truth mesh with vertices painted seen (grey-green) or unseen (red).
+
+    A vertex is seen when it lies within ``threshold`` of the reconstruction. With
+    ``max_edge`` (metres) the copy is midpoint-subdivided until no edge is longer (at most
+    4 rounds), so that the painting is finer than the ground-truth tessellation.
+    """
+    mesh = o3d.geometry.TriangleMesh(gt_mesh)
+    if max_edge is not None:
+        for _ in range(4):
+            V, F = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+            e = np.linalg.norm(V[F] - V[np.roll(F, 1, axis=1)], axis=2)
+            if len(F) == 0 or e.max() <= max_edge:
+                break
+            mesh = mesh.subdivide_midpoint(1)
+    d = distance_to_mesh(np.asarray(mesh.vertices), recon_mesh)
+    colours = np.where((d <= threshold)[:, None], np.array(SEEN_COLOUR), np.array(UNSEEN_COLOUR))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(colours)
+    return mesh

@@ -1,0 +1,224 @@
+"""Run outputs of the SLAM runtime, every file written atomically.
+
+Layout of an output folder (:class:`RunOutputs`)::
+
+    OUT/
+      trajectory.txt        TUM, camera-to-world, metres, registered frames only
+      summary.json          settings, counts, timings, metrics (JSON; NaN written as null)
+      keyframe_graph.json   keyframes (frame, timestamp, position, fragment, lone) and edges
+      keyframe_graph.png    top view (x vs z, cm) of the keyframe graph
+      mesh.ply              fused mesh (written with c3f_slam.fusion.write_mesh)
+      trajectory.png        estimate vs ground truth (c3f_slam.evaluate.plot_trajectories)
+      coverage.ply          ground-truth mesh painted seen / unseen
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from c3f_slam.io.atomic import atomic_write, atomic_write_text
+from c3f_slam.io.tum import write_tum
+from c3f_slam.posegraph import PoseGraph
+
+
+def to_jsonable(obj):
+    """Numpy scalars/arrays to Python, NaN/inf to None, Paths to str, recursively."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def write_json(path: str | Path, data: dict) -> None:
+    """Write ``data`` as indented JSON atomically (strict JSON: no NaN)."""
+    atomic_write_text(path, json.dumps(to_jsonable(data), indent=2, allow_nan=False) + "\n")
+
+
+def write_trajectory(
+    path: str | Path, stamps: np.ndarray, poses: np.ndarray, registered: np.ndarray | None = None
+) -> int:
+    """Write the registered camera-to-world poses as TUM; returns the number of lines written.
+
+    ``registered``: boolean mask over frames (default: every pose that is finite).
+    """
+    stamps = np.asarray(stamps, dtype=np.float64)
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    if len(stamps) != len(poses):
+        raise ValueError(f"{len(stamps)} timestamps for {len(poses)} poses")
+    mask = np.all(np.isfinite(poses), axis=(1, 2))
+    if registered is not None:
+        mask &= np.asarray(registered, dtype=bool)
+    write_tum(path, stamps[mask], poses[mask])
+    return int(mask.sum())
+
+
+@dataclass
+class GraphNode:
+    """A keyframe: node id, its frame index and timestamp, world position (m), fragment, lone flag."""
+
+    id: int
+    frame: int
+    timestamp: float
+    position: list[float]
+    fragment: int | None = None
+    lone: bool = False
+
+
+@dataclass
+class GraphEdge:
+    """Constraint between keyframe nodes i and j (p_i = T_ij p_j)."""
+
+    i: int
+    j: int
+    kind: str = "loop"
+    n_matches: int = 0
+    pruned: bool = False
+    rms_m: float | None = None
+
+
+@dataclass
+class KeyframeGraph:
+    nodes: list[GraphNode] = field(default_factory=list)
+    edges: list[GraphEdge] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "convention": "positions are camera centres in the world frame (metres); edge (i, j) "
+            "constrains p_i = T_ij p_j",
+            "nodes": [asdict(n) for n in self.nodes],
+            "edges": [asdict(e) for e in self.edges],
+        }
+
+    @classmethod
+    def from_posegraph(
+        cls,
+        graph: PoseGraph,
+        frames: list[int],
+        timestamps: list[float] | None = None,
+        lone: set[int] | None = None,
+        fragments: list[int] | None = None,
+    ) -> "KeyframeGraph":
+        """Nodes and edges of a (global) :class:`PoseGraph`; ``frames[k]`` is node k's frame."""
+        if len(frames) != graph.n_nodes:
+            raise ValueError(f"{len(frames)} frame ids for {graph.n_nodes} nodes")
+        P = graph.poses
+        rms = graph.edge_rms()
+        nodes = [
+            GraphNode(
+                k,
+                int(frames[k]),
+                float(timestamps[k]) if timestamps is not None else float(frames[k]),
+                [float(x) for x in P[k, :3, 3]],
+                None if fragments is None else int(fragments[k]),
+                bool(lone and k in lone),
+            )
+            for k in range(graph.n_nodes)
+        ]
+        edges = [
+            GraphEdge(e.i, e.j, e.kind, int(round(e.n_correspondences)), e.pruned, float(rms[k]))
+            for k, e in enumerate(graph.edges)
+        ]
+        return cls(nodes, edges)
+
+
+def draw_keyframe_graph(path: str | Path, graph: KeyframeGraph, title: str = "keyframe graph") -> None:
+    """PNG top view (x vs z, cm) of keyframes and their edges, drawn with matplotlib only.
+
+    Odometry edges grey, loop edges blue, pruned edges dashed red; lone keyframes hollow.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 6), dpi=100)
+    ax = fig.add_subplot(1, 1, 1)
+    pos = {n.id: np.asarray(n.position) * 100.0 for n in graph.nodes}
+    styles = {"odometry": dict(color="0.5", lw=1.0, ls="-"), "loop": dict(color="tab:blue", lw=0.8, ls="-")}
+    for e in graph.edges:
+        if e.i not in pos or e.j not in pos:
+            continue
+        st = dict(color="tab:red", lw=0.8, ls="--") if e.pruned else styles.get(e.kind, styles["loop"])
+        a, b = pos[e.i], pos[e.j]
+        ax.plot([a[0], b[0]], [a[2], b[2]], zorder=1, **st)
+    if graph.nodes:
+        P = np.array([pos[n.id] for n in graph.nodes])
+        lone = np.array([n.lone for n in graph.nodes])
+        ax.scatter(P[~lone, 0], P[~lone, 2], s=18, c="k", zorder=2, label="keyframe")
+        if lone.any():
+            ax.scatter(P[lone, 0], P[lone, 2], s=24, facecolors="none", edgecolors="tab:orange", zorder=2,
+                       label="lone keyframe")
+        if len(graph.nodes) <= 60:
+            for n in graph.nodes:
+                ax.annotate(str(n.frame), (pos[n.id][0], pos[n.id][2]), fontsize=6, xytext=(2, 2),
+                            textcoords="offset points")
+        ax.legend(loc="best", fontsize=8)
+    ax.set_xlabel("x [cm]")
+    ax.set_ylabel("z [cm]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, lw=0.3)
+    ax.set_title(f"{title}: {len(graph.nodes)} keyframes, {len(graph.edges)} edges, "
+                 f"{sum(e.pruned for e in graph.edges)} pruned", fontsize=9)
+    fig.tight_layout()
+    with atomic_write(Path(path), suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+
+
+class RunOutputs:
+    """The files of one runtime run in ``root`` (created on first write)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    @property
+    def trajectory(self) -> Path:
+        return self.root / "trajectory.txt"
+
+    @property
+    def summary(self) -> Path:
+        return self.root / "summary.json"
+
+    @property
+    def graph_json(self) -> Path:
+        return self.root / "keyframe_graph.json"
+
+    @property
+    def graph_png(self) -> Path:
+        return self.root / "keyframe_graph.png"
+
+    @property
+    def mesh(self) -> Path:
+        return self.root / "mesh.ply"
+
+    @property
+    def trajectory_png(self) -> Path:
+        return self.root / "trajectory.png"
+
+    @property
+    def coverage_mesh(self) -> Path:
+        return self.root / "coverage.ply"
+
+    def write_trajectory(self, stamps: np.ndarray, poses: np.ndarray, registered: np.ndarray | None = None) -> int:
+        return write_trajectory(self.trajectory, stamps, poses, registered)
+
+    def write_summary(self, summary: dict) -> None:
+        write_json(self.summary, summary)
+
+    def write_graph(self, graph: KeyframeGraph, draw: bool = True) -> None:
+        write_json(self.graph_json, graph.to_dict())
+        if draw:
+            draw_keyframe_graph(self.graph_png, graph)

@@ -1,0 +1,198 @@
+"""Frame streaming: one frame at a time from a sequence folder or a video file.
+
+A 54,000-frame colonoscopy video never has to fit in memory: :class:`FrameStream` reads
+lazily (OpenCV ``VideoCapture`` for videos, :class:`c3f_slam.io.Sequence` for the project
+layout) and yields :class:`StreamFrame` items (index, timestamp, RGB uint8, depth in metres or
+None, status). Black frames (mean luma < ``black_threshold``) and saturated frames (at least
+``saturated_share`` of pixels with luma >= ``saturated_threshold``) are flagged, not
+dropped, so the runtime can skip and report them.
+
+Timestamps (seconds): a video gives index / fps (the container's fps, else ``fps``); a sequence
+folder gives the poses.txt timestamps when present, else index / ``fps`` (``fps`` None: the
+frame index itself).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from itertools import islice
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from c3f_slam.camera import PinholeCamera
+from c3f_slam.errors import InputError
+from c3f_slam.io.sequence import Sequence
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".m4v", ".wmv", ".webm")
+
+OK, BLACK, SATURATED = "ok", "black", "saturated"
+
+
+@dataclass(frozen=True)
+class StreamFrame:
+    """One frame: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres or None,
+    ``status`` "ok" / "black" / "saturated", ``mean_luma`` in 0..255."""
+
+    index: int
+    timestamp: float
+    rgb: np.ndarray
+    depth: np.ndarray | None
+    status: str
+    mean_luma: float
+
+    @property
+    def usable(self) -> bool:
+        return self.status == OK
+
+
+def frame_status(
+    rgb: np.ndarray, black_threshold: float = 5.0, saturated_threshold: float = 250.0, saturated_share: float = 0.9
+) -> tuple[str, float]:
+    """("ok" | "black" | "saturated", mean luma 0..255) of an RGB uint8 frame."""
+    luma = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    mean = float(luma.mean())
+    if mean < black_threshold:
+        return BLACK, mean
+    if float(np.mean(luma >= saturated_threshold)) >= saturated_share:
+        return SATURATED, mean
+    return OK, mean
+
+
+def _load_camera(camera: PinholeCamera | str | Path | None, source: Path) -> PinholeCamera:
+    if isinstance(camera, PinholeCamera):
+        return camera
+    if camera is not None:
+        return PinholeCamera.from_json(camera)
+    beside = source.parent / "camera.json"
+    if beside.is_file():
+        return PinholeCamera.from_json(beside)
+    raise InputError(f"{source}: video needs intrinsics: pass a camera.json (none found at {beside})")
+
+
+class FrameStream:
+    """Iterate frames of ``source`` (a sequence folder or a video file) lazily.
+
+    ``camera``: intrinsics (object or camera.json path) for a video; default camera.json
+    beside the video. A sequence folder always uses its own camera.json. Frames
+    ``start, start + step, ...`` are yielded, at most ``max_frames``; ``index`` is the frame
+    number in the source. ``use_depth``: read depth/ when the folder has it.
+    """
+
+    def __init__(
+        self,
+        source: str | Path,
+        camera: PinholeCamera | str | Path | None = None,
+        use_depth: bool = True,
+        start: int = 0,
+        step: int = 1,
+        max_frames: int | None = None,
+        fps: float | None = None,
+        black_threshold: float = 5.0,
+        saturated_threshold: float = 250.0,
+        saturated_share: float = 0.9,
+    ) -> None:
+        self.source = Path(source)
+        if start < 0 or step < 1 or (max_frames is not None and max_frames < 0):
+            raise InputError(f"bad frame range: start={start} step={step} max_frames={max_frames}")
+        if fps is not None and not fps > 0:
+            raise InputError(f"fps must be positive, got {fps}")
+        self.start, self.step, self.max_frames, self.fps = start, step, max_frames, fps
+        self.use_depth = use_depth
+        self._thresholds = (black_threshold, saturated_threshold, saturated_share)
+        self.sequence: Sequence | None = None
+        if not self.source.exists():
+            raise InputError(f"{self.source}: no such file or folder")
+        if self.source.is_dir():
+            self.sequence = Sequence(self.source)
+            self.camera = self.sequence.camera
+            self.is_video = False
+        else:
+            if self.source.suffix.lower() not in VIDEO_SUFFIXES:
+                raise InputError(
+                    f"{self.source}: not a sequence folder or a video ({', '.join(VIDEO_SUFFIXES)})"
+                )
+            self.camera = _load_camera(camera, self.source)
+            self.is_video = True
+            self._probe_video()
+
+    # ------------------------------------------------------------------ video
+    def _open(self) -> cv2.VideoCapture:
+        cap = cv2.VideoCapture(str(self.source))
+        if not cap.isOpened():
+            cap.release()
+            raise InputError(f"{self.source}: video does not open (unsupported codec or corrupt file)")
+        return cap
+
+    def _probe_video(self) -> None:
+        """Open once to check that the first frame decodes and matches the intrinsics."""
+        cap = self._open()
+        try:
+            ok, bgr = cap.read()
+            if not ok or bgr is None:
+                raise InputError(f"{self.source}: no frame could be decoded")
+            self.camera.check_image(bgr.shape, str(self.source))
+            container_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+            self.video_fps = container_fps if container_fps > 0 else (self.fps or 30.0)
+            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+            self._n_source = n if n > 0 else None
+        finally:
+            cap.release()
+
+    def _iter_video(self) -> Iterator[tuple[int, float, np.ndarray, None]]:
+        cap = self._open()
+        try:
+            index = 0
+            while True:
+                if index < self.start or (index - self.start) % self.step:
+                    if not cap.grab():  # skip without decoding
+                        return
+                    index += 1
+                    continue
+                ok, bgr = cap.read()
+                if not ok or bgr is None:
+                    return
+                self.camera.check_image(bgr.shape, f"{self.source} frame {index}")
+                yield index, index / self.video_fps, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), None
+                index += 1
+        finally:
+            cap.release()
+
+    # ------------------------------------------------------------------ folder
+    def _iter_folder(self) -> Iterator[tuple[int, float, np.ndarray, np.ndarray | None]]:
+        seq = self.sequence
+        assert seq is not None
+        for index in range(self.start, len(seq), self.step):
+            if seq.timestamps is not None:
+                stamp = float(seq.timestamps[index])
+            else:
+                stamp = index / self.fps if self.fps else float(index)
+            depth = seq.read_depth(index) if (self.use_depth and seq.has_depth) else None
+            yield index, stamp, seq.read_rgb(index), depth
+
+    # ------------------------------------------------------------------ public
+    @property
+    def n_source_frames(self) -> int | None:
+        """Frames in the source (a video's container count may be approximate or None)."""
+        return len(self.sequence) if self.sequence is not None else self._n_source
+
+    def __len__(self) -> int:
+        """Expected number of yielded frames (from the container's count for a video)."""
+        n = self.n_source_frames or 0
+        k = max(0, -(-(n - self.start) // self.step))
+        return k if self.max_frames is None else min(k, self.max_frames)
+
+    def __iter__(self) -> Iterator[StreamFrame]:
+        raw = self._iter_video() if self.is_video else self._iter_folder()
+        if self.max_frames is not None:
+            raw = islice(raw, self.max_frames)
+        for index, stamp, rgb, depth in raw:
+            status, mean = frame_status(rgb, *self._thresholds)
+            yield StreamFrame(index, stamp, rgb, depth, status, mean)
+
+
+def open_stream(source: str | Path, **kwargs) -> FrameStream:
+    """Shortcut for :class:`FrameStream`; raises InputError on a bad source."""
+    return FrameStream(source, **kwargs)
