@@ -11,6 +11,13 @@ from tests.scenes import plane_sequence
 
 os.environ.setdefault("PYTHONHASHSEED", "0")
 
+try:  # one intra-op thread per test process: with pytest -n 2 on 2 cores, more threads thrash
+    import torch
+
+    torch.set_num_threads(1)
+except ImportError:  # the runtime-only install has no torch
+    pass
+
 
 @pytest.fixture(scope="session")
 def plane_dataset(tmp_path_factory) -> Path:

@@ -1,0 +1,121 @@
+"""ResNet encoders for DepthNet and PoseNet (torchvision architectures, built with ``weights=None``).
+
+Nothing is downloaded: ImageNet weights come only from a local file holding a torchvision
+ResNet ``state_dict`` (``torch.save(torchvision.models.resnet18(weights=...).state_dict(), path)``).
+Inputs are RGB in [0, 1]; the encoder applies the ImageNet normalisation itself.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from torch import nn
+from torchvision import models
+
+from c3f_models.depth.dcn import deformable_stages
+from c3f_slam.errors import InputError
+
+RESNETS = {18: models.resnet18, 34: models.resnet34, 50: models.resnet50}
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+def build_resnet(num_layers: int, option: str = "encoder_layers") -> models.ResNet:
+    """An untrained torchvision ResNet with 18, 34 or 50 layers."""
+    if num_layers not in RESNETS:
+        raise InputError(f"{option} must be one of {sorted(RESNETS)}, got {num_layers}")
+    return RESNETS[num_layers](weights=None)
+
+
+def read_state_dict(path: str | Path, option: str) -> dict[str, torch.Tensor]:
+    """Read a state dict (plain, or under a ``state_dict`` key) from a local file; InputError if unusable."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{option}: file not found: {path}")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # pickle, zip or format errors all mean "not a weights file"
+        raise InputError(f"{option}: {path} is not a torch weights file ({type(exc).__name__})") from None
+    if isinstance(state, dict) and isinstance(state.get("state_dict"), dict):
+        state = state["state_dict"]
+    if not isinstance(state, dict) or not state or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise InputError(f"{option}: {path} does not hold a state dict (name -> tensor)")
+    return dict(state)
+
+
+def load_pretrained(resnet: models.ResNet, path: str | Path, num_input_images: int = 1,
+                    option: str = "pretrained_path") -> None:
+    """Load a torchvision ResNet state dict into ``resnet`` (before any DCN swap).
+
+    For a multi-frame input (PoseNet) the first conv's RGB filters are repeated for every
+    frame and divided by the number of frames (Monodepth2). The classifier (``fc.*``) is
+    ignored. Missing, unexpected or mis-shaped keys raise an InputError naming the file.
+    """
+    state = read_state_dict(path, option)
+    state = {k: v for k, v in state.items() if not k.startswith("fc.")}
+    if num_input_images > 1 and "conv1.weight" in state and state["conv1.weight"].shape[1] == 3:
+        w = state["conv1.weight"]
+        state["conv1.weight"] = torch.cat([w] * num_input_images, dim=1) / num_input_images
+    target = {k: v for k, v in resnet.state_dict().items() if not k.startswith("fc.")}
+    missing = [k for k in target if k not in state]
+    unexpected = [k for k in state if k not in target]
+    wrong = [k for k in target if k in state and state[k].shape != target[k].shape]
+    if missing or unexpected or wrong:
+        problems = []
+        for label, keys in (("missing", missing), ("unexpected", unexpected), ("wrong-shaped", wrong)):
+            if keys:
+                problems.append(f"{len(keys)} {label} keys (e.g. {keys[0]})")
+        layers = sum(len(getattr(resnet, f"layer{i}")) for i in range(1, 5))
+        raise InputError(
+            f"{option}: {path} does not fit this ResNet ({layers} residual blocks): " + ", ".join(problems)
+        )
+    resnet.load_state_dict(state, strict=False)
+
+
+class ResnetEncoder(nn.Module):
+    """ResNet feature pyramid: 5 maps at strides 2, 4, 8, 16, 32.
+
+    Args:
+        num_layers: 18, 34 or 50.
+        dcn: deformable 3x3 convs in stages conv3-conv5 (``layer2``-``layer4``).
+        num_input_images: frames stacked along channels (2 for PoseNet).
+        pretrained_path: local torchvision ResNet state dict (ImageNet), or None (from scratch).
+        option: the config option named in error messages.
+    """
+
+    def __init__(
+        self,
+        num_layers: int = 18,
+        dcn: bool = False,
+        num_input_images: int = 1,
+        pretrained_path: str | Path | None = None,
+        option: str = "pretrained_path",
+    ) -> None:
+        super().__init__()
+        net = build_resnet(num_layers)
+        if num_input_images > 1:
+            net.conv1 = nn.Conv2d(3 * num_input_images, 64, kernel_size=7, stride=2, padding=3, bias=False)
+            nn.init.kaiming_normal_(net.conv1.weight, mode="fan_out", nonlinearity="relu")
+        if pretrained_path:
+            load_pretrained(net, pretrained_path, num_input_images, option)
+        if dcn:
+            deformable_stages(net)
+        self.conv1, self.bn1, self.relu, self.maxpool = net.conv1, net.bn1, net.relu, net.maxpool
+        self.layer1, self.layer2, self.layer3, self.layer4 = net.layer1, net.layer2, net.layer3, net.layer4
+        expansion = 4 if num_layers >= 50 else 1
+        self.num_ch_enc = [64, 64 * expansion, 128 * expansion, 256 * expansion, 512 * expansion]
+        mean = torch.tensor(IMAGENET_MEAN * num_input_images).view(1, -1, 1, 1)
+        std = torch.tensor(IMAGENET_STD * num_input_images).view(1, -1, 1, 1)
+        self.register_buffer("mean", mean, persistent=False)
+        self.register_buffer("std", std, persistent=False)
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """(B, 3*n, H, W) RGB in [0, 1] -> list of 5 feature maps (fine to coarse)."""
+        x = (x - self.mean) / self.std
+        f0 = self.relu(self.bn1(self.conv1(x)))
+        f1 = self.layer1(self.maxpool(f0))
+        f2 = self.layer2(f1)
+        f3 = self.layer3(f2)
+        f4 = self.layer4(f3)
+        return [f0, f1, f2, f3, f4]
