@@ -26,3 +26,22 @@ def plane_dataset(tmp_path_factory) -> Path:
     for k in range(3):
         plane_sequence(root / f"plane{k}", frames=6, size=48, seed=k)
     return root
+
+
+@pytest.fixture(scope="session")
+def tiny_sequence(tmp_path_factory) -> Path:
+    """A tiny simulated colon sequence (8 frames, 64x64, depth, poses, mesh): the simulator's fixture."""
+    from datamodules.synthetic.fixture import make_tiny_sequence
+
+    return make_tiny_sequence(tmp_path_factory.mktemp("sim") / "tiny", frames=8, size=64, seed=0)
+
+
+@pytest.fixture(scope="session")
+def sim_dataset(tmp_path_factory) -> Path:
+    """A data folder of three tiny simulated sequences with different seeds (for split tests)."""
+    from datamodules.synthetic.fixture import make_tiny_sequence
+
+    root = tmp_path_factory.mktemp("sim_data")
+    for k in range(3):
+        make_tiny_sequence(root / f"sim{k}", frames=6, size=48, seed=k)
+    return root

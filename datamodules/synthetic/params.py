@@ -1,0 +1,453 @@
+"""Every parameter of the simulator, its validation, and the presets of the paper's eight sequences.
+
+Units: metres for lengths, degrees for angles given by the user (converted to radians in
+the code that uses them), fractions in [0, 1] for appearance strengths. All randomness
+comes from ``seed`` (see :mod:`datamodules.synthetic.noise`), so a seed plus these
+parameters fixes a sequence byte for byte.
+
+The paper's appendix table (Unity simulator sliders, mostly 0..100) is kept verbatim in
+:data:`PAPER_TABLE`; :func:`paper_preset` maps those slider values to the physical
+parameters below (the mapping is this project's choice and is documented next to it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from c3f_slam.errors import InputError
+
+PATH_KINDS = ("A", "B", "random")
+LAYOUTS = ("c3f", "uts", "simcol", "c3vd")  # output layouts (c3f = the project's own, SPEC §5.2)
+PATH_ALIASES = {"a": "A", "b": "B", "random": "random", "rp": "random"}
+
+
+@dataclass
+class ColonParams:
+    """Geometry of the colon tube (metres unless stated)."""
+
+    length: float = 1.25  # centreline length
+    radius: float = 0.025  # mean lumen radius
+    radius_variation: float = 0.004  # slow radius changes: radius +- radius_variation
+    tortuosity: float = 0.6  # 0 straight .. 1 strongly bent centreline
+    min_bend_radius: float = 0.07  # smallest radius of curvature of the centreline
+    fold_spacing: float = 0.035  # mean axial distance between haustral folds
+    fold_height: float = 0.38  # fold height as a fraction of the local radius
+    fold_width: float = 0.0025  # axial Gaussian sigma of a fold
+    fold_coverage: float = 0.85  # probability that each of a fold's three crescents exists
+    haustra_bulge: float = 0.08  # outward bulge between folds, fraction of radius
+    taenia_depth: float = 0.06  # inward dip along the three taeniae, fraction of radius
+    relief: float = 0.0004  # amplitude (std) of the random surface relief of the mesh
+    polyps: int = 2  # number of sessile polyps
+    polyp_radius: float = 0.004  # mean polyp base radius
+    ring_spacing: float = 0.001  # mesh resolution along the axis
+    ring_vertices: int = 144  # mesh vertices around the circumference
+
+
+@dataclass
+class AppearanceParams:
+    """Mucosa, vessels, light and sensor. Angles in degrees."""
+
+    hue: float = 6.0  # mucosa hue, degrees (0 red, 30 orange)
+    saturation: float = 0.6  # mucosa HSV saturation, 0..1
+    value: float = 0.9  # mucosa HSV value (albedo brightness), 0..1
+    wetness: float = 0.7  # specular strength and sharpness, 0..1
+    vessel_size: float = 0.6  # 0..1; largest vessel width = 0.15 + 0.6 * vessel_size mm
+    vessel_opacity: float = 0.3  # 0..1
+    vessel_density: float = 1.0  # relative number of vessel trees per area
+    light_angle: float = 150.0  # full cone angle of the light, degrees
+    light_intensity: float = 0.74  # relative power of the light
+    light_offset: float = 0.0  # distance of the light from the lens, m (0 = co-located)
+    shadows: bool = True  # cast shadow rays (only matters when light_offset > 0)
+    auto_exposure: float = 0.85  # 0 fixed exposure .. 1 full automatic light control
+    micro_relief: float = 0.25  # strength of the fine bump map that breaks highlights up, 0..1
+    vignette: float = 0.7  # 0..1
+    bloom: float = 0.3  # 0..1
+    grain: float = 0.0  # sensor noise level; noise std = 0.01 * grain (of full range)
+    motion_blur: float = 0.0  # 0..1: fraction of the frame interval the shutter is open
+    texel: float = 0.00025  # texture atlas resolution, m per texel
+
+
+@dataclass
+class CameraParams:
+    """Pinhole camera; ``fov`` is the horizontal field of view in degrees."""
+
+    width: int = 512
+    height: int = 512
+    fov: float = 110.0
+    depth_scale: float = 10000.0  # depth PNG units per metre
+
+
+@dataclass
+class PathParams:
+    """Camera trajectory. Event rates are expected events per 1000 frames."""
+
+    kind: str = "A"  # "A" insertion, "B" withdrawal, "random" (the paper's RP)
+    frames: int = 300
+    fps: float = 30.0  # only for the timestamps in poses.txt
+    max_step: float = 0.005  # largest base step per frame, m (bursts go faster)
+    coverage: float = 1.0  # fraction of the usable colon length to traverse
+    loop: bool = False  # forward then backward over the same stretch (loop closures)
+    roll: float = 25.0  # amplitude of the slow roll, degrees
+    lateral: float = 0.35  # wandering off-axis offset, fraction of the free radius
+    closeups: float = 3.0  # looks at the wall at close range
+    bursts: float = 2.0  # fast-motion bursts
+    occlusions: float = 2.0  # approaches that fill the view with a fold
+    roll_events: float = 3.0  # quick roll turns
+    burst_factor: float = 4.0  # speed multiplier during a burst
+    min_wall_distance: float = 0.004  # the camera keeps at least this distance to the mesh, m
+
+
+@dataclass
+class SimParams:
+    """All parameters of one simulated sequence."""
+
+    seed: int = 0
+    preset: str = "default"
+    colon: ColonParams = field(default_factory=ColonParams)
+    appearance: AppearanceParams = field(default_factory=AppearanceParams)
+    camera: CameraParams = field(default_factory=CameraParams)
+    path: PathParams = field(default_factory=PathParams)
+
+    # ------------------------------------------------------------------ (de)serialisation
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "SimParams":
+        """Inverse of :meth:`to_dict`; unknown keys are an error."""
+        p = cls()
+        for key, value in data.items():
+            if key in _GROUPS:
+                if not isinstance(value, dict):
+                    raise InputError(f"parameter group {key!r} must be a mapping")
+                for k, v in value.items():
+                    set_param(p, f"{key}.{k}", v)
+            elif key in ("seed", "preset"):
+                set_param(p, key, value)
+            else:
+                raise InputError(f"unknown parameter {key!r}")
+        return p
+
+    def copy(self) -> "SimParams":
+        return SimParams.from_dict(self.to_dict())
+
+    # ------------------------------------------------------------------ validation
+    def validate(self) -> None:
+        """Raise :class:`InputError` (one line naming the option) on any bad value."""
+        _validate(self)
+
+
+_GROUPS = ("colon", "appearance", "camera", "path")
+
+# short names accepted by overrides (CLI flags, fixture keywords)
+ALIASES = {
+    "length": "colon.length",
+    "radius": "colon.radius",
+    "fov": "camera.fov",
+    "frames": "path.frames",
+    "path": "path.kind",
+    "loop": "path.loop",
+}
+
+
+def _resolve(name: str) -> tuple[str | None, str]:
+    """'colon.length' / 'length' / 'fold_height' -> (group or None, field)."""
+    name = ALIASES.get(name, name)
+    if name in ("seed", "preset"):
+        return None, name
+    if "." in name:
+        group, key = name.split(".", 1)
+        if group not in _GROUPS:
+            raise InputError(f"unknown parameter {name!r}")
+        names = {f.name for f in fields(_GROUP_TYPES[group])}
+        if key not in names:
+            raise InputError(f"unknown parameter {name!r}")
+        return group, key
+    hits = [g for g in _GROUPS if name in {f.name for f in fields(_GROUP_TYPES[g])}]
+    if not hits:
+        raise InputError(f"unknown parameter {name!r}")
+    if len(hits) > 1:
+        raise InputError(f"ambiguous parameter {name!r}: say {' or '.join(h + '.' + name for h in hits)}")
+    return hits[0], name
+
+
+_GROUP_TYPES = {
+    "colon": ColonParams,
+    "appearance": AppearanceParams,
+    "camera": CameraParams,
+    "path": PathParams,
+}
+
+
+def _convert(value: Any, typ: Any, name: str) -> Any:
+    """Convert ``value`` (possibly a CLI string) to the field type ``typ``."""
+    typ = {"float": float, "int": int, "bool": bool, "str": str}.get(typ, typ) if isinstance(typ, str) else typ
+    try:
+        if typ is bool:
+            if isinstance(value, str):
+                low = value.strip().lower()
+                if low in ("1", "true", "yes", "on"):
+                    return True
+                if low in ("0", "false", "no", "off"):
+                    return False
+                raise ValueError(value)
+            return bool(value)
+        if typ is int:
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError(value)
+            if isinstance(value, bool):
+                raise ValueError(value)
+            return int(float(value)) if isinstance(value, str) else int(value)
+        if typ is float:
+            if isinstance(value, bool):
+                raise ValueError(value)
+            return float(value)
+        return str(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: cannot use {value!r} (expected {typ.__name__})") from None
+
+
+def set_param(params: SimParams, name: str, value: Any) -> None:
+    """Set one parameter by (short or dotted) name, converting strings to the field type."""
+    group, key = _resolve(name)
+    target = params if group is None else getattr(params, group)
+    ftype = {f.name: f.type for f in fields(type(target))}[key]
+    value = _convert(value, ftype, name if group is None else f"{group}.{key}")
+    if group == "path" and key == "kind":
+        value = normalise_path_kind(value)
+    setattr(target, key, value)
+
+
+def apply_overrides(params: SimParams, overrides: dict[str, Any]) -> SimParams:
+    """Return a copy of ``params`` with ``overrides`` applied.
+
+    Keys may be dotted (``colon.fold_height``), a unique field name (``fold_height``), an
+    alias (``length``, ``fov``, ``frames``, ``path``, ``loop``) or ``size`` (square frames,
+    or a (width, height) pair / ``"WxH"`` string).
+    """
+    p = params.copy()
+    for name, value in overrides.items():
+        if name == "size":
+            w, h = parse_size(value)
+            p.camera.width, p.camera.height = w, h
+        else:
+            set_param(p, name, value)
+    return p
+
+
+def parse_size(value: Any) -> tuple[int, int]:
+    """``256``, ``"256"``, ``"320x240"`` or ``(320, 240)`` -> (width, height)."""
+    try:
+        if isinstance(value, (tuple, list)) and len(value) == 2:
+            w, h = int(value[0]), int(value[1])
+        elif isinstance(value, str) and "x" in value.lower():
+            a, b = value.lower().split("x")
+            w, h = int(a), int(b)
+        else:
+            w = h = int(value)
+    except (TypeError, ValueError):
+        raise InputError(f"size: cannot use {value!r} (expected N or WxH)") from None
+    if w < 16 or h < 16:
+        raise InputError(f"size: frames must be at least 16x16 pixels, got {w}x{h}")
+    return w, h
+
+
+def check_output(out: str | Path, overwrite: bool) -> Path:
+    """Refuse an output folder that would destroy data (InputError); nothing is written."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"out: {out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise InputError(f"out: {out} exists and is not empty (use --overwrite to replace it)")
+    return out
+
+
+def check_layout(layout: str) -> str:
+    if layout not in LAYOUTS:
+        raise InputError(f"layout: unknown layout {layout!r} (choose from {', '.join(LAYOUTS)})")
+    return layout
+
+
+def normalise_path_kind(kind: str) -> str:
+    k = PATH_ALIASES.get(str(kind).strip().lower())
+    if k is None:
+        raise InputError(f"path.kind: unknown path {kind!r} (choose A, B or random/RP)")
+    return k
+
+
+# ---------------------------------------------------------------------- validation
+
+
+def _check(cond: bool, msg: str) -> None:
+    if not cond:
+        raise InputError(msg)
+
+
+def _finite(x: float) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def _validate(p: SimParams) -> None:
+    _check(isinstance(p.seed, int) and 0 <= p.seed < 2**63, f"seed: must be a non-negative integer, got {p.seed!r}")
+    c, a, cam, path = p.colon, p.appearance, p.camera, p.path
+    for group in (c, a, cam, path):
+        for f in fields(group):
+            v = getattr(group, f.name)
+            if isinstance(v, float):
+                _check(math.isfinite(v), f"{_gname(group)}.{f.name}: must be finite, got {v}")
+
+    # colon geometry
+    _check(c.radius > 0, f"colon.radius: must be positive, got {c.radius}")
+    _check(c.radius <= 0.2, f"colon.radius: {c.radius} m is not a colon (at most 0.2 m)")
+    _check(0 <= c.radius_variation < 0.5 * c.radius,
+           f"colon.radius_variation: must be in [0, radius/2), got {c.radius_variation}")
+    _check(c.length >= 0.08, f"colon.length: must be at least 0.08 m, got {c.length}")
+    _check(c.length <= 5.0, f"colon.length: at most 5 m, got {c.length}")
+    _check(0 <= c.tortuosity <= 1, f"colon.tortuosity: must be in [0, 1], got {c.tortuosity}")
+    r_max = c.radius + c.radius_variation
+    _check(c.min_bend_radius > 1.5 * r_max * (1 + c.haustra_bulge),
+           f"colon.min_bend_radius: must exceed 1.5 x the largest radius ({1.5 * r_max:.3f} m), got {c.min_bend_radius}")
+    _check(c.fold_spacing > 0.005, f"colon.fold_spacing: must be above 0.005 m, got {c.fold_spacing}")
+    _check(0 <= c.fold_height <= 0.6, f"colon.fold_height: must be in [0, 0.6] (fraction of radius), got {c.fold_height}")
+    _check(c.fold_width > 0, f"colon.fold_width: must be positive, got {c.fold_width}")
+    _check(0 <= c.fold_coverage <= 1, f"colon.fold_coverage: must be in [0, 1], got {c.fold_coverage}")
+    _check(0 <= c.haustra_bulge <= 0.3, f"colon.haustra_bulge: must be in [0, 0.3], got {c.haustra_bulge}")
+    _check(0 <= c.taenia_depth <= 0.3, f"colon.taenia_depth: must be in [0, 0.3], got {c.taenia_depth}")
+    _check(0 <= c.relief <= 0.05 * c.radius, f"colon.relief: must be in [0, radius/20], got {c.relief}")
+    _check(isinstance(c.polyps, int) and 0 <= c.polyps <= 100, f"colon.polyps: must be 0..100, got {c.polyps}")
+    _check(0 < c.polyp_radius <= 0.5 * c.radius, f"colon.polyp_radius: must be in (0, radius/2], got {c.polyp_radius}")
+    _check(0.0002 <= c.ring_spacing <= 0.005, f"colon.ring_spacing: must be in [0.0002, 0.005] m, got {c.ring_spacing}")
+    _check(isinstance(c.ring_vertices, int) and 16 <= c.ring_vertices <= 1024,
+           f"colon.ring_vertices: must be 16..1024, got {c.ring_vertices}")
+    n_rings = c.length / c.ring_spacing
+    _check(n_rings * c.ring_vertices <= 6_000_000,
+           f"colon.ring_spacing: mesh would have {n_rings * c.ring_vertices:.0f} vertices (at most 6e6)")
+
+    # appearance
+    for name in ("saturation", "value", "wetness", "vessel_size", "vessel_opacity", "auto_exposure",
+                 "micro_relief", "vignette", "bloom", "motion_blur"):
+        v = getattr(a, name)
+        _check(0 <= v <= 1, f"appearance.{name}: must be in [0, 1], got {v}")
+    _check(0 <= a.vessel_density <= 5, f"appearance.vessel_density: must be in [0, 5], got {a.vessel_density}")
+    _check(0 < a.light_angle <= 180, f"appearance.light_angle: full cone angle must be in (0, 180] degrees, got {a.light_angle}")
+    _check(a.light_intensity > 0, f"appearance.light_intensity: must be positive, got {a.light_intensity}")
+    _check(0 <= a.light_offset <= 0.5 * c.radius,
+           f"appearance.light_offset: must be in [0, radius/2], got {a.light_offset}")
+    _check(0 <= a.grain <= 20, f"appearance.grain: must be in [0, 20], got {a.grain}")
+    _check(0.00005 <= a.texel <= 0.002, f"appearance.texel: must be in [0.00005, 0.002] m, got {a.texel}")
+    circumference = 2 * math.pi * (c.radius + c.radius_variation)
+    _check(circumference / a.texel < 16000 and 1.8 * c.length / a.texel < 32000,
+           f"appearance.texel: {a.texel} m makes the texture atlas too large for this colon")
+
+    # camera
+    _check(isinstance(cam.width, int) and isinstance(cam.height, int) and cam.width >= 16 and cam.height >= 16,
+           f"camera.width/height: frames must be at least 16x16 pixels, got {cam.width}x{cam.height}")
+    _check(cam.width <= 4096 and cam.height <= 4096, f"camera.width/height: at most 4096, got {cam.width}x{cam.height}")
+    _check(0 < cam.fov < 180, f"camera.fov: horizontal field of view must be in (0, 180) degrees, got {cam.fov}")
+    _check(cam.depth_scale > 0, f"camera.depth_scale: must be positive, got {cam.depth_scale}")
+    longest = c.length + 2 * r_max * (1 + c.haustra_bulge)  # no straight line inside the tube is longer
+    _check(longest * cam.depth_scale <= 65535,
+           f"camera.depth_scale: {cam.depth_scale} units/m cannot store depths up to {longest:.2f} m in uint16")
+
+    # path
+    _check(path.kind in PATH_KINDS, f"path.kind: unknown path {path.kind!r} (choose A, B or random)")
+    _check(isinstance(path.frames, int) and path.frames >= 1, f"path.frames: must be at least 1, got {path.frames}")
+    _check(path.frames <= 1_000_000, f"path.frames: at most 1e6, got {path.frames}")
+    _check(path.fps > 0, f"path.fps: must be positive, got {path.fps}")
+    _check(0 < path.max_step <= 0.02, f"path.max_step: must be in (0, 0.02] m per frame, got {path.max_step}")
+    _check(0 < path.coverage <= 1, f"path.coverage: must be in (0, 1], got {path.coverage}")
+    _check(0 <= path.lateral <= 1, f"path.lateral: must be in [0, 1], got {path.lateral}")
+    _check(0 <= path.roll <= 180, f"path.roll: must be in [0, 180] degrees, got {path.roll}")
+    for name in ("closeups", "bursts", "occlusions", "roll_events"):
+        v = getattr(path, name)
+        _check(0 <= v <= 100, f"path.{name}: events per 1000 frames must be in [0, 100], got {v}")
+    _check(1 <= path.burst_factor <= 10, f"path.burst_factor: must be in [1, 10], got {path.burst_factor}")
+    # the camera on the axis must clear the highest fold by min_wall_distance
+    axis_clearance = (c.radius - c.radius_variation) * (1 - c.taenia_depth) * (1 - c.fold_height) - 3 * c.relief
+    _check(0 < path.min_wall_distance < 0.7 * axis_clearance,
+           f"path.min_wall_distance: must be in (0, {0.7 * axis_clearance:.4f}) m for this colon"
+           f" (radius and fold height leave {axis_clearance * 1000:.1f} mm on the axis), got {path.min_wall_distance}")
+
+
+def _gname(group: Any) -> str:
+    return {ColonParams: "colon", AppearanceParams: "appearance", CameraParams: "camera", PathParams: "path"}[type(group)]
+
+
+# ---------------------------------------------------------------------- paper presets
+
+#: The appendix table of the paper (Unity simulator values, verbatim). Shared by all eight:
+#: trip 150 s at 30 shots/s, 512x512, distance 0, shadow on, dynamic off, vignette on,
+#: bloom on.
+PAPER_TABLE: dict[str, dict[str, Any]] = {
+    "seq1": dict(path="A", hue=0, saturation=72, value=100, wetness=88, vessel_size=60, vessel_opacity=30, angle=150, intensity=74, fov=110, grain=0),
+    "seq2": dict(path="RP", hue=0, saturation=72, value=100, wetness=88, vessel_size=60, vessel_opacity=30, angle=150, intensity=74, fov=110, grain=0),
+    "seq3": dict(path="B", hue=3, saturation=90, value=100, wetness=56, vessel_size=60, vessel_opacity=30, angle=150, intensity=59, fov=110, grain=1),
+    "seq4": dict(path="RP", hue=3, saturation=90, value=100, wetness=56, vessel_size=60, vessel_opacity=30, angle=150, intensity=59, fov=110, grain=1),
+    "seq5": dict(path="RP", hue=100, saturation=78, value=52, wetness=40, vessel_size=60, vessel_opacity=30, angle=150, intensity=62, fov=110, grain=3),
+    "seq6": dict(path="RP", hue=100, saturation=78, value=52, wetness=40, vessel_size=60, vessel_opacity=30, angle=150, intensity=62, fov=110, grain=3),
+    "seq7": dict(path="RP", hue=100, saturation=78, value=52, wetness=40, vessel_size=60, vessel_opacity=30, angle=150, intensity=62, fov=110, grain=3),
+    "seq8": dict(path="RP", hue=100, saturation=78, value=52, wetness=40, vessel_size=60, vessel_opacity=30, angle=150, intensity=62, fov=110, grain=3),
+}
+PAPER_COMMON = dict(trip_duration_s=150, shots_per_s=30, resolution=512, distance=0, shadow=True,
+                    dynamic=False, vignette=True, bloom=True)
+
+PRESETS = ("default", *PAPER_TABLE)
+
+
+def paper_preset(name: str) -> SimParams:
+    """Physical parameters for one of the paper's sequences (``seq1`` .. ``seq8``).
+
+    Mapping of the Unity slider values (this project's choice; the sliders' units are not
+    published):
+
+    - hue h (0..100)            -> mucosa hue 5 + 0.12 h degrees (0: pink-red, 100: orange)
+    - saturation s (0..100)     -> 0.35 + 0.45 s/100
+    - value v (0..100)          -> 0.4 + 0.55 v/100
+    - wetness w, vessel size, vessel opacity (0..100) -> w/100, size/100, opacity/100
+    - light angle               -> full cone angle in degrees; intensity i -> i/100
+    - distance 0                -> light co-located with the lens (no visible shadows)
+    - vignette / bloom on       -> 0.7 / 0.3; grain g -> g (noise std 0.01 g)
+    - path A / B / RP           -> insertion / withdrawal / random
+    - 150 s at 30 shots/s       -> 4500 frames at 30 fps, 512x512
+    """
+    key = name.strip().lower().replace(" ", "").replace(".", "")
+    if key in ("default", ""):
+        return SimParams()
+    if key not in PAPER_TABLE:
+        raise InputError(f"preset: unknown preset {name!r} (choose from {', '.join(PRESETS)})")
+    t = PAPER_TABLE[key]
+    p = SimParams(seed=int(key[3:]), preset=key)
+    a = p.appearance
+    a.hue = 5.0 + 0.12 * t["hue"]
+    a.saturation = 0.35 + 0.45 * t["saturation"] / 100.0
+    a.value = 0.4 + 0.55 * t["value"] / 100.0
+    a.wetness = t["wetness"] / 100.0
+    a.vessel_size = t["vessel_size"] / 100.0
+    a.vessel_opacity = t["vessel_opacity"] / 100.0
+    a.light_angle = float(t["angle"])
+    a.light_intensity = t["intensity"] / 100.0
+    a.light_offset = 0.0
+    a.shadows = PAPER_COMMON["shadow"]
+    a.vignette = 0.7 if PAPER_COMMON["vignette"] else 0.0
+    a.bloom = 0.3 if PAPER_COMMON["bloom"] else 0.0
+    a.grain = float(t["grain"])
+    p.camera.fov = float(t["fov"])
+    p.camera.width = p.camera.height = PAPER_COMMON["resolution"]
+    p.path.frames = PAPER_COMMON["trip_duration_s"] * PAPER_COMMON["shots_per_s"]
+    p.path.fps = float(PAPER_COMMON["shots_per_s"])
+    p.path.kind = normalise_path_kind(t["path"])
+    if p.path.kind == "B":  # withdrawal: the inspection phase, more looks at the wall
+        p.path.closeups = 5.0
+    elif p.path.kind == "random":
+        p.path.closeups, p.path.bursts, p.path.occlusions, p.path.roll_events = 4.0, 6.0, 4.0, 6.0
+        p.path.roll = 45.0
+    return p
+
+
+def get_preset(name: str) -> SimParams:
+    """``default`` or ``seq1`` .. ``seq8`` (case-insensitive; ``Seq. 3`` also works)."""
+    return paper_preset(name)
