@@ -1,0 +1,254 @@
+"""Keypoint correspondence filter and surface area filter (BundleFusion, Dai et al. 2017).
+
+Given candidate correspondences as 3D points (camera frames of i and j, metres, from the
+depth maps), :func:`filter_matches` keeps a geometrically consistent subset and the rigid
+transform T_ij (p_i ~ T_ij p_j):
+
+1. drop candidates without a 3D point (no depth);
+2. pairwise-distance consistency: a rigid motion keeps |p_a - p_b| in both frames, so
+   candidates a, b are inconsistent when the two distances differ by more than
+   ``pairwise_tolerance + pairwise_relative_tolerance * max(distance)``; the candidate with
+   the most inconsistencies is dropped until none is left;
+3. Kabsch fit; the candidate with the worst residual is dropped and the fit redone until
+   every residual is below ``max_residual``;
+4. accept only with >= ``min_matches`` survivors and a condition number below
+   ``max_condition`` (as BundleFusion: the largest of the ratios sigma_1/sigma_2 of the
+   Kabsch cross-covariance and lambda_1/lambda_2 of each point set's covariance; near-
+   collinear sets have a huge ratio, coplanar sets are fine);
+5. surface area filter: the survivors of each frame are projected onto their two principal
+   axes and the area of their minimum-area bounding rectangle is measured; the set is
+   rejected when both frames' areas are below ``min_area`` (m^2).
+
+All lengths are metres; :meth:`MatchFilterConfig.colon` (default) and
+:meth:`MatchFilterConfig.room` give presets, :meth:`MatchFilterConfig.scaled` rescales.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from c3f_slam.errors import InputError
+from c3f_slam.matching.kabsch import kabsch, residuals
+
+
+@dataclass(frozen=True)
+class MatchFilterConfig:
+    """Thresholds of the match filters (lengths in metres, areas in m^2).
+
+    Colon defaults (viewing depths of about 1-6 cm, frames of 128-512 px with 110-125 deg
+    field of view, where one pixel spans 0.2-0.7 mm of wall at 3 cm):
+
+    - ``max_residual`` 1 mm: BundleFusion's 2 cm at room scale is about 5 px of a
+      640x480 Kinect frame at 2 m; 1 mm is 1.5-5 px at 3 cm here, i.e. the keypoint
+      localisation error, not the scene size, sets it.
+    - ``pairwise_tolerance`` 2 mm (+5 % of the distance): two endpoints, each off by up to
+      ``max_residual``; the relative part absorbs predicted-depth scale error.
+    - ``min_area`` 1e-5 m^2 (10 mm^2, e.g. 3x3 mm): BundleFusion's 0.032 m^2 scaled by
+      (1/50)^2 (2 m room viewing distance vs about 3-4 cm in the colon).
+    - ``max_condition`` 100 and ``min_matches`` 10: BundleFusion / the paper (scale-free).
+    """
+
+    min_matches: int = 10
+    max_residual: float = 1.0e-3
+    pairwise_tolerance: float = 2.0e-3
+    pairwise_relative_tolerance: float = 0.05
+    max_condition: float = 100.0
+    min_area: float = 1.0e-5
+    use_pairwise: bool = True
+    use_area: bool = True
+    max_matches: int | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        if self.min_matches < 3:
+            raise InputError(f"min_matches must be >= 3 (a rigid fit needs 3 points), got {self.min_matches}")
+        for name in ("max_residual", "pairwise_tolerance", "max_condition"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("pairwise_relative_tolerance", "min_area"):
+            if getattr(self, name) < 0:
+                raise InputError(f"{name} must be >= 0, got {getattr(self, name)}")
+
+    @classmethod
+    def colon(cls, **overrides) -> "MatchFilterConfig":
+        """Colon scale (millimetres): the defaults."""
+        return cls(**overrides)
+
+    @classmethod
+    def room(cls, **overrides) -> "MatchFilterConfig":
+        """Room scale (centimetres): BundleFusion's values (2 cm residual, 0.032 m^2 area)."""
+        base = dict(max_residual=0.02, pairwise_tolerance=0.04, pairwise_relative_tolerance=0.05, min_area=0.032)
+        return cls(**{**base, **overrides})
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "MatchFilterConfig":
+        """``colon`` or ``room``."""
+        if name not in ("colon", "room"):
+            raise InputError(f"match filter preset must be 'colon' or 'room', got {name!r}")
+        return getattr(cls, name)(**overrides)
+
+    def scaled(self, factor: float) -> "MatchFilterConfig":
+        """The same filter for a scene ``factor`` times larger (lengths x f, areas x f^2)."""
+        if not factor > 0:
+            raise InputError(f"scale factor must be positive, got {factor}")
+        return replace(
+            self,
+            max_residual=self.max_residual * factor,
+            pairwise_tolerance=self.pairwise_tolerance * factor,
+            min_area=self.min_area * factor**2,
+        )
+
+
+@dataclass(frozen=True)
+class FilterResult:
+    """Outcome of :func:`filter_matches`.
+
+    Attributes:
+        inlier_indices: (K,) int64 indices into the candidate arrays that survived (also
+            when the set is rejected, for diagnostics; use :attr:`kept` for the output).
+        T_ij: 4x4 rigid transform (p_i ~ T_ij p_j) fitted to the survivors, or None.
+        residuals: (K,) metres, |T_ij p_j - p_i| of the survivors.
+        condition_number: condition number of the fit (inf when undefined).
+        area: m^2, the larger of the two frames' spanned areas (0 when not computed).
+        accepted: the set passed every test.
+        reason: why it was rejected ("" when accepted).
+    """
+
+    inlier_indices: np.ndarray
+    T_ij: np.ndarray | None
+    residuals: np.ndarray
+    condition_number: float
+    area: float
+    accepted: bool
+    reason: str
+
+    @property
+    def kept(self) -> np.ndarray:
+        """Indices of the accepted correspondences (empty when the set is rejected)."""
+        return self.inlier_indices if self.accepted else np.zeros(0, np.int64)
+
+
+def _ratio(values: np.ndarray) -> float:
+    """Largest over second-largest of non-negative values (inf when the second is ~0)."""
+    v = np.sort(np.abs(values))[::-1]
+    if not np.all(np.isfinite(v)) or v[0] <= 0:
+        return float("inf")
+    return float(v[0] / v[1]) if v[1] > v[0] * 1e-12 else float("inf")
+
+
+def condition_number(pts_i: np.ndarray, pts_j: np.ndarray, cross_singular_values: np.ndarray) -> float:
+    """BundleFusion's check: max of sigma1/sigma2 (cross-covariance) and lambda1/lambda2 of each set."""
+    out = _ratio(cross_singular_values)
+    for p in (pts_i, pts_j):
+        c = p - p.mean(axis=0)
+        out = max(out, _ratio(np.linalg.eigvalsh(c.T @ c / len(p))))
+    return out
+
+
+def spanned_area(points: np.ndarray) -> float:
+    """m^2: area of the minimum-area rectangle around the points on their principal plane."""
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) < 3:
+        return 0.0
+    c = p - p.mean(axis=0)
+    _, vecs = np.linalg.eigh(c.T @ c)
+    plane = c @ vecs[:, [2, 1]]  # the two major principal axes
+    (_, _), (w, h), _ = cv2.minAreaRect(plane.astype(np.float32))
+    return float(w) * float(h)
+
+
+def consistent_subset(
+    pts_i: np.ndarray, pts_j: np.ndarray, tolerance: float, relative_tolerance: float = 0.0,
+    priority: np.ndarray | None = None,
+) -> np.ndarray:
+    """(K,) indices of a pairwise-distance consistent subset (greedy, most-inconsistent first).
+
+    ``priority``: optional (N,) cost, lower = better (e.g. descriptor distance); among
+    candidates with equally many inconsistencies the highest cost (default: the highest
+    index) goes first.
+    """
+    n = len(pts_i)
+    if n < 2:
+        return np.arange(n)
+    d_i = np.linalg.norm(pts_i[:, None] - pts_i[None], axis=-1)
+    d_j = np.linalg.norm(pts_j[:, None] - pts_j[None], axis=-1)
+    bad = np.abs(d_i - d_j) > tolerance + relative_tolerance * np.maximum(d_i, d_j)
+    count = bad.sum(axis=1).astype(np.int64)
+    alive = np.ones(n, bool)
+    tie = np.arange(n) if priority is None else np.argsort(np.argsort(np.asarray(priority, dtype=np.float64)))
+    # key = count * (n + 1) + rank: most inconsistencies first, then the worst priority
+    while True:
+        key = np.where(alive, count * (n + 1) + tie, -1)
+        worst = int(np.argmax(key))
+        if not alive[worst] or count[worst] == 0:
+            break
+        alive[worst] = False
+        count -= bad[:, worst]
+    return np.flatnonzero(alive)
+
+
+def filter_matches(
+    pts_i: np.ndarray,
+    pts_j: np.ndarray,
+    cfg: MatchFilterConfig | None = None,
+    priority: np.ndarray | None = None,
+) -> FilterResult:
+    """Keypoint correspondence filter + surface area filter on candidate 3D correspondences.
+
+    Args:
+        pts_i, pts_j: (N, 3) camera-frame points of the candidates in frames i and j
+            (metres; NaN rows = no depth, dropped).
+        cfg: thresholds (default :meth:`MatchFilterConfig.colon`).
+        priority: optional (N,) cost, lower = better (descriptor distance); breaks ties and,
+            with ``cfg.max_matches``, chooses which candidates are considered.
+    """
+    cfg = cfg or MatchFilterConfig()
+    pts_i = np.asarray(pts_i, dtype=np.float64).reshape(-1, 3)
+    pts_j = np.asarray(pts_j, dtype=np.float64).reshape(-1, 3)
+    if pts_i.shape != pts_j.shape:
+        raise ValueError(f"pts_i and pts_j must have the same shape, got {pts_i.shape} and {pts_j.shape}")
+
+    def reject(idx: np.ndarray, reason: str, T=None, res=None, cn=float("inf"), area=0.0) -> FilterResult:
+        return FilterResult(idx, T, np.zeros(len(idx)) if res is None else res, cn, area, False, reason)
+
+    idx = np.flatnonzero(np.isfinite(pts_i).all(1) & np.isfinite(pts_j).all(1))
+    if priority is not None:
+        priority = np.asarray(priority, dtype=np.float64).reshape(-1)
+        idx = idx[np.argsort(priority[idx], kind="stable")]
+    if cfg.max_matches is not None:
+        idx = idx[: cfg.max_matches]
+    if len(idx) < cfg.min_matches:
+        return reject(idx, f"too few matches with depth ({len(idx)} < {cfg.min_matches})")
+    if cfg.use_pairwise:
+        sub = consistent_subset(
+            pts_i[idx], pts_j[idx], cfg.pairwise_tolerance, cfg.pairwise_relative_tolerance,
+            None if priority is None else priority[idx],
+        )
+        idx = idx[sub]
+        if len(idx) < cfg.min_matches:
+            return reject(idx, f"too few pairwise-consistent matches ({len(idx)} < {cfg.min_matches})")
+    # Kabsch, dropping the worst residual until all are below the threshold
+    while True:
+        T, sv = kabsch(pts_j[idx], pts_i[idx], return_singular_values=True)
+        res = residuals(T, pts_j[idx], pts_i[idx])
+        worst = int(np.argmax(res))
+        if res[worst] <= cfg.max_residual:
+            break
+        if len(idx) - 1 < cfg.min_matches:
+            return reject(idx, f"too few matches under the residual threshold (< {cfg.min_matches})", T, res)
+        idx = np.delete(idx, worst)
+    cn = condition_number(pts_i[idx], pts_j[idx], sv)
+    if not cn < cfg.max_condition:
+        return reject(idx, f"degenerate configuration (condition number {cn:.3g} >= {cfg.max_condition:g})", T, res, cn)
+    area = max(spanned_area(pts_i[idx]), spanned_area(pts_j[idx]))
+    if cfg.use_area and area < cfg.min_area:
+        return reject(idx, f"surface area too small ({area:.3g} m^2 < {cfg.min_area:g} m^2)", T, res, cn, area)
+    order = np.argsort(idx, kind="stable")
+    return FilterResult(idx[order], T, res[order], cn, area, True, "")
+
+
+__all__ = [
+    "FilterResult", "MatchFilterConfig", "condition_number", "consistent_subset", "filter_matches", "spanned_area",
+]

@@ -1,0 +1,160 @@
+"""ContraFeat: network, descriptor sampling, InfoNCE, pair data, smoke fits (module and CLI)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+import torchvision
+
+from c3f_models.cli import main
+from c3f_models.contrafeat.data import ContraFeatDataModule, GapPairDataset
+from c3f_models.contrafeat.loss import batch_info_nce, info_nce
+from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
+from c3f_models.contrafeat_module import METHODS, ContraFeat
+from c3f_slam.errors import InputError
+from c3f_slam.matching import sample_descriptor_map
+from c3f_slam.io import Sequence
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = dict(fpn_channels=16, stem_channels=8, head_channels=32)
+
+
+@pytest.fixture(autouse=True)
+def _threads():
+    torch.manual_seed(0)
+
+
+def test_network_full_resolution_unit_norm():
+    net = ContraFeatNet(**TINY).eval()
+    x = torch.rand(2, 3, 45, 61)  # not a multiple of 32
+    with torch.no_grad():
+        y = net(x)
+    assert y.shape == (2, 128, 45, 61)
+    torch.testing.assert_close(y.norm(dim=1), torch.ones(2, 45, 61), atol=1e-5, rtol=0)
+    with pytest.raises(InputError):
+        net(torch.rand(1, 1, 32, 32))
+
+
+def test_sample_descriptors_pixel_centres():
+    d = torch.nn.functional.normalize(torch.randn(8, 5, 7), dim=0)
+    xy = torch.tensor([[0.0, 0.0], [6.0, 4.0], [3.0, 2.0]])
+    out = sample_descriptors(d, xy)
+    torch.testing.assert_close(out, torch.stack([d[:, 0, 0], d[:, 4, 6], d[:, 2, 3]]))
+    mid = sample_descriptors(d, torch.tensor([[2.5, 1.0]]))[0]
+    torch.testing.assert_close(mid, torch.nn.functional.normalize(d[:, 1, 2] + d[:, 1, 3], dim=0))
+    assert sample_descriptors(d, torch.zeros(0, 2)).shape == (0, 8)
+    # the torch-free twin used by the SLAM runtime agrees (inside and beyond the border)
+    pts = torch.tensor([[0.3, 0.7], [5.9, 3.2], [2.5, 1.0], [-1.0, 9.0]])
+    twin = sample_descriptor_map(d.numpy(), pts.numpy())
+    np.testing.assert_allclose(twin, sample_descriptors(d, pts).numpy(), atol=1e-6)
+
+
+def test_info_nce_lower_for_matching_than_shuffled():
+    z = torch.nn.functional.normalize(torch.randn(50, 128), dim=1)
+    z_b = torch.nn.functional.normalize(z + 0.1 * torch.randn(50, 128), dim=1)
+    matched = info_nce(z, z_b)
+    shuffled = info_nce(z, z_b[torch.randperm(50)])
+    assert matched < 0.05 < shuffled
+    # one-directional, per-match values and tau
+    assert info_nce(z, z_b, symmetric=False, reduction="none").shape == (50,)
+    same = torch.eye(4)
+    assert info_nce(same, same, tau=0.01) < 1e-30 + 1e-6
+    assert torch.isclose(info_nce(torch.ones(3, 4) / 2, torch.ones(3, 4) / 2), torch.log(torch.tensor(3.0)))
+    loss, n = batch_info_nce([(z[:1], z_b[:1]), (z, z_b), (z[:10], z_b[:10])])
+    assert n == 60 and torch.isclose(loss, (info_nce(z, z_b) * 50 + info_nce(z[:10], z_b[:10]) * 10) / 60)
+    assert batch_info_nce([(z[:1], z_b[:1])]) == (None, 0)
+
+
+def test_pretrained_weights_local_file(tmp_path):
+    with pytest.raises(InputError, match="file not found"):
+        ContraFeatNet(pretrained_path=tmp_path / "missing.pth", **TINY)
+    bad = tmp_path / "bad.pth"
+    bad.write_text("not weights")
+    with pytest.raises(InputError, match="not a torch weights file"):
+        ContraFeatNet(pretrained_path=bad, **TINY)
+    r34 = tmp_path / "r34.pth"
+    torch.save(torchvision.models.resnet34(weights=None).state_dict(), r34)
+    with pytest.raises(InputError, match="does not fit"):
+        ContraFeatNet(pretrained_path=r34, **TINY)
+    ref = torchvision.models.resnet18(weights=None)
+    good = tmp_path / "r18.pth"
+    torch.save(ref.state_dict(), good)
+    net = ContraFeatNet(pretrained_path=good, **TINY)
+    torch.testing.assert_close(net.layer3[0].conv1.weight, ref.layer3[0].conv1.weight)
+
+
+def test_gap_pairs(plane_dataset):
+    seqs = [Sequence(p) for p in sorted(plane_dataset.iterdir())]
+    train = GapPairDataset(seqs, [1, 2, 4, 8], random_gap=True, specular=False)
+    assert train.gaps == [1, 2, 4]  # 6-frame sequences: gap 8 fits none
+    gaps = {train[k]["gap"] for k in range(len(train)) for _ in range(3)}
+    assert gaps == {1, 2, 4}
+    s = train[0]
+    assert s["image"].shape[:2] == (2, 3) and s["depth"].shape[:2] == (2, 1) and s["pose"].shape == (2, 4, 4)
+    assert s["frame_index"][1] - s["frame_index"][0] == s["gap"]
+    ev = GapPairDataset(seqs, [1, 4], random_gap=False, specular=False)
+    assert len(ev) == 3 * (5 + 2) and [ev[k]["gap"] for k in (0, len(ev) - 1)] == [1, 4]
+    with pytest.raises(InputError, match="long enough"):
+        GapPairDataset(seqs, [6], random_gap=True)
+
+
+def _module(**kw) -> ContraFeat:
+    return ContraFeat(max_keypoints=96, sift_contrast_threshold=0.01, num_visualisations=1, **TINY, **kw)
+
+
+def test_module_fit_and_test_in_process(plane_dataset, tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    dm = ContraFeatDataModule(str(plane_dataset), gaps=[1, 2], size=(48, 48), batch_size=2, eval_stride=3)
+    model = _module()
+    logger = L.pytorch.loggers.TensorBoardLogger(str(tmp_path), name="tb")
+    trainer = L.Trainer(max_steps=2, limit_train_batches=2, limit_val_batches=1, limit_test_batches=2,
+                        num_sanity_val_steps=0, accelerator="cpu", logger=logger, enable_checkpointing=False,
+                        log_every_n_steps=1, enable_progress_bar=False, enable_model_summary=False)
+    trainer.fit(model, dm)
+    m = trainer.callback_metrics
+    assert torch.isfinite(m["train/loss"]) and m["train/matches"] > 5
+    assert {"val/loss", "val/cdf_recall", "val/sift_kpf_precision"} <= set(m)
+    out = trainer.test(model, dm, verbose=False)[0]
+    for name in METHODS:
+        assert 0 <= out[f"test/{name}_recall"] <= 1 and 0 <= out[f"test/{name}_precision"] <= 1
+    assert out["test/sift_precision"] > 0.5  # small motion over a textured plane
+    model.eval()
+    desc = model.describe(torch.rand(3, 48, 48), np.array([[3.0, 4.0], [20.5, 30.25]]))
+    assert desc.shape == (2, 128) and torch.allclose(desc.norm(dim=1), torch.ones(2))
+    events = EventAccumulator(str(Path(logger.log_dir))).Reload()
+    assert "val/matches_0" in events.Tags()["images"]
+
+
+def test_module_rejects_bad_options():
+    with pytest.raises(InputError):
+        _module(filter_preset="galaxy")
+    with pytest.raises(InputError):
+        _module(filter_overrides={"no_such": 1})
+    with pytest.raises(InputError):
+        _module(tau=0.0)
+
+
+def test_cli_smoke_fit_small_config(plane_dataset, tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["c3f_models"])
+    main([
+        "fit", "--config", str(ROOT / "configs/trainer/cpu_smoke.yaml"),
+        "--config", str(ROOT / "configs/contrafeat/small.yaml"),
+        "--data.data_dir", str(plane_dataset), "--data.size", "[48, 48]", "--data.gaps", "[1, 2]",
+        "--trainer.max_steps", "2", "--trainer.limit_val_batches", "1",
+        "--trainer.default_root_dir", str(tmp_path), "--trainer.logger.init_args.save_dir", str(tmp_path),
+    ])
+    assert list(tmp_path.rglob("config.yaml")) and list(tmp_path.rglob("last.ckpt"))
+
+
+@pytest.mark.parametrize("name", ["full", "small"])
+def test_configs_parse(name, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["c3f_models"])
+    cli = main(["--config", str(ROOT / f"configs/contrafeat/{name}.yaml"), "--trainer.logger", "false"], run=False)
+    assert isinstance(cli.model, ContraFeat) and isinstance(cli.datamodule, ContraFeatDataModule)
+    assert cli.model.hparams.descriptor_dim == 128 and cli.model.hparams.tau == 0.01
