@@ -1,0 +1,8 @@
+"""``python -m c3f_slam``: see :mod:`c3f_slam.cli`."""
+
+import sys
+
+from c3f_slam.cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,14 @@
+"""The SLAM runtime pipeline (SPEC §4): frontend, fragments, global keyframe graph, fusion.
+
+- :mod:`.config`: :class:`SlamConfig` and presets (colon / room);
+- :mod:`.frontend`: keypoints, descriptor / depth provider seams, pairwise matching;
+- :mod:`.fragments`: the new-fragment rule and the intra-fragment pose graph;
+- :mod:`.slam`: the fragment + global keyframe back-end and the odometry baseline;
+- :mod:`.run`: the streaming run loop that writes the outputs;
+- :mod:`.evaluation`: the ``evaluate`` command's metrics and files.
+"""
+
+from c3f_slam.pipeline.config import SlamConfig
+from c3f_slam.pipeline.run import run_slam
+
+__all__ = ["SlamConfig", "run_slam"]

@@ -1,0 +1,110 @@
+"""Settings of the SLAM runtime (SPEC §4), with presets per data kind.
+
+All lengths are metres. ``colon`` (default) and ``room`` pick the match filter, pose-graph
+and TSDF presets of :mod:`c3f_slam.matching`, :mod:`c3f_slam.posegraph` and
+:mod:`c3f_slam.fusion`; the fragment rules are the paper's (100 correspondences, 85 %
+frustum overlap) unless overridden.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+
+from c3f_slam.errors import InputError
+from c3f_slam.fusion import TSDF_PRESETS, TSDFConfig
+from c3f_slam.matching import MatchFilterConfig
+from c3f_slam.posegraph import POSEGRAPH_PRESETS, PoseGraphConfig
+
+PRESETS = ("colon", "room")
+MODES = ("full", "odometry")
+
+
+@dataclass(frozen=True)
+class SlamConfig:
+    """Runtime options.
+
+    Frontend: ``max_keypoints`` SIFT keypoints per frame (strongest first) outside specular
+    highlights (``mask_specular``); ``sift_contrast_threshold`` (OpenCV's 0.04 finds too few
+    keypoints on small, smooth colon frames); ``specular_dilation_px`` dilation of the
+    specular mask (None: SPEC 2's 13 px scaled by min(W, H) / 512, at least 3 px, since a
+    13 px dilation masks a third of a 128 px frame); ``ratio`` Lowe ratio test on top of the mutual
+    nearest neighbours (None = off); ``keyframe_keypoints`` cap of what a keyframe keeps for
+    global matching (compact: uint8 SIFT, float32 points).
+
+    Fragments (SPEC §4.2): a frame opens a new fragment when fewer than
+    ``min_consecutive_correspondences`` filtered correspondences link it to the previous
+    frame, or when its frustum overlap with the active keyframe is below ``min_overlap``
+    (evaluated on a grid of ``overlap_stride`` px); ``max_fragment_frames`` bounds a fragment
+    (memory). ``intra_all_pairs``: also match each new frame against every frame of the
+    active fragment (not only the previous one and the keyframe).
+
+    Global: ``optimize_every_keyframe`` runs the global pose graph after each keyframe that
+    adds a loop edge or merges components (odometry-only keyframes are chained) and always
+    at the end.
+
+    Fusion: ``fuse`` (False = --no-mesh), ``eps_f_na`` frames and ``eps_cf_d`` metres (the
+    settle rule of :class:`c3f_slam.fusion.FragmentFusion`), ``tsdf`` volume settings.
+    """
+
+    preset: str = "colon"
+    mode: str = "full"
+    max_keypoints: int = 1000
+    sift_contrast_threshold: float = 0.005
+    mask_specular: bool = True
+    specular_dilation_px: int | None = None
+    ratio: float | None = 0.9
+    keyframe_keypoints: int = 1000
+    min_consecutive_correspondences: int = 100
+    min_overlap: float = 0.85
+    overlap_stride: int = 4
+    max_fragment_frames: int = 60
+    intra_all_pairs: bool = True
+    optimize_every_keyframe: bool = True
+    match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
+    posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])
+    tsdf: TSDFConfig = field(default_factory=lambda: TSDF_PRESETS["colon"])
+    fuse: bool = True
+    eps_f_na: int = 30
+    eps_cf_d: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.preset not in PRESETS:
+            raise InputError(f"--preset must be one of {PRESETS}, got {self.preset!r}")
+        if self.mode not in MODES:
+            raise InputError(f"--baseline/mode must be one of {MODES}, got {self.mode!r}")
+        if self.max_keypoints < 10 or self.keyframe_keypoints < 10:
+            raise InputError("max_keypoints and keyframe_keypoints must be >= 10")
+        if not 0.0 <= self.min_overlap <= 1.0:
+            raise InputError(f"min_overlap must be in [0, 1], got {self.min_overlap}")
+        if self.min_consecutive_correspondences < 0:
+            raise InputError("min_consecutive_correspondences must be >= 0")
+        if self.max_fragment_frames < 1:
+            raise InputError("max_fragment_frames must be >= 1")
+
+    @classmethod
+    def preset_config(cls, name: str = "colon", **overrides) -> "SlamConfig":
+        """Defaults for ``colon`` (mm scale) or ``room`` (cm scale; fusion settles after 1 m)."""
+        if name not in PRESETS:
+            raise InputError(f"--preset must be one of {PRESETS}, got {name!r}")
+        base = dict(
+            preset=name,
+            match_filter=MatchFilterConfig.preset(name),
+            posegraph=POSEGRAPH_PRESETS[name],
+            tsdf=TSDF_PRESETS[name],
+            eps_cf_d=0.05 if name == "colon" else 1.0,
+        )
+        known = {f.name for f in fields(cls)}
+        bad = sorted(set(overrides) - known)
+        if bad:
+            raise InputError(f"unknown SLAM option(s): {', '.join(bad)}")
+        return cls(**{**base, **overrides})
+
+    def with_(self, **changes) -> "SlamConfig":
+        return replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = v.__dict__ if hasattr(v, "__dict__") else v
+        return out

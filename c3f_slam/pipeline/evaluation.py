@@ -1,0 +1,80 @@
+"""``evaluate`` of a run folder against a ground-truth sequence (SPEC §4.4).
+
+Writes OUT/evaluation.json (lengths in metres), OUT/trajectory.png (estimate aligned with
+Sim(3) vs ground truth) and, when the sequence has mesh.ply and the run a mesh.ply,
+OUT/coverage.ply (ground truth painted seen / unseen after aligning the reconstruction with
+the ATE's transform: Sim(3), or SE(3) in RGB-D mode).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from c3f_slam.errors import InputError
+from c3f_slam.evaluate import associate, ate, coverage_mesh, plot_trajectories, surface_coverage
+from c3f_slam.evaluate import evaluate_trajectory
+from c3f_slam.fusion import write_mesh
+from c3f_slam.io import Sequence, read_tum
+from c3f_slam.outputs import RunOutputs, write_json
+
+
+def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000) -> dict:
+    """Metrics of the run in ``out`` against the sequence ``gt``; writes the files, returns the dict."""
+    outputs = RunOutputs(out)
+    if not outputs.trajectory.is_file():
+        raise InputError(f"{outputs.trajectory}: no trajectory (is {out} a run folder?)")
+    seq = Sequence(gt)
+    if not seq.has_poses:
+        raise InputError(f"{seq.root}: no poses.txt to evaluate against")
+    stamps, poses = read_tum(outputs.trajectory)
+    summary = {}
+    if outputs.summary.is_file():
+        summary = json.loads(outputs.summary.read_text())
+    n_frames = summary.get("frames") or len(seq)
+    res = evaluate_trajectory(stamps, poses, seq.timestamps, seq.poses, n_frames=n_frames)
+    rgbd = summary.get("depth_source", "files") == "files"
+    res["alignment_for_mesh"] = "se3" if rgbd else "sim3"
+    if "error" not in res:
+        ie, ig = associate(stamps, seq.timestamps)
+        a = ate(poses[ie], seq.poses[ig], "sim3")
+        plot_trajectories(outputs.trajectory_png, seq.poses[:, :3, 3], a.aligned[:, :3, 3],
+                          title=f"ATE (Sim3) {100 * a.stats.rmse:.2f} cm")
+        res["trajectory_png"] = outputs.trajectory_png.name
+        if seq.mesh_path is not None and outputs.mesh.is_file():
+            al = ate(poses[ie], seq.poses[ig], res["alignment_for_mesh"])
+            recon = o3d.io.read_triangle_mesh(str(outputs.mesh))
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = al.scale * al.R, al.t
+            recon.transform(T)
+            gt_mesh = o3d.io.read_triangle_mesh(str(seq.mesh_path))
+            res["coverage"] = surface_coverage(gt_mesh, recon, n_samples=coverage_samples).as_dict()
+            painted = coverage_mesh(gt_mesh, recon)
+            write_mesh(painted, outputs.coverage_mesh)
+            res["coverage_mesh"] = outputs.coverage_mesh.name
+    write_json(Path(out) / "evaluation.json", res)
+    return res
+
+
+def format_report(res: dict) -> str:
+    """Lines for the terminal, lengths in cm."""
+    lines = [f"registered: {100 * res.get('registered_share', 0):.1f} % "
+             f"({res.get('n_estimated', 0)} poses, {res.get('n_associated', 0)} with ground truth)"]
+    if "error" in res:
+        return "\n".join(lines + [f"error: {res['error']}"])
+    for key in ("ate_sim3", "ate_se3"):
+        a = res[key]
+        lines.append(f"ATE {a['align']}: RMSE {100 * a['rmse_m']:.3f} cm, std {100 * a['std_m']:.3f} cm"
+                     + (f" (scale {a['scale']:.4f})" if a["align"] == "sim3" else ""))
+    r = res["rpe"]
+    lines.append(f"RPE (delta {r['delta']}): trans RMSE {100 * r['trans_rmse_m']:.3f} cm, "
+                 f"rot RMSE {r['rot_rmse_deg']:.3f} deg")
+    lines.append(f"ground-truth trajectory length: {100 * res['gt_length_m']:.1f} cm")
+    if "coverage" in res:
+        c = res["coverage"]
+        lines.append(f"coverage: {100 * c['share']:.1f} % of the ground-truth surface within "
+                     f"{1000 * c['threshold']:.1f} mm")
+    return "\n".join(lines)

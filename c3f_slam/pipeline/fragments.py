@@ -1,0 +1,96 @@
+"""Fragments (SPEC §4.2): the new-fragment rule and the intra-fragment pose graph.
+
+A fragment is a run of consecutive frames registered relative to its first frame, the
+keyframe (node 0, identity). Poses here are keyframe-from-frame (camera-to-keyframe)
+4x4 matrices in metres; edges follow :mod:`c3f_slam.posegraph` (p_i = T_ij p_j).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
+from c3f_slam.posegraph import PoseGraph, PoseGraphConfig
+
+#: reasons a frame opens a new fragment
+CORRESPONDENCES, OVERLAP, SIZE, FIRST = "correspondences", "overlap", "size", "first"
+
+
+def new_fragment_reason(
+    n_consecutive: int,
+    overlap: float | None,
+    n_fragment_frames: int,
+    min_correspondences: int = 100,
+    min_overlap: float = 0.85,
+    max_fragment_frames: int = 60,
+) -> str | None:
+    """Why the current frame must open a new fragment, or None to append it.
+
+    (1) fewer than ``min_correspondences`` filtered correspondences with the previous frame;
+    (2) frustum overlap with the active keyframe below ``min_overlap`` (None = not computed);
+    plus a size cap (``max_fragment_frames``) that bounds the memory of the active fragment.
+    """
+    if n_consecutive < min_correspondences:
+        return CORRESPONDENCES
+    if overlap is not None and overlap < min_overlap:
+        return OVERLAP
+    if n_fragment_frames >= max_fragment_frames:
+        return SIZE
+    return None
+
+
+class Fragment:
+    """The active fragment: its frames' features (dropped when closed) and local pose graph."""
+
+    def __init__(self, fid: int, keyframe: FrameFeatures, keyframe_depth: np.ndarray, reason: str) -> None:
+        self.id = fid
+        self.keyframe = keyframe.index
+        self.reason = reason
+        self.frames: list[int] = [keyframe.index]
+        self.features: list[FrameFeatures] | None = [keyframe]
+        self.keyframe_depth: np.ndarray | None = keyframe_depth
+        self.graph = PoseGraph()
+        self.graph.add_node(np.eye(4))
+        self.rel_poses: np.ndarray | None = None  # (n, 4, 4) after close()
+        self.n_edges = 0
+        self.pruned = 0
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def pose(self, local: int) -> np.ndarray:
+        """Keyframe-from-frame pose of the fragment's ``local``-th frame."""
+        if self.rel_poses is not None:
+            return self.rel_poses[local]
+        return self.graph.poses[local]
+
+    @property
+    def last_pose(self) -> np.ndarray:
+        return self.pose(len(self.frames) - 1)
+
+    def add_frame(
+        self, feat: FrameFeatures, link: PairMatch, extra: list[tuple[int, PairMatch]] | None = None
+    ) -> int:
+        """Append ``feat`` linked to the previous frame by ``link`` (T_prev,cur); ``extra``:
+        (local index, match T_local,cur) to other frames of the fragment. Returns its local index."""
+        prev = len(self.frames) - 1
+        node = self.graph.add_node(self.graph.poses[prev] @ link.T_ij)
+        self.graph.add_edge(prev, node, link.T_ij, points_j=link.points_j, kind="odometry")
+        for local, m in extra or []:
+            self.graph.add_edge(local, node, m.T_ij, points_j=m.points_j, uncertain=True, kind="loop")
+        self.n_edges += 1 + len(extra or [])
+        self.frames.append(feat.index)
+        assert self.features is not None
+        self.features.append(feat)
+        return node
+
+    def close(self, config: PoseGraphConfig) -> None:
+        """Optimise the local graph (when it has more than a chain), freeze the relative poses,
+        drop the per-frame features."""
+        if any(e.uncertain for e in self.graph.edges):
+            res = self.graph.optimize(config, reference_node=0)
+            self.pruned = len(res.pruned)
+        self.rel_poses = self.graph.poses.astype(np.float64)
+        self.graph = PoseGraph()  # free the edges
+        self.features = None
+        self.keyframe_depth = None

@@ -1,0 +1,190 @@
+"""Per-frame frontend: keypoints, descriptors, 3D points; and pairwise frame matching.
+
+Conventions (as :mod:`c3f_slam.matching`): keypoints (u, v) pixels; 3D points in the
+camera frame, metres, NaN rows where there is no depth; ``T_ij`` maps frame-j points into
+frame i (p_i = T_ij p_j).
+
+Seams for the ONNX path (another issue): a :class:`DescriptorProvider` turns a frame and its
+keypoints into (N, D) descriptors (SIFT now, ContraFeat later); a :class:`DepthProvider`
+gives the depth of a frame in metres (files now, DepthNet later).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+from c3f_slam.errors import InputError
+from c3f_slam.matching import (
+    Keypoints,
+    MatchFilterConfig,
+    detect_sift,
+    filter_matches,
+    lift_keypoints,
+    mutual_nearest_neighbours,
+    to_gray_uint8,
+)
+from c3f_slam.preprocess import SPECULAR_DILATION_PX, specular_mask
+from c3f_slam.stream import StreamFrame
+
+
+class DescriptorProvider(Protocol):
+    """Descriptors of keypoints: ``describe(rgb, keypoints) -> (N, D)``.
+
+    ``metric`` is how :func:`mutual_nearest_neighbours` compares them (``l2`` or
+    ``cosine``); ``storage_dtype`` is how keyframes store them (uint8 for SIFT, float16 for
+    unit-norm learned descriptors). ``needs_sift_descriptors``: the detector should compute
+    SIFT descriptors alongside (saves a second pass for the SIFT provider).
+    """
+
+    name: str
+    metric: str
+    storage_dtype: np.dtype
+    needs_sift_descriptors: bool
+
+    def describe(self, rgb: np.ndarray, keypoints: Keypoints) -> np.ndarray: ...
+
+
+class SiftDescriptors:
+    """128-d SIFT descriptors (the paper's SIFT baseline); stored as uint8 (OpenCV values are
+    integers 0..255 in float32)."""
+
+    name = "sift"
+    metric = "l2"
+    storage_dtype = np.dtype(np.uint8)
+    needs_sift_descriptors = True
+
+    def describe(self, rgb: np.ndarray, keypoints: Keypoints) -> np.ndarray:
+        if keypoints.descriptors is not None:
+            return keypoints.descriptors
+        if len(keypoints) == 0:
+            return np.zeros((0, 128), np.float32)
+        kps = [cv2.KeyPoint(float(x), float(y), float(s)) for (x, y), s in zip(keypoints.xy, keypoints.size)]
+        _, desc = cv2.SIFT_create().compute(to_gray_uint8(rgb), kps)
+        return np.zeros((0, 128), np.float32) if desc is None else desc.astype(np.float32)
+
+
+class DepthProvider(Protocol):
+    """Depth of a streamed frame, (H, W) float32 metres, 0 = none."""
+
+    name: str
+
+    def depth(self, frame: StreamFrame) -> np.ndarray: ...
+
+
+class FileDepth:
+    """RGB-D mode: the depth read from the sequence's depth/ files."""
+
+    name = "files"
+
+    def depth(self, frame: StreamFrame) -> np.ndarray:
+        if frame.depth is None:
+            raise InputError(f"frame {frame.index}: --depth-source files but the sequence has no depth/ folder")
+        return frame.depth
+
+
+@dataclass
+class FrameFeatures:
+    """What the runtime keeps of a frame (never the image): keypoints (N, 2) float32 px,
+    descriptors (N, D) in the provider's storage dtype, points (N, 3) float32 camera-frame
+    metres (NaN = no depth)."""
+
+    index: int
+    timestamp: float
+    xy: np.ndarray
+    descriptors: np.ndarray
+    points: np.ndarray
+
+    def __len__(self) -> int:
+        return int(len(self.xy))
+
+    def subset(self, n: int) -> "FrameFeatures":
+        """The first ``n`` (strongest) keypoints with depth."""
+        ok = np.flatnonzero(np.isfinite(self.points).all(axis=1))[:n]
+        return FrameFeatures(self.index, self.timestamp, self.xy[ok], self.descriptors[ok], self.points[ok])
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.xy.nbytes + self.descriptors.nbytes + self.points.nbytes)
+
+
+class Frontend:
+    """Keypoints outside speculars, descriptors and 3D points of one frame."""
+
+    def __init__(
+        self,
+        K: np.ndarray,
+        descriptors: DescriptorProvider | None = None,
+        max_keypoints: int = 1000,
+        contrast_threshold: float = 0.005,
+        mask_specular: bool = True,
+        specular_dilation_px: int | None = None,
+    ) -> None:
+        self.K = np.asarray(K, dtype=np.float64)
+        self.provider = descriptors or SiftDescriptors()
+        self.max_keypoints = int(max_keypoints)
+        self.contrast_threshold = float(contrast_threshold)
+        self.mask_specular = bool(mask_specular)
+        self.specular_dilation_px = specular_dilation_px
+
+    def dilation(self, rgb: np.ndarray) -> int:
+        '''Specular-mask dilation (px) for this frame size (see SlamConfig).'''
+        if self.specular_dilation_px is not None:
+            return int(self.specular_dilation_px)
+        px = int(round(SPECULAR_DILATION_PX * min(rgb.shape[:2]) / 512.0))
+        return max(3, px | 1)
+
+    def keypoints(self, rgb: np.ndarray) -> Keypoints:
+        mask = ~specular_mask(rgb, dilation_px=self.dilation(rgb)) if self.mask_specular else None
+        return detect_sift(
+            rgb, self.max_keypoints, mask=mask, descriptors=self.provider.needs_sift_descriptors,
+            contrast_threshold=self.contrast_threshold,
+        )
+
+    def describe(self, frame: StreamFrame, kp: Keypoints, depth: np.ndarray) -> FrameFeatures:
+        desc = np.asarray(self.provider.describe(frame.rgb, kp))
+        if len(desc) != len(kp):
+            raise ValueError(f"descriptor provider {self.provider.name!r} returned {len(desc)} rows for {len(kp)} keypoints")
+        pts = lift_keypoints(kp.xy, depth, self.K).astype(np.float32)
+        dt = self.provider.storage_dtype
+        if dt == np.uint8:
+            desc = np.clip(np.rint(desc), 0, 255).astype(np.uint8)
+        else:
+            desc = desc.astype(dt)
+        return FrameFeatures(frame.index, frame.timestamp, kp.xy.astype(np.float32), desc, pts)
+
+
+@dataclass(frozen=True)
+class PairMatch:
+    """An accepted match of frames i and j: ``T_ij`` (p_i = T_ij p_j), the inlier 3D points of
+    frame j (its camera frame, metres; for the information matrix) and their count."""
+
+    T_ij: np.ndarray
+    points_j: np.ndarray
+    n: int
+
+
+def match_frames(
+    fi: FrameFeatures,
+    fj: FrameFeatures,
+    cfg: MatchFilterConfig,
+    metric: str = "l2",
+    ratio: float | None = 0.9,
+) -> tuple[PairMatch | None, int]:
+    """Mutual NN + :func:`filter_matches`; returns (match or None, number of inliers)."""
+    if len(fi) < cfg.min_matches or len(fj) < cfg.min_matches:
+        return None, 0
+    m, dist = mutual_nearest_neighbours(
+        fi.descriptors.astype(np.float32), fj.descriptors.astype(np.float32), metric, ratio=ratio
+    )
+    if len(m) < cfg.min_matches:
+        return None, 0
+    pi, pj = fi.points[m[:, 0]].astype(np.float64), fj.points[m[:, 1]].astype(np.float64)
+    res = filter_matches(pi, pj, cfg, priority=dist)
+    if not res.accepted:
+        return None, 0
+    kept = res.kept
+    return PairMatch(res.T_ij, pj[kept], int(len(kept))), int(len(kept))

@@ -1,0 +1,199 @@
+"""Run the SLAM runtime on a sequence folder and write its outputs (SPEC §4, §5.2).
+
+One frame at a time: :class:`c3f_slam.stream.FrameStream` reads it, flagged frames (black /
+saturated) are skipped and counted, the frontend keeps only keypoints, descriptors and 3D
+points, fusion re-reads settled fragments through a loader. Whatever happens, the outputs
+so far (trajectory.txt, summary.json with the error, keyframe graph) are written
+atomically before the error is passed on.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from c3f_slam.errors import InputError
+from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
+from c3f_slam.outputs import KeyframeGraph, RunOutputs
+from c3f_slam.pipeline.config import SlamConfig
+from c3f_slam.pipeline.frontend import DepthProvider, DescriptorProvider, FileDepth, Frontend, SiftDescriptors
+from c3f_slam.pipeline.slam import FragmentSlam, OdometrySlam, Timings
+from c3f_slam.stream import FrameStream
+
+DESCRIPTORS = ("sift", "contrafeat")
+DEPTH_SOURCES = ("files", "model")
+ONNX_MISSING = "the ONNX model loader (c3f_slam.models) is not available yet; use --depth-source files --descriptors sift"
+
+
+def make_providers(
+    descriptors: str = "sift", depth_source: str = "files", depth_model: str | None = None,
+    feature_model: str | None = None,
+) -> tuple[DescriptorProvider, DepthProvider]:
+    """The descriptor and depth providers for the command-line choices (InputError otherwise)."""
+    if descriptors not in DESCRIPTORS:
+        raise InputError(f"--descriptors must be one of {DESCRIPTORS}, got {descriptors!r}")
+    if depth_source not in DEPTH_SOURCES:
+        raise InputError(f"--depth-source must be one of {DEPTH_SOURCES}, got {depth_source!r}")
+    if descriptors == "contrafeat" or feature_model is not None:
+        raise InputError(f"--descriptors contrafeat / --feature-model: {ONNX_MISSING}")
+    if depth_source == "model" or depth_model is not None:
+        raise InputError(f"--depth-source model / --depth-model: {ONNX_MISSING}")
+    return SiftDescriptors(), FileDepth()
+
+
+def _progress(total: int | None, enabled: bool):
+    if not enabled:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover
+        return None
+    return tqdm(total=total, unit="frame", desc="slam", dynamic_ncols=True, mininterval=0.5)
+
+
+def run_slam(
+    sequence: str | Path,
+    out: str | Path,
+    cfg: SlamConfig | None = None,
+    descriptors: str = "sift",
+    depth_source: str = "files",
+    depth_model: str | None = None,
+    feature_model: str | None = None,
+    max_frames: int | None = None,
+    stride: int = 1,
+    progress: bool = True,
+    slam_factory=None,
+) -> dict:
+    """Run on ``sequence`` and write the outputs into ``out``; returns the summary.
+
+    Raises InputError (after writing summary.json with the error) on bad input, including a
+    run in which no frame could be registered. ``slam_factory(cfg, K, metric, timings)`` may
+    replace the back-end (tests).
+    """
+    cfg = cfg or SlamConfig()
+    outputs = RunOutputs(out)
+    summary: dict = {
+        "sequence": str(sequence), "mode": cfg.mode, "descriptors": descriptors, "depth_source": depth_source,
+        "preset": cfg.preset, "stride": stride, "max_frames": max_frames, "status": "running",
+        "config": cfg.as_dict(),
+    }
+    timings = Timings()
+    slam = None
+    counts = {"frames": 0, "processed": 0, "skipped_black": 0, "skipped_saturated": 0, "skipped_featureless": 0}
+    t_start = time.perf_counter()
+    bar = None
+    try:
+        desc, depth_src = make_providers(descriptors, depth_source, depth_model, feature_model)
+        stream = FrameStream(sequence, use_depth=True, step=stride, max_frames=max_frames)
+        if stream.sequence is None:
+            raise InputError(f"{sequence}: --depth-source files needs a sequence folder, not a video")
+        if not stream.sequence.has_depth:
+            raise InputError(f"{sequence}: --depth-source files but the sequence has no depth/ folder")
+        seq = stream.sequence
+        K = seq.camera.K
+        summary["camera"] = seq.camera.to_dict()
+        front = Frontend(K, desc, cfg.max_keypoints, cfg.sift_contrast_threshold, cfg.mask_specular,
+                         cfg.specular_dilation_px)
+        factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
+        slam = factory(cfg, K, desc.metric, timings)
+
+        def load(row: int):
+            i = int(slam.log.index[row])
+            return seq.read_rgb(i), seq.read_depth(i)
+
+        def pose_of(row: int):
+            return slam.pose_of_log(row)
+
+        fusion = FragmentFusion(TSDFVolume(cfg.tsdf), load, K, cfg.eps_f_na, cfg.eps_cf_d) if cfg.fuse else None
+        bar = _progress(len(stream), progress)
+        t0 = time.perf_counter()
+        for frame in stream:
+            t0 = timings.add("io", t0)
+            counts["frames"] += 1
+            if bar is not None:
+                bar.update(1)
+            if not frame.usable:
+                counts[f"skipped_{frame.status}"] += 1
+                slam.skip(frame.index, frame.timestamp)
+                t0 = time.perf_counter()
+                continue
+            depth = depth_src.depth(frame)
+            kp = front.keypoints(frame.rgb)
+            feat = front.describe(frame, kp, depth)
+            t0 = timings.add("keypoints", t0)
+            if int(np.isfinite(feat.points).all(axis=1).sum()) < cfg.match_filter.min_matches:
+                counts["skipped_featureless"] += 1
+                slam.skip(frame.index, frame.timestamp)
+                t0 = time.perf_counter()
+                continue
+            counts["processed"] += 1
+            fid, _ = slam.add(feat, depth)
+            row = len(slam.log) - 1
+            t0 = time.perf_counter()
+            if fusion is not None and fid >= 0:
+                fusion.add_frame(fid, row)
+                T = slam.current_pose()
+                if T is not None:
+                    fusion.step(row, T, pose_of, eligible=slam.main_fragments())
+            t0 = timings.add("fusion", t0)
+            if bar is not None:
+                bar.set_postfix(kf=len(getattr(slam, "keyframes", [])), refresh=False)
+        slam.finish()
+        if fusion is not None:
+            t0 = time.perf_counter()
+            mesh = fusion.finalize(pose_of, slam.main_fragments())
+            if len(mesh.triangles):
+                write_mesh(mesh, outputs.mesh)
+            summary["mesh_triangles"] = int(len(mesh.triangles))
+            timings.add("fusion", t0)
+        summary["status"] = "ok"
+    except BaseException as exc:  # write what we have, then pass the error on
+        summary["status"] = "error"
+        summary["error"] = f"{type(exc).__name__}: {exc}" if not isinstance(exc, InputError) else str(exc)
+        if not isinstance(exc, (InputError, KeyboardInterrupt)):
+            summary["traceback"] = traceback.format_exc(limit=8)
+        _write(outputs, slam, summary, counts, timings, t_start)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    _write(outputs, slam, summary, counts, timings, t_start)
+    if summary.get("registered_frames", 0) == 0:
+        msg = (f"{sequence}: no frame could be registered ({counts['frames']} frames, "
+               f"{counts['skipped_black']} black, {counts['skipped_saturated']} saturated, "
+               f"{counts['skipped_featureless']} featureless)")
+        summary["status"], summary["error"] = "error", msg
+        outputs.write_summary(summary)
+        raise InputError(msg)
+    return summary
+
+
+def _write(outputs: RunOutputs, slam, summary: dict, counts: dict, timings: Timings, t_start: float) -> None:
+    """Trajectory, keyframe graph and summary (each atomically); never raises on top of an error."""
+    summary.update(counts)
+    summary["wall_seconds"] = time.perf_counter() - t_start
+    summary["timings"] = timings.as_dict(counts["frames"])
+    try:
+        if slam is not None:
+            _, stamps, poses, reg = slam.trajectory()
+            n = outputs.write_trajectory(stamps, poses, reg)
+            usable = counts["processed"]
+            summary["registered_frames"] = n
+            summary["registered_share"] = n / counts["frames"] if counts["frames"] else 0.0
+            summary["registered_share_of_usable"] = n / usable if usable else 0.0
+            summary.update(slam.stats())
+            if isinstance(slam, FragmentSlam) and slam.graph.n_nodes:
+                main = slam.main_fragments()
+                graph = KeyframeGraph.from_posegraph(
+                    slam.graph, [f.keyframe for f in slam.fragments],
+                    [k.timestamp for k in slam.keyframes],
+                    lone={f for f in range(len(slam.fragments)) if f not in main},
+                    fragments=list(range(len(slam.fragments))),
+                )
+                outputs.write_graph(graph)
+    except Exception as exc:  # pragma: no cover - keep the original error visible
+        summary["output_error"] = f"{type(exc).__name__}: {exc}"
+    outputs.write_summary(summary)

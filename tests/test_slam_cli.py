@@ -1,0 +1,110 @@
+"""`python -m c3f_slam run|evaluate`: outputs, clear one-line errors (exit 2), partial outputs."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from c3f_slam.cli import main
+from datamodules.synthetic.fixture import make_tiny_sequence
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory) -> Path:
+    return make_tiny_sequence(tmp_path_factory.mktemp("cli") / "seq", frames=16, size=96, seed=1)
+
+
+def _error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: "), err
+    return err[0]
+
+
+def test_help_lists_commands_and_options():
+    out = subprocess.run([sys.executable, "-m", "c3f_slam", "run", "--help"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0
+    for opt in ("--depth-source", "--descriptors", "--baseline", "--max-frames", "--stride", "--preset",
+                "--depth-model", "--feature-model", "--no-mesh"):
+        assert opt in out.stdout
+
+
+def test_run_and_evaluate(seq, tmp_path, capsys):
+    out = tmp_path / "run"
+    rc = main(["run", str(seq), "--depth-source", "files", "--descriptors", "sift", "--out", str(out),
+               "--min-correspondences", "15", "--quiet"])
+    assert rc == 0
+    for name in ("trajectory.txt", "summary.json", "keyframe_graph.json", "keyframe_graph.png", "mesh.ply"):
+        assert (out / name).is_file(), name
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "ok" and s["frames"] == 16
+    assert main(["evaluate", str(out), "--gt", str(seq)]) == 0
+    printed = capsys.readouterr().out
+    assert "ATE sim3" in printed and "cm" in printed and "coverage" in printed
+    ev = json.loads((out / "evaluation.json").read_text())
+    assert math.isfinite(ev["ate_sim3"]["rmse_m"]) and math.isfinite(ev["ate_se3"]["rmse_m"])
+    assert ev["ate_sim3"]["rmse_m"] < 0.05 * ev["gt_length_m"]
+    assert 0 < ev["coverage"]["share"] <= 1
+    assert (out / "trajectory.png").is_file() and (out / "coverage.ply").is_file()
+
+
+def test_odometry_baseline_stride_max_frames(seq, tmp_path):
+    out = tmp_path / "odo"
+    assert main(["run", str(seq), "--out", str(out), "--baseline", "odometry", "--stride", "2",
+                 "--max-frames", "5", "--no-mesh", "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["mode"] == "odometry" and s["frames"] == 5 and not (out / "mesh.ply").exists()
+
+
+def test_missing_sequence(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["run", str(tmp_path / "nope"), "--out", str(out), "--quiet"]) == 2
+    assert "nope" in _error_line(capsys)
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "error" and "nope" in s["error"]
+
+
+def test_intrinsics_not_matching_frames(seq, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(seq, bad)
+    cam = json.loads((bad / "camera.json").read_text())
+    cam["width"] = cam["width"] + 8
+    (bad / "camera.json").write_text(json.dumps(cam))
+    out = tmp_path / "o"
+    assert main(["run", str(bad), "--out", str(out), "--quiet"]) == 2
+    line = _error_line(capsys)
+    assert "bad" in line
+    assert json.loads((out / "summary.json").read_text())["status"] == "error"
+
+
+def test_all_black_sequence_never_registers(seq, tmp_path, capsys):
+    bad = tmp_path / "black"
+    shutil.copytree(seq, bad)
+    for p in sorted((bad / "rgb").glob("*.png"))[:6]:
+        cv2.imwrite(str(p), np.zeros((96, 96, 3), np.uint8))
+    out = tmp_path / "o"
+    assert main(["run", str(bad), "--out", str(out), "--max-frames", "6", "--quiet"]) == 2
+    assert "no frame could be registered" in _error_line(capsys)
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "error" and s["skipped_black"] == 6 and (out / "trajectory.txt").is_file()
+
+
+def test_onnx_options_fail_clearly(seq, tmp_path, capsys):
+    for extra in (["--descriptors", "contrafeat"], ["--depth-model", "d.onnx"], ["--feature-model", "f.onnx"]):
+        assert main(["run", str(seq), "--out", str(tmp_path / "o"), "--quiet", *extra]) == 2
+        assert "ONNX model loader" in _error_line(capsys)
+
+
+def test_evaluate_without_run(seq, tmp_path, capsys):
+    assert main(["evaluate", str(tmp_path), "--gt", str(seq)]) == 2
+    assert "trajectory" in _error_line(capsys)

@@ -1,0 +1,179 @@
+"""SLAM runtime (issue 7): fragment rules, end to end in RGB-D mode on the simulator,
+re-localisation after black frames, and checks that the tests can fail."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from c3f_slam.evaluate import evaluate_trajectory
+from c3f_slam.frustum import frustum_overlap
+from c3f_slam.geometry import make_pose
+from c3f_slam.io import Sequence, read_tum, write_tum
+from c3f_slam.pipeline import SlamConfig, run_slam
+from c3f_slam.pipeline.fragments import CORRESPONDENCES, OVERLAP, SIZE, Fragment, new_fragment_reason
+from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
+from c3f_slam.pipeline.slam import FragmentSlam, OdometrySlam
+from datamodules.synthetic.fixture import make_tiny_sequence
+
+FRAMES, SIZE_PX = 36, 128
+#: 128 px frames give 20-60 filtered correspondences between neighbours, so the paper's 100
+#: (tuned at 512+ px) would make every frame a keyframe; the tests use 15.
+CFG = dict(min_consecutive_correspondences=15)
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory) -> Path:
+    return make_tiny_sequence(tmp_path_factory.mktemp("slam") / "seq", frames=FRAMES, size=SIZE_PX, seed=3)
+
+
+def _evaluate(out: Path, seq_dir: Path) -> dict:
+    st, P = read_tum(out / "trajectory.txt")
+    g = Sequence(seq_dir)
+    return evaluate_trajectory(st, P, g.timestamps, g.poses)
+
+
+# ---------------------------------------------------------------------- unit: fragment decisions
+
+def test_new_fragment_reason_rules():
+    assert new_fragment_reason(150, 0.95, 3) is None
+    assert new_fragment_reason(99, 0.95, 3) == CORRESPONDENCES  # paper: < 100 correspondences
+    assert new_fragment_reason(100, 0.84, 3) == OVERLAP  # paper: < 85 % overlap
+    assert new_fragment_reason(100, 0.85, 3) is None
+    assert new_fragment_reason(500, None, 60, max_fragment_frames=60) == SIZE
+    assert new_fragment_reason(20, 0.9, 3, min_correspondences=15) is None
+
+
+def test_overlap_decides_on_synthetic_motion():
+    """A fronto-parallel wall at 3 cm: small motion keeps > 85 % overlap, a 1 cm side step does not."""
+    K = np.array([[32.0, 0, 31.5], [0, 32.0, 31.5], [0, 0, 1]])
+    depth = np.full((64, 64), 0.03)
+    small = frustum_overlap(depth, K, make_pose(np.eye(3), [0.001, 0, 0]), np.eye(4))
+    big = frustum_overlap(depth, K, make_pose(np.eye(3), [0.01, 0, 0]), np.eye(4))
+    assert small > 0.85 and new_fragment_reason(200, small, 2) is None
+    assert big < 0.85 and new_fragment_reason(200, big, 2) == OVERLAP
+
+
+def _feat(i: int, n: int = 20) -> FrameFeatures:
+    return FrameFeatures(i, float(i), np.zeros((n, 2), np.float32), np.zeros((n, 128), np.uint8),
+                         np.zeros((n, 3), np.float32))
+
+
+def test_fragment_chains_and_optimises_relative_to_keyframe():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-0.01, 0.01, (30, 3)) + [0, 0, 0.03]
+    step = make_pose(np.eye(3), [0.002, 0, 0])  # T_{i-1,i}
+    frag = Fragment(0, _feat(0), np.zeros((4, 4)), "first")
+    for i in range(1, 4):
+        extra = [(0, PairMatch(np.linalg.matrix_power(step, i), pts, 30))]
+        frag.add_frame(_feat(i), PairMatch(step, pts, 30), extra)
+    frag.close(SlamConfig().posegraph)
+    assert frag.features is None and frag.rel_poses.shape == (4, 4, 4)
+    np.testing.assert_allclose(frag.pose(0), np.eye(4), atol=1e-9)
+    np.testing.assert_allclose(frag.pose(3)[:3, 3], [0.006, 0, 0], atol=1e-6)
+
+
+# ---------------------------------------------------------------------- end to end
+
+def test_rgbd_end_to_end_full_system(seq, tmp_path):
+    cfg = SlamConfig.preset_config("colon", **CFG)
+    s = run_slam(seq, tmp_path / "full", cfg, progress=False)
+    ev = _evaluate(tmp_path / "full", seq)
+    length = ev["gt_length_m"]
+    assert s["registered_share"] >= 0.9
+    assert ev["ate_sim3"]["rmse_m"] < 0.05 * length, ev  # measured: about 0.2 % of ~9 cm
+    assert ev["ate_se3"]["rmse_m"] < 0.002
+    assert s["fragments"] >= 2 and s["keyframes"] == s["fragments"]
+    assert set(s["timings"]) >= {"io", "keypoints", "matching", "posegraph", "fusion"}
+    assert s["mesh_triangles"] > 0 and (tmp_path / "full" / "mesh.ply").is_file()
+    assert (tmp_path / "full" / "keyframe_graph.png").is_file()
+
+
+def test_odometry_baseline_and_injected_wrong_edge(seq, tmp_path):
+    """The baseline tracks well; one wrong relative pose in its chain raises the ATE a lot
+    (so the ATE checks above can fail)."""
+    cfg = SlamConfig.preset_config("colon", mode="odometry", fuse=False, **CFG)
+    run_slam(seq, tmp_path / "odo", cfg, progress=False)
+    clean = _evaluate(tmp_path / "odo", seq)["ate_sim3"]["rmse_m"]
+
+    class Broken(OdometrySlam):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            good = self.match
+
+            def match(fa, fb):
+                m, n = good(fa, fb)
+                if m is not None and fb.index == FRAMES // 2:
+                    bad = make_pose(cv2.Rodrigues(np.array([0.0, 0.3, 0.0]))[0], m.T_ij[:3, 3] + 0.005)
+                    m = PairMatch(bad @ m.T_ij, m.points_j, m.n)
+                return m, n
+            self.match = match
+
+    run_slam(seq, tmp_path / "odo_bad", cfg, progress=False, slam_factory=Broken)
+    broken = _evaluate(tmp_path / "odo_bad", seq)["ate_sim3"]["rmse_m"]
+    assert clean < 0.002
+    assert broken > 5 * clean and broken > 0.003
+
+
+def test_false_loop_closure_is_pruned(seq, tmp_path):
+    """A wrong keyframe match (uncertain loop edge) is removed by the line process and
+    reported; the trajectory stays accurate."""
+    class FalseLoop(FragmentSlam):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            good = self.match
+
+            def match(fa, fb):
+                m, n = good(fa, fb)
+                if fa.index == 0 and fb.index > FRAMES // 2 and m is None:
+                    return PairMatch(make_pose(np.eye(3), [0.0, 0.0, 0.0]), fb.points[:40].astype(float), 40), 40
+                return m, n
+            self.match = match
+
+    cfg = SlamConfig.preset_config("colon", fuse=False, **CFG)
+    s = run_slam(seq, tmp_path / "loop", cfg, progress=False, slam_factory=FalseLoop)
+    ev = _evaluate(tmp_path / "loop", seq)
+    assert s["loop_edges"] >= 1 and s["pruned_edges"] >= 1, s
+    assert ev["ate_sim3"]["rmse_m"] < 0.05 * ev["gt_length_m"]
+
+
+def _with_black_run(src: Path, dst: Path, after: int, n_black: int) -> Path:
+    """Copy of ``src`` with ``n_black`` black frames inserted after frame ``after``."""
+    seq = Sequence(src)
+    (dst / "rgb").mkdir(parents=True)
+    (dst / "depth").mkdir()
+    order = list(range(after + 1)) + [-1] * n_black + list(range(after + 1, len(seq)))
+    poses = []
+    for k, i in enumerate(order):
+        name = f"{k:06d}.png"
+        if i < 0:
+            cv2.imwrite(str(dst / "rgb" / name), np.zeros((seq.camera.height, seq.camera.width, 3), np.uint8))
+            shutil.copy(seq.depth_paths[after], dst / "depth" / name)
+            poses.append(seq.poses[after])
+        else:
+            shutil.copy(seq.rgb_paths[i], dst / "rgb" / name)
+            shutil.copy(seq.depth_paths[i], dst / "depth" / name)
+            poses.append(seq.poses[i])
+    write_tum(dst / "poses.txt", np.arange(len(order)) / 30.0, np.array(poses))
+    shutil.copy(src / "camera.json", dst / "camera.json")
+    shutil.copy(src / "mesh.ply", dst / "mesh.ply")
+    return dst
+
+
+def test_black_run_relocalises_to_the_map(seq, tmp_path):
+    after, n_black = FRAMES // 2, 5
+    dst = _with_black_run(seq, tmp_path / "black", after, n_black)
+    cfg = SlamConfig.preset_config("colon", fuse=False, **CFG)
+    s = run_slam(dst, tmp_path / "out", cfg, progress=False)
+    assert s["skipped_black"] == n_black
+    assert s["relocalised_keyframes"] >= 1  # a keyframe with no odometry link joined the map
+    st, P = read_tum(tmp_path / "out" / "trajectory.txt")
+    resumed = np.arange(after + 1 + n_black, FRAMES + n_black) / 30.0
+    assert np.isin(np.round(resumed, 6), np.round(st, 6)).mean() >= 0.9  # frames after the gap registered
+    assert s["registered_share_of_usable"] >= 0.9
+    ev = _evaluate(tmp_path / "out", dst)
+    assert ev["ate_sim3"]["rmse_m"] < 0.05 * ev["gt_length_m"]
