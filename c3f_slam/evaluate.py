@@ -22,6 +22,7 @@ import open3d as o3d
 
 from c3f_slam.geometry import invert_pose, matrix_to_axis_angle
 from c3f_slam.io.atomic import atomic_write
+from c3f_slam.matching.kabsch import kabsch
 
 # ---------------------------------------------------------------------- association
 
@@ -71,17 +72,14 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[
         raise ValueError(f"alignment needs at least 3 positions, got {len(src)}")
     mu_s, mu_d = src.mean(0), dst.mean(0)
     xs, xd = src - mu_s, dst - mu_d
-    cov = xd.T @ xs / len(src)
-    U, D, Vt = np.linalg.svd(cov)
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2, 2] = -1
-    R = U @ S @ Vt
+    # The best rotation does not depend on the scale: it is the (unweighted) Kabsch rotation.
+    R = kabsch(src, dst)[:3, :3]
     if with_scale:
         var_s = (xs**2).sum() / len(src)
         if var_s <= 0:
             raise ValueError("source positions are all identical: scale undefined")
-        s = float(np.trace(np.diag(D) @ S) / var_s)
+        # Umeyama's s = tr(D S) / var_s, i.e. tr(R H) / var_s with H the cross-covariance.
+        s = float(np.trace(R @ (xs.T @ xd)) / len(src) / var_s)
     else:
         s = 1.0
     t = mu_d - s * R @ mu_s

@@ -23,15 +23,6 @@ MONODEPTH2 = dict(use_extra_photometric=False, use_depth_consistency=False, use_
                   use_specular_mask=False)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """Tiny tensors: one intra-op thread is as fast and does not thrash when the cores are shared."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def datamodule(root: Path, size: int = 32, batch_size: int = 2) -> C3FSequenceDataModule:
     return C3FSequenceDataModule(data_dir=str(root), size=[size, size], batch_size=batch_size)
 

@@ -14,15 +14,6 @@ from c3f_models.depth.resnet import ResnetEncoder
 from c3f_slam.errors import InputError
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """Tiny tensors: one intra-op thread is as fast and does not thrash when the cores are shared."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def test_disp_depth_conversion_bounds_and_inverse():
     disp = torch.tensor([0.0, 0.25, 0.5, 1.0])
     depth = disp_to_depth(disp, 0.001, 0.3)
