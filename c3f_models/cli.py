@@ -4,8 +4,10 @@ Model and data are chosen by class path in the config (subclass mode), e.g.::
 
     python -m c3f_models fit --config configs/trainer/cpu_smoke.yaml --config configs/depthnet/small.yaml
 
-Subcommands: ``fit``, ``validate``, ``test``, ``predict`` (Lightning's), plus whatever
-:data:`EXTRA_SUBCOMMANDS` adds (methods of :class:`C3FTrainer`). The resolved config is
+Subcommands: ``fit``, ``validate``, ``test``, ``predict`` (Lightning's), plus
+:data:`EXTRA_SUBCOMMANDS` (methods of :class:`C3FTrainer`): ``export`` writes ONNX files::
+
+    python -m c3f_models export --config runs/.../config.yaml --ckpt_path .../last.ckpt --output_dir exported The resolved config is
 saved as ``config.yaml`` next to the TensorBoard logs of each run. Bad input
 (:class:`c3f_slam.errors.InputError`) ends the run with a one-line ``error: ...`` and
 exit status 2 instead of a traceback.
@@ -25,9 +27,9 @@ from lightning.pytorch.cli import ArgsType, LightningCLI
 from c3f_models.trainer import C3FTrainer
 from c3f_slam.errors import InputError
 
-# Subcommands beyond Lightning's: name -> Trainer arguments the method takes from the
-# parsed config. The export issue adds "export" here (a method of C3FTrainer).
-EXTRA_SUBCOMMANDS: dict[str, set[str]] = {}
+# Subcommands beyond Lightning's: name -> arguments of the C3FTrainer method that the CLI
+# fills itself (the instantiated model and data module); the others become options.
+EXTRA_SUBCOMMANDS: dict[str, set[str]] = {"export": {"model", "datamodule"}}
 
 SEED_DEFAULT = 42
 

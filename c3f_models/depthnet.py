@@ -24,20 +24,28 @@ from c3f_models.metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.errors import InputError
 
 
-def read_checkpoint_weights(path: str | Path, option: str = "model.init_weights") -> dict[str, torch.Tensor]:
-    """Model weights from a Lightning checkpoint (``state_dict`` key) or a plain state dict file."""
+def read_checkpoint_weights(
+    path: str | Path, option: str = "model.init_weights", weights_only: bool | None = None
+) -> dict[str, torch.Tensor]:
+    """Model weights from a Lightning checkpoint (``state_dict`` key) or a plain state dict file.
+
+    ``weights_only``: True = only the safe unpickler; None (default) = safe first, then a
+    full load (a checkpoint may pickle config objects in its hyper-parameters; it is the
+    user's own training output, read the way ``Trainer(ckpt_path=...)`` reads it).
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{option}: file not found: {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception:
-        # A checkpoint may pickle config objects in its hyper-parameters; it is the user's own
-        # training output, read the way Trainer(ckpt_path=...) reads it.
+    attempts = [True] if weights_only else ([False] if weights_only is False else [True, False])
+    ckpt, error = None, None
+    for safe in attempts:
         try:
-            ckpt = torch.load(path, map_location="cpu", weights_only=False)
+            ckpt = torch.load(path, map_location="cpu", weights_only=safe)
+            break
         except Exception as exc:
-            raise InputError(f"{option}: {path} is not a torch checkpoint ({type(exc).__name__})") from None
+            error = exc
+    if ckpt is None:
+        raise InputError(f"{option}: {path} is not a torch checkpoint ({type(error).__name__})") from None
     state = ckpt.get("state_dict", ckpt) if isinstance(ckpt, dict) else None
     if not isinstance(state, dict) or not state or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise InputError(f"{option}: {path} holds no model weights")

@@ -2,7 +2,13 @@
 
     python -m c3f_slam run SEQUENCE_DIR --depth-source files --descriptors sift --out OUT
         [--preset colon|room] [--baseline odometry] [--max-frames N] [--stride K] [--no-mesh]
+    python -m c3f_slam run SEQUENCE_DIR|VIDEO --depth-model depth.onnx --feature-model feat.onnx --out OUT
+        [--camera camera.json] [--threads N]
     python -m c3f_slam evaluate OUT --gt SEQUENCE_DIR
+    python -m c3f_slam inspect MODEL.onnx
+
+``--depth-source`` / ``--descriptors`` default to the models given: model depth with
+``--depth-model``, ContraFeat with ``--feature-model``, else files and SIFT.
 
 Bad input prints one line ``error: <message>`` and exits with status 2; the outputs so far
 (summary.json with the error, trajectory) are still written.
@@ -21,14 +27,18 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m c3f_slam", description="C3Fusion SLAM runtime")
     sub = ap.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run SLAM on a sequence folder and write trajectory, mesh, graph, summary")
-    r.add_argument("sequence", help="sequence folder (rgb/, depth/, camera.json)")
+    r.add_argument("sequence", help="sequence folder (rgb/, depth/, camera.json), or a video with --depth-model")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--depth-source", default="files", choices=("files", "model"),
-                   help="files: depth/ of the sequence (RGB-D mode); model: DepthNet ONNX (--depth-model)")
-    r.add_argument("--descriptors", default="sift", choices=("sift", "contrafeat"),
-                   help="sift (the SIFT baseline) or contrafeat (ONNX, --feature-model)")
-    r.add_argument("--depth-model", help="DepthNet ONNX file (not available yet)")
-    r.add_argument("--feature-model", help="ContraFeat ONNX file (not available yet)")
+    r.add_argument("--depth-source", choices=("files", "model"),
+                   help="files: depth/ of the sequence (RGB-D mode); model: DepthNet ONNX (--depth-model). "
+                        "Default: model when --depth-model is given, else files")
+    r.add_argument("--descriptors", choices=("sift", "contrafeat"),
+                   help="sift (the SIFT baseline) or contrafeat (ONNX, --feature-model). "
+                        "Default: contrafeat when --feature-model is given, else sift")
+    r.add_argument("--depth-model", help="DepthNet ONNX export (see `python -m c3f_slam inspect`)")
+    r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints)")
+    r.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video)")
+    r.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model (default 2)")
     r.add_argument("--preset", default="colon", choices=("colon", "room"), help="scene scale of the thresholds")
     r.add_argument("--baseline", choices=("odometry",), help="frame-to-frame odometry only (no fragments/loops)")
     r.add_argument("--max-frames", type=int, help="process at most N frames")
@@ -42,6 +52,8 @@ def _parser() -> argparse.ArgumentParser:
     e = sub.add_parser("evaluate", help="ATE / RPE / registered share / coverage of a run against ground truth")
     e.add_argument("out", help="run folder (trajectory.txt, summary.json, mesh.ply)")
     e.add_argument("--gt", required=True, help="ground-truth sequence folder (poses.txt, optional mesh.ply)")
+    i = sub.add_parser("inspect", help="print the metadata of an exported ONNX model (kind, size, units, ...)")
+    i.add_argument("model", help="an .onnx file written by the C3Fusion exporter")
     return ap
 
 
@@ -52,6 +64,8 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"--stride must be >= 1, got {args.stride}")
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
+    if args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
     over = {}
     if args.min_correspondences is not None:
         over["min_consecutive_correspondences"] = args.min_correspondences
@@ -61,7 +75,8 @@ def _run(args: argparse.Namespace) -> int:
         over["max_keypoints"] = over["keyframe_keypoints"] = args.max_keypoints
     cfg = SlamConfig.preset_config(args.preset, mode=args.baseline or "full", fuse=not args.no_mesh, **over)
     s = run_slam(args.sequence, args.out, cfg, args.descriptors, args.depth_source, args.depth_model,
-                 args.feature_model, args.max_frames, args.stride, progress=not args.quiet)
+                 args.feature_model, args.max_frames, args.stride, progress=not args.quiet,
+                 camera=args.camera, threads=args.threads)
     fps = s["timings"]["total"]["frames_per_second"]
     print(f"{s['frames']} frames, {s['registered_frames']} registered ({100 * s['registered_share']:.1f} %), "
           f"{s.get('fragments', 0)} fragments, {s.get('loop_edges', 0)} loop edges, "
@@ -77,10 +92,21 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _inspect(args: argparse.Namespace) -> int:
+    from c3f_slam.models import OnnxModel, format_metadata
+
+    model = OnnxModel(args.model, threads=1, option=None)
+    print(format_metadata(model.metadata, str(args.model)))
+    return 0
+
+
+COMMANDS = {"run": _run, "evaluate": _evaluate, "inspect": _inspect}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
-        return _run(args) if args.command == "run" else _evaluate(args)
+        return COMMANDS[args.command](args)
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1,6 +1,8 @@
 """Frame pre-processing shared by training and the runtime (NumPy/OpenCV, no torch).
 
 - :func:`center_crop_resize`: centre crop then resize, with the intrinsics updated to match.
+- :func:`prepare_network_input`: the whole chain a network sees (crop, resize, inpainting);
+  training (:mod:`datamodules.base`) and the ONNX runtime (:mod:`c3f_slam.models`) both call it.
 - :func:`specular_mask` / :func:`inpaint_specular`: SPEC §2, the specular highlights are the
   pixels whose YUV luma Y exceeds 0.9 of full range, dilated with a 13-px kernel; they are
   inpainted in the input (OpenCV Telea) and excluded from the losses.
@@ -13,6 +15,8 @@ import numpy as np
 
 from c3f_slam.camera import PinholeCamera
 
+IMAGENET_MEAN = (0.485, 0.456, 0.406)  # RGB in [0, 1]; the nets normalise inside (and in their ONNX graphs)
+IMAGENET_STD = (0.229, 0.224, 0.225)
 SPECULAR_THRESHOLD = 0.9
 SPECULAR_DILATION_PX = 13
 
@@ -66,3 +70,28 @@ def inpaint_specular(rgb: np.ndarray, mask: np.ndarray, radius: int = 3) -> np.n
     if not mask.any():
         return rgb
     return cv2.inpaint(rgb, mask.astype(np.uint8), radius, cv2.INPAINT_TELEA)
+
+
+def prepare_network_input(
+    rgb: np.ndarray,
+    camera: PinholeCamera,
+    crop: tuple[int, int] | None,
+    size: tuple[int, int] | None,
+    specular: bool = True,
+    specular_threshold: float = SPECULAR_THRESHOLD,
+    specular_dilation_px: int = SPECULAR_DILATION_PX,
+) -> tuple[np.ndarray, np.ndarray, PinholeCamera]:
+    """What a network sees of an (H, W, 3) uint8 RGB frame.
+
+    Centre crop ``crop`` = (width, height), resize to ``size`` = (width, height)
+    (:func:`center_crop_resize`), then, with ``specular``, the specular mask of the resized
+    frame (``specular_threshold``, ``specular_dilation_px``) and Telea inpainting of its pixels. Returns (uint8 RGB, (h, w) bool specular mask,
+    intrinsics of the returned image).
+    """
+    rgb, cam = center_crop_resize(rgb, camera, crop, size)
+    if specular:
+        mask = specular_mask(rgb, specular_threshold, specular_dilation_px)
+        rgb = inpaint_specular(rgb, mask)
+    else:
+        mask = np.zeros(rgb.shape[:2], bool)
+    return rgb, mask, cam

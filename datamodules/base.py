@@ -37,7 +37,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
-from c3f_slam.preprocess import center_crop_resize, inpaint_specular, specular_mask
+from c3f_slam.preprocess import center_crop_resize, prepare_network_input
 
 
 class FrameSource(Protocol):
@@ -107,12 +107,7 @@ class FrameTupleDataset(Dataset):
         return len(self.index)
 
     def _frame(self, seq: FrameSource, i: int) -> tuple[np.ndarray, np.ndarray, PinholeCamera, np.ndarray | None]:
-        rgb, cam = center_crop_resize(seq.read_rgb(i), seq.camera, self.crop, self.size)
-        if self.specular:
-            mask = specular_mask(rgb)
-            rgb = inpaint_specular(rgb, mask)
-        else:
-            mask = np.zeros(rgb.shape[:2], bool)
+        rgb, mask, cam = prepare_network_input(seq.read_rgb(i), seq.camera, self.crop, self.size, self.specular)
         depth = None
         if self.load_depth:
             d = seq.read_depth(i)

@@ -100,9 +100,16 @@ def test_all_black_sequence_never_registers(seq, tmp_path, capsys):
 
 
 def test_onnx_options_fail_clearly(seq, tmp_path, capsys):
-    for extra in (["--descriptors", "contrafeat"], ["--depth-model", "d.onnx"], ["--feature-model", "f.onnx"]):
+    cases = [(["--descriptors", "contrafeat"], "--descriptors contrafeat needs --feature-model"),
+             (["--depth-source", "model"], "--depth-source model needs --depth-model"),
+             (["--depth-model", str(tmp_path / "d.onnx")], "--depth-model: "),
+             (["--feature-model", str(tmp_path / "f.onnx")], "--feature-model: ")]
+    for extra, expected in cases:
         assert main(["run", str(seq), "--out", str(tmp_path / "o"), "--quiet", *extra]) == 2
-        assert "ONNX model loader" in _error_line(capsys)
+        line = _error_line(capsys)
+        assert expected in line, line
+        if "-model: " in expected:
+            assert ".onnx: model file not found" in line, line
 
 
 def test_evaluate_without_run(seq, tmp_path, capsys):

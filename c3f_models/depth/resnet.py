@@ -15,10 +15,9 @@ from torchvision import models
 
 from c3f_models.depth.dcn import deformable_stages
 from c3f_slam.errors import InputError
+from c3f_slam.preprocess import IMAGENET_MEAN, IMAGENET_STD
 
 RESNETS = {18: models.resnet18, 34: models.resnet34, 50: models.resnet50}
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
 
 
 def build_resnet(num_layers: int, option: str = "encoder_layers") -> models.ResNet:

@@ -2,6 +2,7 @@
 
 - :mod:`.config`: :class:`SlamConfig` and presets (colon / room);
 - :mod:`.frontend`: keypoints, descriptor / depth provider seams, pairwise matching;
+- :mod:`.fusion_frames`: where fusion re-reads frames (sequence files, or the predicted-depth cache);
 - :mod:`.fragments`: the new-fragment rule and the intra-fragment pose graph;
 - :mod:`.slam`: the fragment + global keyframe back-end and the odometry baseline;
 - :mod:`.run`: the streaming run loop that writes the outputs;

@@ -4,9 +4,11 @@ Conventions (as :mod:`c3f_slam.matching`): keypoints (u, v) pixels; 3D points in
 camera frame, metres, NaN rows where there is no depth; ``T_ij`` maps frame-j points into
 frame i (p_i = T_ij p_j).
 
-Seams for the ONNX path (another issue): a :class:`DescriptorProvider` turns a frame and its
-keypoints into (N, D) descriptors (SIFT now, ContraFeat later); a :class:`DepthProvider`
-gives the depth of a frame in metres (files now, DepthNet later).
+Seams: a :class:`DescriptorProvider` turns a frame and its keypoints into (N, D) descriptors
+(:class:`SiftDescriptors`, or :class:`ContraFeatDescriptors` from a ContraFeat ONNX export);
+a :class:`DepthProvider` gives the depth of a frame in metres (:class:`FileDepth` from the
+sequence's depth/ files, or :class:`ModelDepth` from a DepthNet ONNX export). The model
+providers are bound to the stream's camera, whose intrinsics the frames already match.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
 from c3f_slam.matching import (
     Keypoints,
@@ -27,6 +30,7 @@ from c3f_slam.matching import (
     mutual_nearest_neighbours,
     to_gray_uint8,
 )
+from c3f_slam.models import DepthModel, DescriptorModel, NetworkView
 from c3f_slam.preprocess import SPECULAR_DILATION_PX, specular_mask
 from c3f_slam.stream import StreamFrame
 
@@ -67,6 +71,24 @@ class SiftDescriptors:
         return np.zeros((0, 128), np.float32) if desc is None else desc.astype(np.float32)
 
 
+class ContraFeatDescriptors:
+    """ContraFeat descriptors (ONNX) sampled at the SIFT keypoints; unit norm, compared by
+    cosine similarity, stored as float16."""
+
+    name = "contrafeat"
+    metric = "cosine"
+    storage_dtype = np.dtype(np.float16)
+    needs_sift_descriptors = False
+
+    def __init__(self, model: DescriptorModel, camera: PinholeCamera) -> None:
+        self.model = model
+        self.camera = camera
+        model.view(camera)  # the model's crop must fit these frames (InputError now, not mid-run)
+
+    def describe(self, rgb: np.ndarray, keypoints: Keypoints) -> np.ndarray:
+        return self.model.describe(rgb, self.camera, keypoints.xy)
+
+
 class DepthProvider(Protocol):
     """Depth of a streamed frame, (H, W) float32 metres, 0 = none."""
 
@@ -84,6 +106,44 @@ class FileDepth:
         if frame.depth is None:
             raise InputError(f"frame {frame.index}: --depth-source files but the sequence has no depth/ folder")
         return frame.depth
+
+
+@dataclass(frozen=True)
+class DepthPrediction:
+    """A DepthNet prediction of one frame: ``network`` (h, w) float32 metres on the network
+    grid described by ``view`` (``view.camera``: its intrinsics) and ``frame`` (H, W) float32
+    metres resized back onto the frame (0 outside the crop box)."""
+
+    index: int
+    network: np.ndarray
+    frame: np.ndarray
+    view: NetworkView
+
+
+class ModelDepth:
+    """Depth from a DepthNet ONNX export (metres, the frame's pixel grid).
+
+    The prediction of the most recent frame is memoised (by frame index), so that the run
+    loop can also store its network-grid depth for fusion without running the net twice.
+    """
+
+    name = "model"
+
+    def __init__(self, model: DepthModel, camera: PinholeCamera) -> None:
+        self.model = model
+        self.camera = camera
+        self.view = model.view(camera)  # InputError now when the model's crop does not fit
+        self._last: DepthPrediction | None = None
+
+    def predict(self, frame: StreamFrame) -> DepthPrediction:
+        if self._last is None or self._last.index != frame.index:
+            net, view = self.model.predict_network(frame.rgb, self.camera)
+            full = view.network_to_frame(net, self.model.upsample)
+            self._last = DepthPrediction(frame.index, net, full, view)
+        return self._last
+
+    def depth(self, frame: StreamFrame) -> np.ndarray:
+        return self.predict(frame).frame
 
 
 @dataclass

@@ -1,10 +1,13 @@
-"""Run the SLAM runtime on a sequence folder and write its outputs (SPEC §4, §5.2).
+"""Run the SLAM runtime on a sequence folder or a video and write its outputs (SPEC §4, §5.2).
 
-One frame at a time: :class:`c3f_slam.stream.FrameStream` reads it, flagged frames (black /
-saturated) are skipped and counted, the frontend keeps only keypoints, descriptors and 3D
-points, fusion re-reads settled fragments through a loader. Whatever happens, the outputs
-so far (trajectory.txt, summary.json with the error, keyframe graph) are written
-atomically before the error is passed on.
+One frame at a time: :class:`c3f_slam.stream.FrameStream` reads it (a sequence folder, or a
+video in model-depth mode), flagged frames (black / saturated) are skipped and counted, the
+depth provider gives its depth (files, or DepthNet ONNX), the frontend keeps only keypoints,
+descriptors (SIFT or ContraFeat ONNX) and 3D points, fusion re-reads settled fragments through
+:mod:`c3f_slam.pipeline.fusion_frames` (the sequence's files, or the on-disk cache of
+predicted depth, removed at the end). Whatever happens, the outputs so far (trajectory.txt,
+summary.json with the error, keyframe graph) are written atomically before the error is
+passed on.
 """
 
 from __future__ import annotations
@@ -15,33 +18,69 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
+from c3f_slam.models import DepthModel, DescriptorModel
 from c3f_slam.outputs import KeyframeGraph, RunOutputs
 from c3f_slam.pipeline.config import SlamConfig
-from c3f_slam.pipeline.frontend import DepthProvider, DescriptorProvider, FileDepth, Frontend, SiftDescriptors
+from c3f_slam.pipeline.frontend import (
+    ContraFeatDescriptors,
+    DepthProvider,
+    DescriptorProvider,
+    FileDepth,
+    Frontend,
+    ModelDepth,
+    SiftDescriptors,
+)
+from c3f_slam.pipeline.fusion_frames import fusion_frames
 from c3f_slam.pipeline.slam import FragmentSlam, OdometrySlam, Timings
 from c3f_slam.stream import FrameStream
 
 DESCRIPTORS = ("sift", "contrafeat")
 DEPTH_SOURCES = ("files", "model")
-ONNX_MISSING = "the ONNX model loader (c3f_slam.models) is not available yet; use --depth-source files --descriptors sift"
 
 
-def make_providers(
-    descriptors: str = "sift", depth_source: str = "files", depth_model: str | None = None,
-    feature_model: str | None = None,
-) -> tuple[DescriptorProvider, DepthProvider]:
-    """The descriptor and depth providers for the command-line choices (InputError otherwise)."""
+def resolve_sources(
+    descriptors: str | None, depth_source: str | None, depth_model: str | None, feature_model: str | None
+) -> tuple[str, str]:
+    """(descriptors, depth source) of the command-line choices; None follows the models given
+    (``--depth-model`` alone means model depth, ``--feature-model`` alone ContraFeat).
+    InputError for unknown values, a model choice without its file, or a file left unused."""
+    descriptors = descriptors or ("contrafeat" if feature_model else "sift")
+    depth_source = depth_source or ("model" if depth_model else "files")
     if descriptors not in DESCRIPTORS:
         raise InputError(f"--descriptors must be one of {DESCRIPTORS}, got {descriptors!r}")
     if depth_source not in DEPTH_SOURCES:
         raise InputError(f"--depth-source must be one of {DEPTH_SOURCES}, got {depth_source!r}")
-    if descriptors == "contrafeat" or feature_model is not None:
-        raise InputError(f"--descriptors contrafeat / --feature-model: {ONNX_MISSING}")
-    if depth_source == "model" or depth_model is not None:
-        raise InputError(f"--depth-source model / --depth-model: {ONNX_MISSING}")
-    return SiftDescriptors(), FileDepth()
+    if descriptors == "contrafeat" and not feature_model:
+        raise InputError("--descriptors contrafeat needs --feature-model FILE.onnx (a ContraFeat export)")
+    if descriptors != "contrafeat" and feature_model:
+        raise InputError(f"--feature-model is used with --descriptors contrafeat, not {descriptors}")
+    if depth_source == "model" and not depth_model:
+        raise InputError("--depth-source model needs --depth-model FILE.onnx (a DepthNet export)")
+    if depth_source != "model" and depth_model:
+        raise InputError(f"--depth-model is used with --depth-source model, not {depth_source}")
+    return descriptors, depth_source
+
+
+def make_providers(
+    descriptors: str | None = "sift", depth_source: str | None = "files", depth_model: str | None = None,
+    feature_model: str | None = None, camera: PinholeCamera | None = None, threads: int = 2,
+) -> tuple[DescriptorProvider, DepthProvider]:
+    """The descriptor and depth providers for the command-line choices (see
+    :func:`resolve_sources`); model providers load their ONNX file (onnxruntime, ``threads``
+    intra-op threads) and are bound to ``camera``, the frames' intrinsics. InputError otherwise."""
+    descriptors, depth_source = resolve_sources(descriptors, depth_source, depth_model, feature_model)
+    if camera is None and (descriptors == "contrafeat" or depth_source == "model"):
+        raise ValueError("model providers need the frames' camera")
+    desc: DescriptorProvider = SiftDescriptors()
+    depth: DepthProvider = FileDepth()
+    if descriptors == "contrafeat":
+        desc = ContraFeatDescriptors(DescriptorModel(feature_model, threads, "--feature-model"), camera)
+    if depth_source == "model":
+        depth = ModelDepth(DepthModel(depth_model, threads, "--depth-model"), camera)
+    return desc, depth
 
 
 def _progress(total: int | None, enabled: bool):
@@ -58,20 +97,25 @@ def run_slam(
     sequence: str | Path,
     out: str | Path,
     cfg: SlamConfig | None = None,
-    descriptors: str = "sift",
-    depth_source: str = "files",
+    descriptors: str | None = None,
+    depth_source: str | None = None,
     depth_model: str | None = None,
     feature_model: str | None = None,
     max_frames: int | None = None,
     stride: int = 1,
     progress: bool = True,
     slam_factory=None,
+    camera: str | Path | PinholeCamera | None = None,
+    threads: int = 2,
 ) -> dict:
-    """Run on ``sequence`` and write the outputs into ``out``; returns the summary.
+    """Run on ``sequence`` (folder, or video file with model depth) and write the outputs into
+    ``out``; returns the summary.
 
-    Raises InputError (after writing summary.json with the error) on bad input, including a
-    run in which no frame could be registered. ``slam_factory(cfg, K, metric, timings)`` may
-    replace the back-end (tests).
+    ``descriptors`` / ``depth_source`` None follow the models given (:func:`resolve_sources`);
+    ``camera``: intrinsics of a video (default camera.json beside it); ``threads``:
+    onnxruntime intra-op threads. Raises InputError (after writing summary.json with the
+    error) on bad input, including a run in which no frame could be registered.
+    ``slam_factory(cfg, K, metric, timings)`` may replace the back-end (tests).
     """
     cfg = cfg or SlamConfig()
     outputs = RunOutputs(out)
@@ -82,32 +126,42 @@ def run_slam(
     }
     timings = Timings()
     slam = None
+    frames = None
     counts = {"frames": 0, "processed": 0, "skipped_black": 0, "skipped_saturated": 0, "skipped_featureless": 0}
     t_start = time.perf_counter()
     bar = None
     try:
-        desc, depth_src = make_providers(descriptors, depth_source, depth_model, feature_model)
-        stream = FrameStream(sequence, use_depth=True, step=stride, max_frames=max_frames)
-        if stream.sequence is None:
-            raise InputError(f"{sequence}: --depth-source files needs a sequence folder, not a video")
-        if not stream.sequence.has_depth:
-            raise InputError(f"{sequence}: --depth-source files but the sequence has no depth/ folder")
-        seq = stream.sequence
-        K = seq.camera.K
-        summary["camera"] = seq.camera.to_dict()
+        descriptors, depth_source = resolve_sources(descriptors, depth_source, depth_model, feature_model)
+        summary.update(descriptors=descriptors, depth_source=depth_source)
+        stream = FrameStream(sequence, camera=camera, use_depth=depth_source == "files", step=stride,
+                             max_frames=max_frames)
+        if camera is not None and stream.sequence is not None:
+            raise InputError(f"{sequence}: --camera is for videos; a sequence folder uses its camera.json")
+        if depth_source == "files":
+            if stream.sequence is None:
+                raise InputError(f"{sequence}: --depth-source files needs a sequence folder, not a video")
+            if not stream.sequence.has_depth:
+                raise InputError(f"{sequence}: --depth-source files but the sequence has no depth/ folder")
+        cam = stream.camera
+        K = cam.K
+        summary["camera"] = cam.to_dict()
+        desc, depth_src = make_providers(descriptors, depth_source, depth_model, feature_model, cam, threads)
+        summary["models"] = {
+            name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe()}
+            for name, p in (("descriptors", desc), ("depth", depth_src)) if hasattr(p, "model")
+        }
         front = Frontend(K, desc, cfg.max_keypoints, cfg.sift_contrast_threshold, cfg.mask_specular,
                          cfg.specular_dilation_px)
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
         slam = factory(cfg, K, desc.metric, timings)
 
-        def load(row: int):
-            i = int(slam.log.index[row])
-            return seq.read_rgb(i), seq.read_depth(i)
-
         def pose_of(row: int):
             return slam.pose_of_log(row)
 
-        fusion = FragmentFusion(TSDFVolume(cfg.tsdf), load, K, cfg.eps_f_na, cfg.eps_cf_d) if cfg.fuse else None
+        fusion = None
+        if cfg.fuse:
+            frames = fusion_frames(depth_src, stream.sequence, lambda row: slam.log.index[row], outputs.root)
+            fusion = FragmentFusion(TSDFVolume(cfg.tsdf), frames.load, frames.K, cfg.eps_f_na, cfg.eps_cf_d)
         bar = _progress(len(stream), progress)
         t0 = time.perf_counter()
         for frame in stream:
@@ -121,6 +175,7 @@ def run_slam(
                 t0 = time.perf_counter()
                 continue
             depth = depth_src.depth(frame)
+            t0 = timings.add("depth", t0)
             kp = front.keypoints(frame.rgb)
             feat = front.describe(frame, kp, depth)
             t0 = timings.add("keypoints", t0)
@@ -134,6 +189,7 @@ def run_slam(
             row = len(slam.log) - 1
             t0 = time.perf_counter()
             if fusion is not None and fid >= 0:
+                frames.record(row, frame)
                 fusion.add_frame(fid, row)
                 T = slam.current_pose()
                 if T is not None:
@@ -160,6 +216,8 @@ def run_slam(
     finally:
         if bar is not None:
             bar.close()
+        if frames is not None:
+            frames.close()
     _write(outputs, slam, summary, counts, timings, t_start)
     if summary.get("registered_frames", 0) == 0:
         msg = (f"{sequence}: no frame could be registered ({counts['frames']} frames, "

@@ -32,9 +32,9 @@ Matcher = Callable[[FrameFeatures, FrameFeatures], "tuple[PairMatch | None, int]
 
 
 class Timings:
-    """Seconds per stage (io, keypoints, matching, posegraph, fusion)."""
+    """Seconds per stage (io, depth, keypoints incl. descriptors, matching, posegraph, fusion)."""
 
-    STAGES = ("io", "keypoints", "matching", "posegraph", "fusion")
+    STAGES = ("io", "depth", "keypoints", "matching", "posegraph", "fusion")
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)

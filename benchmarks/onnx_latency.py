@@ -1,0 +1,115 @@
+"""Per-frame latency: PyTorch eager vs onnxruntime on CPU, for every exported graph.
+
+Each net is built at its config's default (paper) size with random weights (latency does
+not depend on the weight values), exported with the project's exporter
+(:func:`export.onnx_io.to_onnx`), then timed at batch 1 with the same number of threads
+for both (torch.set_num_threads / intra_op_num_threads). Runs alternate between the two
+back-ends, so machine noise hits both alike; the table gives medians and the ratio
+eager / onnxruntime (> 1 means onnxruntime is faster).
+
+    python benchmarks/onnx_latency.py --threads 2 --repeats 20
+
+Writes benchmarks/results/onnx_latency.md (numbers + the command line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from c3f_models.contrafeat.network import ContraFeatNet  # noqa: E402
+from c3f_models.depth.networks import DepthNetwork, PoseNetwork  # noqa: E402
+from export.graphs import DepthGraph, DescriptorGraph, PoseGraph  # noqa: E402
+from export.onnx_io import OPSET, OPSET_DEFORM, to_onnx  # noqa: E402
+
+
+def graphs(size: int, small: bool):
+    """(label, module, input names, output name, opset, example inputs) for each net."""
+    x = torch.rand(1, 3, size, size)
+    if small:
+        depth = DepthGraph(DepthNetwork(18, False, 1))
+        yield "DepthNet (ResNet18, no DCN)", depth, ("image",), "depth", OPSET, (x,)
+    else:
+        depth = DepthGraph(DepthNetwork(50, True, 1))
+        yield "DepthNet (ResNet50 + DCN)", depth, ("image",), "depth", OPSET_DEFORM, (x,)
+    yield "PoseNet (ResNet18, 2 frames)", PoseGraph(PoseNetwork(18)), ("image_a", "image_b"), "T_ba", OPSET, (x, torch.rand_like(x))
+    cf = ContraFeatNet(18, 128, 64, 16, head_channels=64) if small else ContraFeatNet(18, 128, 128, 32, head_channels=128)
+    yield f"ContraFeat (ResNet18 FPN, 128-d{', small' if small else ''})", DescriptorGraph(cf), ("image",), "descriptors", OPSET, (x,)
+
+
+def time_pair(module, session, inputs, names, repeats: int, warmup: int) -> tuple[list[float], list[float]]:
+    feeds = {n: t.numpy() for n, t in zip(names, inputs)}
+    eager, onnx_rt = [], []
+    with torch.inference_mode():
+        for _ in range(warmup):
+            module(*inputs)
+            session.run(None, feeds)
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            module(*inputs)
+            eager.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            session.run(None, feeds)
+            onnx_rt.append(time.perf_counter() - t0)
+    return eager, onnx_rt
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--warmup", type=int, default=3)
+    ap.add_argument("--size", type=int, default=224, help="input height = width (the configs' default: 224)")
+    ap.add_argument("--small", action="store_true", help="the CPU variants (ResNet18 depth without DCN, small FPN)")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/onnx_latency.md")
+    a = ap.parse_args()
+    torch.manual_seed(0)
+    torch.set_num_threads(a.threads)
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = a.threads
+    opts.inter_op_num_threads = 1
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+
+    rows = []
+    for label, module, names, out_name, opset, inputs in graphs(a.size, a.small):
+        module.eval()
+        proto = to_onnx(module, inputs, names, out_name, opset)
+        session = ort.InferenceSession(proto.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+        eager, rt = time_pair(module, session, inputs, names, a.repeats, a.warmup)
+        with torch.inference_mode():
+            diff = float(np.abs(session.run(None, {n: t.numpy() for n, t in zip(names, inputs)})[0] - module(*inputs).numpy()).max())
+        e, r = statistics.median(eager) * 1e3, statistics.median(rt) * 1e3
+        rows.append((label, e, r, e / r, diff))
+        print(f"{label}: eager {e:.1f} ms, onnxruntime {r:.1f} ms, ratio {e / r:.2f}, max|diff| {diff:.2g}", flush=True)
+
+    cmd = "python " + " ".join([os.path.relpath(sys.argv[0], ROOT), *sys.argv[1:]])
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    text = (
+        "# Per-frame latency: PyTorch eager vs onnxruntime (CPU)\n\n"
+        f"Command: `{cmd}`\n\n"
+        f"Setup: batch 1, {a.size}x{a.size}, {a.threads} threads for both back-ends, random weights, "
+        f"median of {a.repeats} alternating runs after {a.warmup} warm-up runs. torch {torch.__version__}, "
+        f"onnxruntime {ort.__version__}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"load average at the end {load:.2f}.\n\n"
+        "| net | eager ms | onnxruntime ms | eager / onnxruntime | max abs diff |\n|---|---|---|---|---|\n"
+        + "".join(f"| {label} | {e:.1f} | {r:.1f} | {ratio:.2f} | {d:.1e} |\n" for label, e, r, ratio, d in rows)
+    )
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,36 @@
+"""Exported C3Fusion networks on onnxruntime, torch-free (SPEC §4).
+
+- :mod:`.metadata`: the schema of the metadata every export carries (:class:`ModelMetadata`);
+- :mod:`.session`: :class:`OnnxModel`, the loader that checks file, metadata and graph and
+  validates feeds (one-line :class:`~c3f_slam.errors.InputError` otherwise);
+- :mod:`.grid`: :class:`NetworkView`, frame pixels <-> network pixels (crop + resize);
+- :mod:`.nets`: :class:`DepthModel`, :class:`DescriptorModel`, :class:`PoseModel` on uint8
+  RGB frames with their camera;
+- :mod:`.summary`: :func:`format_metadata`, the ``inspect`` report.
+
+Example::
+
+    depth = DepthModel("depth.onnx").predict(rgb, camera)          # (H, W) metres, frame grid
+    desc = DescriptorModel("feat.onnx").describe(rgb, camera, xy)  # (N, C) unit norm
+"""
+
+from c3f_slam.models.grid import NetworkView
+from c3f_slam.models.metadata import KINDS, SCHEMA_VERSION, ModelMetadata, Preprocessing
+from c3f_slam.models.nets import DepthModel, DescriptorModel, FrameModel, PoseModel
+from c3f_slam.models.session import GRAPH_IO, OnnxModel
+from c3f_slam.models.summary import format_metadata
+
+__all__ = [
+    "GRAPH_IO",
+    "KINDS",
+    "SCHEMA_VERSION",
+    "DepthModel",
+    "DescriptorModel",
+    "FrameModel",
+    "ModelMetadata",
+    "NetworkView",
+    "OnnxModel",
+    "PoseModel",
+    "Preprocessing",
+    "format_metadata",
+]

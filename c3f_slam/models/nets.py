@@ -1,0 +1,165 @@
+"""DepthNet, ContraFeat and PoseNet ONNX exports on video frames (no torch).
+
+Each class opens its file with :class:`OnnxModel` (checking the kind) and runs the training
+pre-processing of the metadata (:func:`c3f_slam.preprocess.prepare_network_input`: centre
+crop, resize, specular inpainting) on (H, W, 3) uint8 RGB frames with their
+:class:`~c3f_slam.camera.PinholeCamera`. Two levels of API:
+
+- ``*_batch`` methods take network inputs, (B, 3, h, w) float32 RGB in [0, 1] (see
+  :meth:`FrameModel.prepare`), and return the network-grid outputs;
+- the frame methods map the results back to the frame: depth in the frame's pixel grid,
+  descriptors at keypoints given in frame pixels, poses as 4x4 float64.
+
+Conventions: metres; pixel centres at integer coordinates; camera x right, y down, z forward.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from c3f_slam.camera import PinholeCamera
+from c3f_slam.errors import InputError
+from c3f_slam.matching.descriptors import sample_descriptor_map
+from c3f_slam.models.grid import UPSAMPLING, NetworkView
+from c3f_slam.models.metadata import ModelMetadata
+from c3f_slam.models.session import OnnxModel
+from c3f_slam.preprocess import prepare_network_input
+
+
+#: The command-line option that names each kind's file (prefix of error messages).
+OPTIONS = {"depth": "--depth-model", "descriptors": "--feature-model", "pose": "--pose-model"}
+
+
+class FrameModel:
+    """Common part: the ONNX session, the metadata and the frame -> network-input step.
+
+    ``option``: the option named in error messages (default :data:`OPTIONS` of the kind).
+    """
+
+    kind = ""
+
+    def __init__(self, path: str | Path, threads: int = 2, option: str | None = None) -> None:
+        self.onnx = OnnxModel(path, expect_kind=self.kind, threads=threads, option=option or OPTIONS[self.kind])
+
+    @property
+    def metadata(self) -> ModelMetadata:
+        return self.onnx.metadata
+
+    def view(self, camera: PinholeCamera) -> NetworkView:
+        """Crop box and network-grid intrinsics for frames of ``camera`` (InputError naming the
+        model when its crop does not fit the frames)."""
+        pp = self.metadata.preprocessing
+        try:
+            return NetworkView.of(camera, pp.crop, pp.size)
+        except InputError as exc:
+            raise InputError(f"{self.onnx.where}: {exc} (frames from camera intrinsics)") from None
+
+    def prepare(self, rgb: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, NetworkView]:
+        """(3, h, w) float32 RGB in [0, 1] network input of an (H, W, 3) uint8 frame, and its view."""
+        rgb = np.asarray(rgb)
+        if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+            raise InputError(f"frame must be (H, W, 3) uint8 RGB, got {rgb.dtype} {rgb.shape}")
+        view = self.view(camera)
+        pp = self.metadata.preprocessing
+        net_rgb, _, _ = prepare_network_input(
+            rgb, camera, pp.crop, pp.size, pp.specular_inpaint, pp.specular_threshold, pp.specular_dilation_px
+        )
+        x = np.ascontiguousarray(net_rgb.transpose(2, 0, 1), dtype=np.float32) / np.float32(255.0)
+        return x, view
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({str(self.onnx.path)!r}: {self.metadata.describe()})"
+
+
+class DepthModel(FrameModel):
+    """DepthNet export: depth in metres (z along the optical axis).
+
+    ``upsample``: how network-grid depth is resized back onto the frame's crop box,
+    ``linear`` (default; smooth walls) or ``nearest`` (never mixes depths across an edge).
+    """
+
+    kind = "depth"
+
+    def __init__(
+        self, path: str | Path, threads: int = 2, option: str | None = None, upsample: str = "linear"
+    ) -> None:
+        if upsample not in UPSAMPLING:
+            raise InputError(f"depth upsampling must be one of {tuple(UPSAMPLING)}, got {upsample!r}")
+        super().__init__(path, threads, option)
+        self.upsample = upsample
+
+    @property
+    def depth_range(self) -> tuple[float, float] | None:
+        """(min_depth, max_depth) in metres from the metadata, when recorded."""
+        d = self.metadata.depth or {}
+        return (float(d["min_depth"]), float(d["max_depth"])) if "min_depth" in d and "max_depth" in d else None
+
+    def predict_batch(self, images: np.ndarray) -> np.ndarray:
+        """(B, 3, h, w) float32 network inputs -> (B, h, w) float32 depth, metres (non-finite -> 0)."""
+        depth = self.onnx.run({"image": images})["depth"][:, 0]
+        return np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
+
+    def predict_network(self, rgb: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, NetworkView]:
+        """Depth (h, w) float32 metres on the network grid of one frame, and the grid's view
+        (``view.camera`` are its intrinsics)."""
+        x, view = self.prepare(rgb, camera)
+        return self.predict_batch(x[None])[0], view
+
+    def predict(self, rgb: np.ndarray, camera: PinholeCamera) -> np.ndarray:
+        """(H, W) float32 depth in metres in the frame's pixel grid; 0 outside the crop box."""
+        depth, view = self.predict_network(rgb, camera)
+        return view.network_to_frame(depth, self.upsample)
+
+
+class DescriptorModel(FrameModel):
+    """ContraFeat export: dense unit-norm descriptors, sampled at keypoints."""
+
+    kind = "descriptors"
+
+    @property
+    def descriptor_dim(self) -> int:
+        return int(self.metadata.descriptor_dim)
+
+    def describe_batch(self, images: np.ndarray) -> np.ndarray:
+        """(B, 3, h, w) float32 network inputs -> (B, C, h, w) float32 unit-norm descriptor maps."""
+        return self.onnx.run({"image": images})["descriptors"]
+
+    def descriptor_map(self, rgb: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, NetworkView]:
+        """(C, h, w) descriptor map of one frame on the network grid, and the grid's view."""
+        x, view = self.prepare(rgb, camera)
+        return self.describe_batch(x[None])[0], view
+
+    def describe(self, rgb: np.ndarray, camera: PinholeCamera, xy: np.ndarray) -> np.ndarray:
+        """(N, C) float32 unit descriptors at (N, 2) keypoints (u, v) in frame pixels.
+
+        Keypoints are mapped into the network grid (:meth:`NetworkView.frame_to_network`) and
+        the map is sampled bilinearly with pixel centres at integer coordinates, clamped at the
+        border (the training sampler: ``grid_sample(align_corners=True,
+        padding_mode="border")``), then re-normalised. Keypoints outside the crop box get the
+        descriptor of the nearest border position.
+        """
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        if len(xy) == 0:
+            camera.check_image(np.shape(rgb), "frame")
+            return np.zeros((0, self.descriptor_dim), np.float32)
+        dmap, view = self.descriptor_map(rgb, camera)
+        return sample_descriptor_map(dmap, view.frame_to_network(xy), normalise=True)
+
+
+class PoseModel(FrameModel):
+    """PoseNet export: the relative pose of two frames of the same camera."""
+
+    kind = "pose"
+
+    def predict_batch(self, images_a: np.ndarray, images_b: np.ndarray) -> np.ndarray:
+        """(B, 3, h, w) float32 inputs (a = earlier frames) -> (B, 4, 4) float32 ``T_ba``:
+        frame-a camera coordinates into frame b (p_b = T_ba p_a), metres."""
+        return self.onnx.run({"image_a": images_a, "image_b": images_b})["T_ba"]
+
+    def predict(self, rgb_a: np.ndarray, rgb_b: np.ndarray, camera: PinholeCamera) -> np.ndarray:
+        """(4, 4) float64 ``T_ba`` (p_b = T_ba p_a, metres) of two uint8 RGB frames, a the earlier."""
+        xa, _ = self.prepare(rgb_a, camera)
+        xb, _ = self.prepare(rgb_b, camera)
+        return self.predict_batch(xa[None], xb[None])[0].astype(np.float64)

@@ -1,0 +1,176 @@
+"""Open a C3Fusion ONNX export with onnxruntime and check it against its metadata.
+
+:class:`OnnxModel` is the one loader: it reads the :class:`ModelMetadata` stored in the file,
+checks that the graph's inputs and outputs are the ones the metadata (and the model kind)
+promise, and validates every feed before running. Every problem is an
+:class:`~c3f_slam.errors.InputError` with a one-line message that starts with the
+command-line option and the file, e.g. ``--depth-model: x.onnx is a descriptors model,
+expected a depth model``.
+
+Graph contract per kind (names fixed by the exporter; images NCHW float32 RGB in [0, 1]):
+
+- depth: ``image`` (B, 3, H, W) -> ``depth`` (B, 1, H, W), metres;
+- descriptors: ``image`` -> ``descriptors`` (B, C, H, W), unit norm per pixel, C = descriptor_dim;
+- pose: ``image_a``, ``image_b`` (earlier frame first) -> ``T_ba`` (B, 4, 4), frame-a camera
+  coordinates into frame b, metres.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from c3f_slam.errors import InputError
+from c3f_slam.models.metadata import ModelMetadata
+
+#: (input names, output name) of the graph, per model kind.
+GRAPH_IO: dict[str, tuple[tuple[str, ...], str]] = {
+    "depth": (("image",), "depth"),
+    "descriptors": (("image",), "descriptors"),
+    "pose": (("image_a", "image_b"), "T_ba"),
+}
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    line = text.splitlines()[0] if text else type(exc).__name__
+    return line if len(line) <= 200 else line[:197] + "..."
+
+
+class OnnxModel:
+    """An exported C3Fusion net on onnxruntime (CPU).
+
+    Args:
+        path: the .onnx file.
+        expect_kind: ``depth``, ``descriptors`` or ``pose``; another kind is an InputError.
+        threads: onnxruntime intra-op threads.
+        option: the command-line option that named the file (prefix of every error message;
+            None: the file alone).
+
+    Attributes: ``metadata`` (:class:`ModelMetadata`), ``input_names``, ``output_names``,
+    ``path``, ``where`` (``"<option>: <path>"``, the prefix of its error messages).
+    """
+
+    def __init__(
+        self, path: str | Path, expect_kind: str | None = None, threads: int = 2, option: str | None = "--model"
+    ) -> None:
+        self.path = Path(path)
+        self.option = option
+        self.where = f"{option}: {path}" if option else str(path)
+        if not self.path.exists():
+            raise InputError(f"{self.where}: model file not found")
+        if not self.path.is_file():
+            raise InputError(f"{self.where}: is a folder, expected an .onnx file")
+        self.session = self._open(int(threads))
+        try:
+            props = dict(self.session.get_modelmeta().custom_metadata_map)
+            self.metadata = ModelMetadata.from_props(props, source=str(path))
+        except InputError as exc:
+            raise InputError(f"{option}: {exc}" if option else str(exc)) from None
+        self.input_names = tuple(i.name for i in self.session.get_inputs())
+        self.output_names = tuple(o.name for o in self.session.get_outputs())
+        if expect_kind is not None and self.metadata.kind != expect_kind:
+            raise InputError(
+                f"{self.where} is a {self.metadata.kind} model, expected a {expect_kind} model"
+            )
+        self._check_graph()
+
+    # ------------------------------------------------------------------ loading
+    def _open(self, threads: int):
+        import onnxruntime as ort
+
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = max(1, threads)
+        opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3  # errors only; ours are raised as InputError
+        try:
+            return ort.InferenceSession(str(self.path), sess_options=opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own types (InvalidProtobuf, Fail, ...)
+            raise InputError(f"{self.where}: not a readable ONNX model ({_first_line(exc)})") from None
+
+    def _fail(self, what: str) -> InputError:
+        return InputError(f"{self.where}: {what}")
+
+    def _check_graph(self) -> None:
+        """The graph's inputs/outputs must be the kind's contract and the metadata's."""
+        meta = self.metadata
+        want_in, want_out = GRAPH_IO[meta.kind]
+        meta_in = tuple(i.get("name") for i in meta.inputs)
+        meta_out = tuple(o.get("name") for o in meta.outputs)
+        if meta_in != want_in or meta_out != (want_out,):
+            raise self._fail(
+                f"metadata declares inputs {list(meta_in)} and outputs {list(meta_out)}; "
+                f"a {meta.kind} model has inputs {list(want_in)} and output {want_out!r}"
+            )
+        if self.input_names != want_in or want_out not in self.output_names:
+            raise self._fail(
+                f"graph has inputs {list(self.input_names)} and outputs {list(self.output_names)}, "
+                f"but the metadata declares inputs {list(want_in)} and output {want_out!r}"
+            )
+        w, h = meta.input_size
+        for node in self.session.get_inputs():
+            if node.type != "tensor(float)":
+                raise self._fail(f"graph input {node.name!r} is {node.type}, expected tensor(float)")
+            shape = list(node.shape)
+            if len(shape) != 4 or (isinstance(shape[1], int) and shape[1] != 3):
+                raise self._fail(f"graph input {node.name!r} has shape {shape}, expected (B, 3, H, W)")
+            fixed = shape[2:]
+            if not meta.dynamic_size and all(isinstance(v, int) for v in fixed) and fixed != [h, w]:
+                raise self._fail(
+                    f"graph input {node.name!r} is {fixed[1]}x{fixed[0]} but the metadata size is {w}x{h}"
+                )
+        out = next(o for o in self.session.get_outputs() if o.name == want_out)
+        shape = list(out.shape)
+        if meta.kind == "pose":
+            ok = len(shape) == 3 and all(not isinstance(v, int) or v == 4 for v in shape[1:])
+            expected = "(B, 4, 4)"
+        else:
+            channels = 1 if meta.kind == "depth" else meta.descriptor_dim
+            if meta.kind == "descriptors" and not (isinstance(channels, int) and channels > 0):
+                raise self._fail(f"descriptors model without a valid descriptor_dim ({channels!r}) in its metadata")
+            ok = len(shape) == 4 and (not isinstance(shape[1], int) or shape[1] == channels)
+            expected = f"(B, {channels}, H, W)"
+        if not ok:
+            raise self._fail(f"graph output {want_out!r} has shape {shape}, expected {expected}")
+
+    # ------------------------------------------------------------------ running
+    @property
+    def kind(self) -> str:
+        return self.metadata.kind
+
+    def check_image_batch(self, name: str, x: object) -> np.ndarray:
+        """Validate one image feed: ndarray (B, 3, H, W) float32, H, W = the metadata size
+        unless the model is dynamic in size. Returns it contiguous."""
+        if not isinstance(x, np.ndarray):
+            raise self._fail(f"input {name!r} must be a NumPy array, got {type(x).__name__}")
+        if x.dtype != np.float32:
+            raise self._fail(f"input {name!r} must be float32 RGB in [0, 1], got {x.dtype}")
+        if x.ndim != 4 or x.shape[1] != 3:
+            raise self._fail(f"input {name!r} must be NCHW (B, 3, H, W), got shape {tuple(x.shape)}")
+        if x.shape[0] < 1:
+            raise self._fail(f"input {name!r} is an empty batch")
+        w, h = self.metadata.input_size
+        if not self.metadata.dynamic_size and (x.shape[3], x.shape[2]) != (w, h):
+            raise self._fail(f"input image is {x.shape[3]}x{x.shape[2]} but the model takes {w}x{h}")
+        return np.ascontiguousarray(x)
+
+    def run(self, feeds: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Run the graph on validated ``feeds`` (name -> (B, 3, H, W) float32); returns
+        {output name: array}. Inputs of one call share batch and size."""
+        names = set(feeds)
+        if names != set(self.input_names):
+            raise self._fail(f"feeds {sorted(names)} do not match the model inputs {list(self.input_names)}")
+        checked = {n: self.check_image_batch(n, feeds[n]) for n in self.input_names}
+        shapes = {tuple(v.shape) for v in checked.values()}
+        if len(shapes) > 1:
+            raise self._fail(f"inputs {list(self.input_names)} differ in shape: {sorted(shapes)}")
+        try:
+            values = self.session.run(list(self.output_names), checked)
+        except Exception as exc:  # an ONNX Runtime failure on a validated input is the file's fault
+            raise self._fail(f"inference failed ({_first_line(exc)})") from None
+        return dict(zip(self.output_names, values))
+
+    def __repr__(self) -> str:
+        return f"OnnxModel({str(self.path)!r}: {self.metadata.describe()})"

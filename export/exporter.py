@@ -1,0 +1,189 @@
+"""Export a trained DepthNet (depth + pose graphs) or ContraFeat (descriptor graph) to ONNX.
+
+:func:`export_model` is what ``python -m c3f_models export`` runs (through
+:meth:`c3f_models.trainer.C3FTrainer.export`): load the checkpoint into the model the config
+describes, export each graph, check parity on real frames, and write
+``OUTPUT_DIR/{depthnet,posenet,contrafeat}.onnx`` plus ``export.json`` (files, hashes,
+parity). Nothing is written unless every graph of the model passed its parity check, and
+earlier files are replaced atomically.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+from pathlib import Path
+
+import lightning as L
+import onnx
+import torch
+
+from c3f_models import __version__
+from c3f_models.contrafeat_module import ContraFeat
+from c3f_models.depthnet import DepthNet, read_checkpoint_weights
+from c3f_slam.errors import InputError
+from c3f_slam.io.atomic import atomic_write_text
+from c3f_slam.models.metadata import ModelMetadata, Preprocessing
+from export.frames import frames_from_source, parity_source
+from export.graphs import DepthGraph, DescriptorGraph, GraphSpec, PoseGraph
+from export.onnx_io import OPSET, OPSET_DEFORM, has_deform_conv, to_onnx, write_onnx
+from export.parity import check_parity
+
+# state-dict prefixes that identify each model kind in a checkpoint
+CHECKPOINT_KINDS = {"DepthNet": ("depth_net.", "pose_net."), "ContraFeat": ("net.",)}
+
+
+def sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def checkpoint_kind(state: dict[str, torch.Tensor]) -> str | None:
+    """``DepthNet``, ``ContraFeat`` or None, from the state-dict key prefixes."""
+    for kind, prefixes in CHECKPOINT_KINDS.items():
+        if all(any(k.startswith(p) for k in state) for p in prefixes):
+            return kind
+    return None
+
+
+def load_checkpoint(model: L.LightningModule, ckpt_path: str | Path, weights_only: bool | None = None) -> None:
+    """Load the weights of ``ckpt_path`` into ``model``; InputError when the checkpoint is of
+    another model kind or does not fit the configured architecture."""
+    state = read_checkpoint_weights(ckpt_path, option="--ckpt_path", weights_only=weights_only)
+    kind, want = checkpoint_kind(state), type(model).__name__
+    if kind is not None and kind != want:
+        raise InputError(f"--ckpt_path: {ckpt_path} is a {kind} checkpoint, but the config's model is {want}")
+    try:
+        result = model.load_state_dict(state, strict=False)
+    except RuntimeError as exc:  # wrong-shaped tensors: another encoder depth, descriptor size, ...
+        first = next((ln.strip() for ln in str(exc).splitlines() if "size mismatch" in ln), str(exc).splitlines()[0])
+        raise InputError(f"--ckpt_path: {ckpt_path} does not fit the model in the config: {first}") from None
+    problems = [f"{len(v)} {n} keys (e.g. {v[0]})"
+                for n, v in (("missing", result.missing_keys), ("unexpected", result.unexpected_keys)) if v]
+    if problems:
+        raise InputError(f"--ckpt_path: {ckpt_path} does not fit the model in the config: " + ", ".join(problems))
+    model.eval()
+
+
+def graph_specs(model: L.LightningModule) -> list[GraphSpec]:
+    """The graphs a model exports."""
+    if isinstance(model, DepthNet):
+        depth = DepthGraph(model.depth_net)
+        return [
+            GraphSpec("depth", depth, ("image",), "depth", "m", "depth along the optical axis (z), metres",
+                      "depthnet.onnx", OPSET_DEFORM if has_deform_conv(depth) else OPSET, 1),
+            GraphSpec("pose", PoseGraph(model.pose_net), ("image_a", "image_b"), "T_ba", "m",
+                      "rigid transform from camera-a to camera-b coordinates (image_a earlier)",
+                      "posenet.onnx", OPSET),
+        ]
+    if isinstance(model, ContraFeat):
+        dim = int(model.net.descriptor_dim)
+        return [GraphSpec("descriptors", DescriptorGraph(model.net), ("image",), "descriptors", "unit L2 norm",
+                          "dense descriptors, unit length per pixel", "contrafeat.onnx", OPSET, dim)]
+    raise InputError(f"model: export knows DepthNet and ContraFeat, not {type(model).__name__}")
+
+
+def preprocessing_of(datamodule, source) -> Preprocessing:
+    """Crop, size and inpainting the model was trained with (the data module's settings)."""
+    hp = dict(getattr(datamodule, "hparams", {}) or {})
+    crop = tuple(hp["crop"]) if hp.get("crop") else None
+    size = hp.get("size")
+    if size is None:  # training kept the (cropped) frame size
+        cam = source.camera
+        size = crop or (cam.width, cam.height)
+    return Preprocessing(size=(int(size[0]), int(size[1])), crop=crop, specular_inpaint=bool(hp.get("specular", True)))
+
+
+def _jsonable(obj) -> dict:
+    return json.loads(json.dumps(dict(obj), default=str))
+
+
+def _io_entries(spec: GraphSpec, dynamic_size: bool) -> tuple[list[dict], list[dict]]:
+    hw = ["height", "width"] if dynamic_size else None
+    inputs = [{"name": n, "shape": ["batch", 3, *(hw or ["H", "W"])], "dtype": "float32",
+               "meaning": "RGB in [0, 1] after the recorded preprocessing"} for n in spec.input_names]
+    if spec.output_channels is None:
+        shape = ["batch", 4, 4]
+    else:
+        shape = ["batch", spec.output_channels, *(hw or ["H", "W"])]
+    outputs = [{"name": spec.output_name, "shape": shape, "dtype": "float32", "units": spec.output_units,
+                "meaning": spec.output_meaning}]
+    return inputs, outputs
+
+
+def export_model(
+    model: L.LightningModule,
+    ckpt_path: str | Path | None,
+    output_dir: str | Path,
+    datamodule=None,
+    frames: str | Path | None = None,
+    num_frames: int = 4,
+    tolerance: float = 1e-4,
+    dynamic_size: bool = True,
+    weights_only: bool | None = None,
+) -> list[Path]:
+    """Export every graph of ``model`` into ``output_dir``; returns the written files.
+
+    Args:
+        model: the configured DepthNet or ContraFeat (weights are replaced by the checkpoint).
+        ckpt_path: Lightning checkpoint (or plain state dict) of that model.
+        datamodule: the training data module (pre-processing settings; parity frames).
+        frames: a sequence folder for the parity frames (default: the data module's).
+        num_frames: frames in the parity check.
+        tolerance: largest accepted |onnxruntime - PyTorch| of any output element.
+        dynamic_size: export height/width as dynamic axes.
+        weights_only: checkpoint unpickling (see :func:`c3f_models.depthnet.read_checkpoint_weights`).
+    """
+    if ckpt_path is None:
+        raise InputError("--ckpt_path: give the checkpoint to export")
+    ckpt_path = Path(ckpt_path)
+    if num_frames < 1:
+        raise InputError(f"--num_frames must be >= 1, got {num_frames}")
+    specs = graph_specs(model)
+    source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
+    load_checkpoint(model, ckpt_path, weights_only)
+    pre = preprocessing_of(datamodule, source)
+    images = frames_from_source(source, pre, num_frames)
+    config = {"model": {"class_path": f"{type(model).__module__}.{type(model).__name__}",
+                        "init_args": _jsonable(model.hparams)}}
+    if datamodule is not None:
+        config["data"] = {"class_path": f"{type(datamodule).__module__}.{type(datamodule).__name__}",
+                          "init_args": _jsonable(getattr(datamodule, "hparams", {}))}
+    checkpoint = {"file": ckpt_path.name, "sha256": sha256(ckpt_path)}
+    created = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+    staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]] = []
+    for spec in specs:  # export and check everything before writing anything
+        example = spec.example_inputs(images)
+        proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size)
+        report = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name)
+        inputs, outputs = _io_entries(spec, dynamic_size)
+        depth = None
+        if spec.kind == "depth":
+            net = model.depth_net
+            depth = {"min_depth": net.min_depth, "max_depth": net.max_depth,
+                     "conversion": "depth = 1 / (1/max_depth + (1/min_depth - 1/max_depth) * sigmoid_disparity), in graph",
+                     "scale": "training scale (monocular depth: metres up to the scale the self-supervision fixed)"}
+        meta = ModelMetadata(
+            kind=spec.kind, inputs=inputs, outputs=outputs, preprocessing=pre, dynamic_batch=True,
+            dynamic_size=dynamic_size, descriptor_dim=spec.output_channels if spec.kind == "descriptors" else None,
+            depth=depth, opset=spec.opset, training_config=config, checkpoint=checkpoint,
+            parity=report.as_dict(), project_version=__version__, created=created,
+        )
+        staged.append((spec, proto, meta))
+
+    out = Path(output_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--output_dir: {out} exists and is not a folder")
+    written = [write_onnx(proto, meta, out / spec.file_name) for spec, proto, meta in staged]
+    manifest = {
+        "project_version": __version__, "created": created, "checkpoint": checkpoint,
+        "files": {p.name: {"kind": m.kind, "sha256": sha256(p), "opset": m.opset, "parity": m.parity}
+                  for p, (_, _, m) in zip(written, staged)},
+    }
+    atomic_write_text(out / "export.json", json.dumps(manifest, indent=2) + "\n")
+    return written

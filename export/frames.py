@@ -1,0 +1,49 @@
+"""Real frames for the parity check, pre-processed exactly as in training."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from c3f_slam.errors import InputError
+from c3f_slam.io import Sequence
+from c3f_slam.models.metadata import Preprocessing
+from c3f_slam.preprocess import prepare_network_input
+
+
+def frames_from_source(source, pre: Preprocessing, count: int = 4) -> torch.Tensor:
+    """(count, 3, h, w) float32 RGB in [0, 1]: ``count`` evenly spaced frames of a sequence
+    (anything with ``camera``, ``len`` and ``read_rgb``), through
+    :func:`c3f_slam.preprocess.prepare_network_input` with ``pre``'s crop/size/inpainting."""
+    n = len(source)
+    if n == 0:
+        raise InputError(f"{getattr(source, 'name', source)}: the sequence has no frames")
+    picks = np.unique(np.linspace(0, n - 1, num=min(count, n)).round().astype(int))
+    out = []
+    for i in picks:
+        rgb, _, _ = prepare_network_input(source.read_rgb(int(i)), source.camera, pre.crop, pre.size, pre.specular_inpaint,
+                                          pre.specular_threshold, pre.specular_dilation_px)
+        out.append(torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float() / 255.0)
+    frames = torch.stack(out)
+    if frames.shape[0] == 1:  # pose graphs need a pair
+        frames = torch.cat([frames, frames.flip(-1)])
+    return frames
+
+
+def parity_source(frames: str | Path | None, datamodule) -> object:
+    """The sequence the parity frames come from: ``frames`` (a sequence folder) when given,
+    else the first test (then val, then train) sequence of the datamodule."""
+    if frames is not None:
+        path = Path(frames)
+        if not path.is_dir():
+            raise InputError(f"--frames: sequence folder not found: {path}")
+        return Sequence(path)
+    if datamodule is None or not hasattr(datamodule, "split"):
+        raise InputError("--frames: give a sequence folder for the parity check (the config has no sequence data module)")
+    splits = datamodule.split()
+    for name in ("test", "val", "train"):
+        if splits.get(name):
+            return datamodule.open_sequence(splits[name][0])
+    raise InputError(f"--frames: the data module found no sequences in {datamodule.data_dir}; give a sequence folder")

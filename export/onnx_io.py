@@ -1,0 +1,92 @@
+"""Run ``torch.onnx.export(dynamo=True)`` and write the file with its metadata, atomically.
+
+The file is one self-contained ONNX model (no external data), opset 18, or 19 for graphs
+with ``torchvision.ops.deform_conv2d`` (SPEC §6). Batch is always a dynamic axis; height and
+width are dynamic when ``dynamic_size`` (the fully convolutional nets allow it down to
+``MIN_SIZE`` pixels, or the training size if smaller: the depth decoder pads its coarsest
+(1/32) map by reflection).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import warnings
+from pathlib import Path
+
+import onnx
+import torch
+from torch import nn
+
+from c3f_slam.errors import InputError
+from c3f_slam.io.atomic import atomic_write
+from c3f_slam.models.metadata import ModelMetadata
+
+OPSET = 18
+OPSET_DEFORM = 19
+MIN_SIZE = 64
+MAX_SIZE = 4096
+
+
+def has_deform_conv(module: nn.Module) -> bool:
+    """True when the module contains torchvision's DeformConv2d (it needs opset 19)."""
+    from torchvision.ops import DeformConv2d
+
+    return any(isinstance(m, DeformConv2d) for m in module.modules())
+
+
+def to_onnx(
+    module: nn.Module,
+    example: tuple[torch.Tensor, ...],
+    input_names: tuple[str, ...],
+    output_name: str,
+    opset: int,
+    dynamic_size: bool = True,
+) -> onnx.ModelProto:
+    """Export ``module`` (in eval mode, on CPU) and return the ONNX model proto.
+
+    Raises RuntimeError with the exporter's reason when the graph cannot be exported.
+    """
+    module = module.eval().cpu()
+    if example[0].shape[0] == 1:  # torch.export specialises size-1 axes: trace with a batch of 2
+        example = tuple(torch.cat([x, x]) for x in example)
+    batch = torch.export.Dim("batch", min=1, max=1024)
+    axes: dict[int, object] = {0: batch}
+    if dynamic_size:
+        h, w = example[0].shape[-2:]
+        axes[2] = torch.export.Dim("height", min=min(MIN_SIZE, int(h)), max=max(MAX_SIZE, int(h)))
+        axes[3] = torch.export.Dim("width", min=min(MIN_SIZE, int(w)), max=max(MAX_SIZE, int(w)))
+    dynamic_shapes = tuple(dict(axes) for _ in input_names)
+    log = io.StringIO()
+    try:
+        with warnings.catch_warnings(), contextlib.redirect_stdout(log), torch.no_grad():
+            warnings.simplefilter("ignore")
+            program = torch.onnx.export(
+                module, example, dynamo=True, external_data=False, opset_version=opset,
+                input_names=list(input_names), output_names=[output_name], dynamic_shapes=dynamic_shapes,
+                verbose=False, optimize=True,
+            )
+    except Exception as exc:  # the exporter's errors are long; keep the reason, point at the log
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise RuntimeError(f"ONNX export of {type(module).__name__} failed: {first}") from exc
+    return program.model_proto
+
+
+def write_onnx(model: onnx.ModelProto, metadata: ModelMetadata, path: str | Path) -> Path:
+    """Attach ``metadata`` as ``metadata_props``, check the model, write it atomically.
+
+    An earlier file at ``path`` survives any failure.
+    """
+    path = Path(path)
+    del model.metadata_props[:]
+    for key, value in metadata.to_props().items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    model.producer_name = "c3fusion"
+    model.producer_version = metadata.project_version
+    onnx.checker.check_model(model)
+    if path.exists() and path.is_dir():
+        raise InputError(f"--output_dir: {path} is a folder, expected an .onnx file path")
+    with atomic_write(path) as tmp:
+        onnx.save_model(model, str(tmp), save_as_external_data=False)
+    return path

@@ -1,0 +1,219 @@
+"""ONNX export: the CLI path (fit -> saved config + checkpoint -> export), parity with
+PyTorch on frames the export never saw, metadata, DCN, ContraFeat, and bad input.
+
+Exports take ~10 s each on CPU, so one module-scoped DepthNet export serves several tests.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+
+from c3f_models.cli import main
+from c3f_models.contrafeat_module import ContraFeat
+from c3f_models.depthnet import DepthNet
+from c3f_slam.errors import InputError
+from c3f_slam.io import Sequence
+from c3f_slam.models.metadata import SCHEMA_VERSION, ModelMetadata
+from c3f_slam.preprocess import prepare_network_input
+from export import ParityError, export_model
+from export import exporter as exporter_mod
+
+ROOT = Path(__file__).resolve().parents[1]
+SIZE = 64
+TOL = 1e-4
+
+
+def _session(path: Path) -> ort.InferenceSession:
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+
+
+def _metadata(path: Path) -> ModelMetadata:
+    props = {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
+    return ModelMetadata.from_props(props, str(path))
+
+
+def _frame(seq_dir: Path, i: int, size: int = SIZE) -> torch.Tensor:
+    """(1, 3, size, size) frame pre-processed as in training."""
+    seq = Sequence(seq_dir)
+    rgb, _, _ = prepare_network_input(seq.read_rgb(i), seq.camera, None, (size, size), True)
+    return torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1)[None].float() / 255.0
+
+
+@pytest.fixture(scope="module")
+def depth_export(sim_dataset, tmp_path_factory):
+    """One step of DepthNet small through the CLI, then ``export`` with the run's config.yaml."""
+    root = tmp_path_factory.mktemp("export_run")
+    common = ["--trainer.default_root_dir", str(root), "--trainer.logger.init_args.save_dir", str(root),
+              "--trainer.enable_progress_bar", "false"]
+    main(["fit", "--config", str(ROOT / "configs/trainer/cpu_smoke.yaml"), "--config",
+          str(ROOT / "configs/depthnet/small.yaml"), "--data.data_dir", str(sim_dataset),
+          "--data.size", f"[{SIZE}, {SIZE}]", "--data.batch_size", "2", "--trainer.max_steps", "1", *common])
+    run = root / "tb" / "version_0"
+    out = root / "exported"
+    main(["export", "--config", str(run / "config.yaml"), "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
+          "--output_dir", str(out)])
+    return run, out
+
+
+def test_cli_export_writes_files_with_metadata(depth_export):
+    run, out = depth_export
+    assert sorted(p.name for p in out.iterdir()) == ["depthnet.onnx", "export.json", "posenet.onnx"]
+    depth, pose = _metadata(out / "depthnet.onnx"), _metadata(out / "posenet.onnx")
+    assert (depth.kind, pose.kind) == ("depth", "pose")
+    assert depth.schema_version == SCHEMA_VERSION and depth.opset == 18
+    assert depth.preprocessing.size == (SIZE, SIZE) and depth.preprocessing.specular_inpaint
+    assert depth.outputs[0]["name"] == "depth" and depth.outputs[0]["units"] == "m"
+    assert depth.depth["min_depth"] == pytest.approx(0.001) and depth.depth["max_depth"] == pytest.approx(0.3)
+    assert depth.training_config["model"]["init_args"]["encoder_layers"] == 18
+    assert depth.training_config["data"]["init_args"]["size"] == [SIZE, SIZE]
+    assert depth.checkpoint["sha256"] == exporter_mod.sha256(run / "checkpoints" / "last.ckpt")
+    assert 0 <= depth.parity["max_abs_diff"] <= TOL and depth.parity["frames"] >= 2
+    model = onnx.load(str(out / "depthnet.onnx"))
+    assert model.producer_name == "c3fusion"
+    assert not any(t.data_location == onnx.TensorProto.EXTERNAL for t in model.graph.initializer)
+
+
+def test_depth_parity_on_unseen_frames_and_sizes(depth_export, sim_dataset):
+    run, out = depth_export
+    net = DepthNet.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu").eval()
+    sess = _session(out / "depthnet.onnx")
+    seq = sorted(p for p in sim_dataset.iterdir() if p.is_dir())[-1]
+    image = torch.cat([_frame(seq, 1), _frame(seq, 4)])  # batch of 2: dynamic batch
+    with torch.no_grad():
+        expected = net(image).numpy()
+    got = sess.run(None, {"image": image.numpy()})[0]
+    assert got.shape == expected.shape == (2, 1, SIZE, SIZE)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=TOL)
+    assert got.min() >= 0.001 - 1e-6 and got.max() <= 0.3 + 1e-6  # metres, within the trained range
+    wide = torch.nn.functional.interpolate(image[:1], size=(SIZE, 96), mode="bilinear")  # dynamic H/W
+    with torch.no_grad():
+        np.testing.assert_allclose(sess.run(None, {"image": wide.numpy()})[0], net(wide).numpy(), rtol=0, atol=TOL)
+
+
+def test_pose_graph_is_rigid_and_matches_torch(depth_export, sim_dataset):
+    run, out = depth_export
+    net = DepthNet.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu").eval()
+    seq = sorted(p for p in sim_dataset.iterdir() if p.is_dir())[0]
+    a, b = _frame(seq, 2), _frame(seq, 3)
+    T = _session(out / "posenet.onnx").run(None, {"image_a": a.numpy(), "image_b": b.numpy()})[0]
+    with torch.no_grad():
+        np.testing.assert_allclose(T, net.pose_net(a, b).numpy(), rtol=0, atol=TOL)
+    R = T[0, :3, :3].astype(np.float64)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-5)
+    np.testing.assert_allclose(T[0, 3], [0, 0, 0, 1], atol=1e-7)
+
+
+def test_export_rejects_wrong_kind_and_wrong_architecture(tmp_path, tiny_sequence):
+    contra = tmp_path / "contrafeat.ckpt"
+    torch.save({"state_dict": ContraFeat(descriptor_dim=8, fpn_channels=8, stem_channels=4).state_dict()}, contra)
+    with pytest.raises(InputError, match=r"--ckpt_path: .*contrafeat.ckpt is a ContraFeat checkpoint, but the config's model is DepthNet"):
+        export_model(DepthNet(num_scales=1), contra, tmp_path / "out", frames=tiny_sequence)
+    r34 = tmp_path / "r34.ckpt"
+    torch.save({"state_dict": DepthNet(encoder_layers=34, num_scales=1).state_dict()}, r34)
+    with pytest.raises(InputError, match="does not fit the model in the config"):
+        export_model(DepthNet(encoder_layers=18, num_scales=1), r34, tmp_path / "out", frames=tiny_sequence)
+    with pytest.raises(InputError, match="--ckpt_path: file not found"):
+        export_model(DepthNet(num_scales=1), tmp_path / "missing.ckpt", tmp_path / "out", frames=tiny_sequence)
+    garbage = tmp_path / "garbage.ckpt"
+    garbage.write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="is not a torch checkpoint"):
+        export_model(DepthNet(num_scales=1), garbage, tmp_path / "out", frames=tiny_sequence)
+    with pytest.raises(InputError, match="--frames: sequence folder not found"):
+        export_model(DepthNet(num_scales=1), r34, tmp_path / "out", frames=tmp_path / "nowhere")
+    assert not (tmp_path / "out").exists()
+
+
+def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
+    torch.manual_seed(0)
+    model = ContraFeat(descriptor_dim=16, fpn_channels=16, stem_channels=8, head_channels=16)
+    ckpt = tmp_path / "cf.ckpt"
+    torch.save({"state_dict": model.state_dict()}, ckpt)
+    fresh = ContraFeat(descriptor_dim=16, fpn_channels=16, stem_channels=8, head_channels=16)
+    (path,) = export_model(fresh, ckpt, tmp_path / "out", frames=tiny_sequence, num_frames=2)
+    meta = _metadata(path)
+    assert (path.name, meta.kind, meta.descriptor_dim) == ("contrafeat.onnx", "descriptors", 16)
+    assert meta.preprocessing.size == (64, 64) and meta.parity["max_abs_diff"] <= TOL
+    image = _frame(tiny_sequence, 5)
+    got = _session(path).run(None, {"image": image.numpy()})[0]
+    with torch.no_grad():
+        np.testing.assert_allclose(got, model.eval()(image).numpy(), rtol=0, atol=TOL)
+    np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-5)
+
+
+def test_dcn_depth_exports_with_opset_19_and_runs(tmp_path, tiny_sequence):
+    torch.manual_seed(0)
+    model = DepthNet(dcn=True, num_scales=1)
+    with torch.no_grad():  # non-zero offsets, so the deformable sampling is really exercised
+        for m in model.depth_net.modules():
+            if type(m).__name__ == "DeformConv":
+                m.offset.weight.normal_(0, 0.01)
+    ckpt = tmp_path / "dcn.ckpt"
+    torch.save({"state_dict": model.state_dict()}, ckpt)
+    written = export_model(DepthNet(dcn=True, num_scales=1), ckpt, tmp_path / "out", frames=tiny_sequence,
+                           num_frames=2, dynamic_size=False)
+    depth = next(p for p in written if p.name == "depthnet.onnx")
+    assert _metadata(depth).opset == 19 and not _metadata(depth).dynamic_size
+    assert any(n.op_type == "DeformConv" for n in onnx.load(str(depth)).graph.node)
+    image = _frame(tiny_sequence, 3)
+    with torch.no_grad():
+        np.testing.assert_allclose(_session(depth).run(None, {"image": image.numpy()})[0], model.eval()(image).numpy(),
+                                   rtol=0, atol=TOL)
+
+
+def test_failed_parity_writes_nothing_and_keeps_earlier_files(tmp_path, tiny_sequence, monkeypatch):
+    ckpt = tmp_path / "d.ckpt"
+    torch.save({"state_dict": DepthNet(num_scales=1).state_dict()}, ckpt)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "depthnet.onnx").write_bytes(b"earlier export")
+
+    def bad_parity(module, model, inputs, input_names, tolerance=1e-4, name="graph"):
+        raise ParityError(f"{name}: onnxruntime differs from PyTorch by 0.5 (max abs)")
+
+    monkeypatch.setattr(exporter_mod, "check_parity", bad_parity)
+    with pytest.raises(ParityError, match="depthnet.onnx: onnxruntime differs"):
+        export_model(DepthNet(num_scales=1), ckpt, out, frames=tiny_sequence, num_frames=2)
+    assert (out / "depthnet.onnx").read_bytes() == b"earlier export"
+    assert sorted(p.name for p in out.iterdir()) == ["depthnet.onnx"]
+
+
+def test_check_parity_detects_a_different_graph(tmp_path):
+    from export.onnx_io import to_onnx
+    from export.parity import check_parity
+
+    torch.manual_seed(0)
+    a = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3, padding=1))
+    b = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3, padding=1))
+    x = torch.rand(2, 3, 64, 64)
+    proto = to_onnx(a, (x,), ("image",), "out", 18)
+    assert check_parity(a, proto, (x,), ("image",), TOL).max_abs_diff <= 1e-5
+    with pytest.raises(ParityError, match="above the tolerance"):
+        check_parity(b, proto, (x,), ("image",), TOL)
+
+
+def test_runtime_loader_reads_the_export(depth_export, sim_dataset):
+    """c3f_slam.models on the real export: same depth as PyTorch, pre-processing included."""
+    from c3f_slam.models import DepthModel, PoseModel
+
+    run, out = depth_export
+    net = DepthNet.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu").eval()
+    seq_dir = sorted(p for p in sim_dataset.iterdir() if p.is_dir())[0]
+    seq = Sequence(seq_dir)
+    model = DepthModel(out / "depthnet.onnx", threads=1)
+    depth, view = model.predict_network(seq.read_rgb(2), seq.camera)
+    with torch.no_grad():
+        np.testing.assert_allclose(depth, net(_frame(seq_dir, 2))[0, 0].numpy(), rtol=0, atol=TOL)
+    assert view.size == (SIZE, SIZE)
+    full = model.predict(seq.read_rgb(2), seq.camera)
+    assert full.shape == (seq.camera.height, seq.camera.width) and full.min() > 0
+    T = PoseModel(out / "posenet.onnx", threads=1).predict(seq.read_rgb(2), seq.read_rgb(3), seq.camera)
+    with torch.no_grad():
+        np.testing.assert_allclose(T, net.pose_net(_frame(seq_dir, 2), _frame(seq_dir, 3))[0].numpy(), atol=TOL)
+    with pytest.raises(InputError, match="is a pose model, expected a depth model"):
+        DepthModel(out / "posenet.onnx")
