@@ -156,7 +156,8 @@ def main() -> None:
     t_train = time.time() - t0
     steps = trainer.global_step
     args.work.mkdir(parents=True, exist_ok=True)
-    torch.save(model.net.state_dict(), args.work / "contrafeat_small.pt")  # for inspection, not reported
+    # the trained weights, loadable by `python -m c3f_models export` / export.export_model
+    torch.save({"state_dict": model.state_dict(), "global_step": steps}, args.work / "contrafeat_small.ckpt")
     t0 = time.time()
     trained = evaluate(model, data / "test", test_seqs, args)
     t_eval += time.time() - t0
