@@ -48,6 +48,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="new fragment below this many consecutive correspondences (paper: 100)")
     r.add_argument("--min-overlap", type=float, help="new fragment below this frustum overlap (paper: 0.85)")
     r.add_argument("--max-keypoints", type=int, help="SIFT keypoints per frame (default 1000)")
+    r.add_argument("--max-keyframe-candidates", type=int,
+                   help="match a new keyframe against at most N earlier keyframes (recent, nearby, by appearance; "
+                        "default 24); 0 = all keyframes and whole-component optimisation after every loop "
+                        "(the paper's rules, quadratic on long sequences)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     e = sub.add_parser("evaluate", help="ATE / RPE / registered share / coverage of a run against ground truth")
     e.add_argument("out", help="run folder (trajectory.txt, summary.json, mesh.ply)")
@@ -73,6 +77,14 @@ def _run(args: argparse.Namespace) -> int:
         over["min_overlap"] = args.min_overlap
     if args.max_keypoints is not None:
         over["max_keypoints"] = over["keyframe_keypoints"] = args.max_keypoints
+    if args.max_keyframe_candidates is not None:
+        if args.max_keyframe_candidates < 0:
+            raise InputError(f"--max-keyframe-candidates must be >= 0, got {args.max_keyframe_candidates}")
+        if args.max_keyframe_candidates == 0:
+            over.update(max_keyframe_candidates=None, optimize_growth=None, max_optimize_nodes=None,
+                        final_optimize_nodes=None)
+        else:
+            over["max_keyframe_candidates"] = args.max_keyframe_candidates
     cfg = SlamConfig.preset_config(args.preset, mode=args.baseline or "full", fuse=not args.no_mesh, **over)
     s = run_slam(args.sequence, args.out, cfg, args.descriptors, args.depth_source, args.depth_model,
                  args.feature_model, args.max_frames, args.stride, progress=not args.quiet,

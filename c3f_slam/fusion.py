@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
@@ -156,6 +157,11 @@ class FragmentFusion:
     camera-to-world pose, or None when it is not registered (then it is skipped).
     Defaults: 30 frames (1 s at 30 fps) and 5 cm (about one lumen diameter, colon); a room
     would use about 1 m.
+
+    Bounded work per frame: only fragments not yet fused are considered, and when more than
+    ``max_checks`` of them wait, :meth:`settled` looks at ``max_checks`` of them per call in
+    round-robin order (a fragment may then settle a few frames late in the live preview;
+    the final mesh is unaffected). None checks all of them every frame.
     """
 
     def __init__(
@@ -165,51 +171,82 @@ class FragmentFusion:
         K: np.ndarray,
         eps_f_na: int = 30,
         eps_cf_d: float = 0.05,
+        max_checks: int | None = 16,
     ) -> None:
         self.volume = volume
         self.load_frame = load_frame
         self.K = np.asarray(K, dtype=np.float64)
         self.eps_f_na = int(eps_f_na)
         self.eps_cf_d = float(eps_cf_d)
+        self.max_checks = max_checks
         self.fragments: dict[int, _Fragment] = {}
+        self._pending: dict[int, None] = {}  # not yet fused, in round-robin order
+
+    def _get(self, fragment: int) -> _Fragment:
+        f = self.fragments.get(fragment)
+        if f is None:
+            f = self.fragments[fragment] = _Fragment()
+            self._pending[fragment] = None
+        return f
 
     def add_frame(self, fragment: int, frame: int) -> None:
         """Record that ``frame`` belongs to ``fragment`` (and that it was inspected then)."""
-        f = self.fragments.setdefault(fragment, _Fragment())
+        f = self._get(fragment)
         f.frames.append(frame)
         f.last_inspected = max(f.last_inspected, frame)
 
     def mark_inspected(self, fragment: int, frame: int) -> None:
         """The camera saw ``fragment`` again at ``frame`` (e.g. its keyframe matched)."""
-        f = self.fragments.setdefault(fragment, _Fragment())
+        f = self._get(fragment)
         f.last_inspected = max(f.last_inspected, frame)
 
     @property
     def fused(self) -> list[int]:
         return sorted(k for k, f in self.fragments.items() if f.fused)
 
-    def _distance(self, fragment: _Fragment, centre: np.ndarray, pose_of: PoseLookup) -> float:
-        best = np.inf
+    def _far(self, fragment: _Fragment, centre: np.ndarray, pose_of: PoseLookup) -> bool:
+        """Every registered camera centre of the fragment is farther than eps_cf_d (stops at
+        the first near one)."""
         for fr in fragment.frames:
             T = pose_of(fr)
-            if T is not None:
-                best = min(best, float(np.linalg.norm(np.asarray(T)[:3, 3] - centre)))
-        return best
+            if T is not None and float(np.linalg.norm(np.asarray(T)[:3, 3] - centre)) <= self.eps_cf_d:
+                return False
+        return True
 
     def settled(
-        self, current: int, T_wc: np.ndarray, pose_of: PoseLookup, eligible: Iterable[int] | None = None
+        self,
+        current: int,
+        T_wc: np.ndarray,
+        pose_of: PoseLookup,
+        eligible: Iterable[int] | Callable[[int], bool] | None = None,
     ) -> list[int]:
-        """Fragments (not yet fused, in ``eligible`` if given) that are settled at frame ``current``
-        with the camera at pose ``T_wc``."""
-        allowed = None if eligible is None else set(eligible)
+        """Fragments (not yet fused, ``eligible`` if given: ids, or a predicate) that are
+        settled at frame ``current`` with the camera at pose ``T_wc`` (at most ``max_checks``
+        of the waiting fragments are looked at per call, see the class notes)."""
+        if eligible is None or callable(eligible):
+            allowed = eligible
+        else:
+            ids = eligible if isinstance(eligible, (set, frozenset, dict)) else set(eligible)
+            allowed = ids.__contains__
         centre = np.asarray(T_wc, dtype=np.float64)[:3, 3]
+        if self.max_checks is None or len(self._pending) <= self.max_checks:
+            batch = sorted(self._pending)
+        else:  # round robin: look at the first max_checks, then move them to the back
+            batch = list(islice(self._pending, self.max_checks))
+            for k in batch:
+                del self._pending[k]
+                self._pending[k] = None
         out = []
-        for k, f in sorted(self.fragments.items()):
-            if f.fused or (allowed is not None and k not in allowed):
+        for k in batch:
+            f = self.fragments[k]
+            if f.fused:
+                self._pending.pop(k, None)
                 continue
-            if current - f.last_inspected > self.eps_f_na and self._distance(f, centre, pose_of) > self.eps_cf_d:
+            if allowed is not None and not allowed(k):
+                continue
+            if current - f.last_inspected > self.eps_f_na and self._far(f, centre, pose_of):
                 out.append(k)
-        return out
+        return sorted(out)
 
     def _fuse(self, fragment: _Fragment, pose_of: PoseLookup) -> None:
         for fr in fragment.frames:
@@ -225,11 +262,13 @@ class FragmentFusion:
     ) -> list[int]:
         """Fuse every settled fragment into the preview volume; returns their ids.
 
-        Pass ``eligible`` = the fragments connected to the map, so that lone fragments wait.
+        Pass ``eligible`` = the fragments connected to the map (ids or a predicate), so that
+        lone fragments wait.
         """
         done = self.settled(current, T_wc, pose_of, eligible)
         for k in done:
             self._fuse(self.fragments[k], pose_of)
+            self._pending.pop(k, None)
         return done
 
     def finalize(self, pose_of: PoseLookup, fragments: Iterable[int] | None = None) -> o3d.geometry.TriangleMesh:
@@ -242,4 +281,5 @@ class FragmentFusion:
         for k in keep:
             if k in self.fragments:
                 self._fuse(self.fragments[k], pose_of)
+        self._pending = {k: None for k, f in sorted(self.fragments.items()) if not f.fused}
         return self.volume.extract_mesh()

@@ -143,18 +143,26 @@ def draw_keyframe_graph(path: str | Path, graph: KeyframeGraph, title: str = "ke
 
     Odometry edges grey, loop edges blue, pruned edges dashed red; lone keyframes hollow.
     """
+    from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7, 6), dpi=100)
     ax = fig.add_subplot(1, 1, 1)
     pos = {n.id: np.asarray(n.position) * 100.0 for n in graph.nodes}
     styles = {"odometry": dict(color="0.5", lw=1.0, ls="-"), "loop": dict(color="tab:blue", lw=0.8, ls="-")}
+    # one LineCollection per style (a plot call per edge takes minutes on big graphs)
+    pruned_style = dict(color="tab:red", lw=0.8, ls="--")
+    groups: dict[str, list] = {}
     for e in graph.edges:
         if e.i not in pos or e.j not in pos:
             continue
-        st = dict(color="tab:red", lw=0.8, ls="--") if e.pruned else styles.get(e.kind, styles["loop"])
+        key = "pruned" if e.pruned else (e.kind if e.kind in styles else "loop")
         a, b = pos[e.i], pos[e.j]
-        ax.plot([a[0], b[0]], [a[2], b[2]], zorder=1, **st)
+        groups.setdefault(key, []).append([(a[0], a[2]), (b[0], b[2])])
+    for key, segs in groups.items():
+        st = pruned_style if key == "pruned" else styles[key]
+        ax.add_collection(LineCollection(segs, colors=st["color"], linewidths=st["lw"], linestyles=st["ls"],
+                                         zorder=1))
     if graph.nodes:
         P = np.array([pos[n.id] for n in graph.nodes])
         lone = np.array([n.lone for n in graph.nodes])

@@ -99,7 +99,8 @@ def preprocessing_of(datamodule, source) -> Preprocessing:
 
 
 def _jsonable(obj) -> dict:
-    return json.loads(json.dumps(dict(obj), default=str))
+    """JSON-safe copy of hyper-parameters, without LightningCLI's private ``_*`` entries."""
+    return json.loads(json.dumps({k: v for k, v in dict(obj).items() if not str(k).startswith("_")}, default=str))
 
 
 def _io_entries(spec: GraphSpec, dynamic_size: bool) -> tuple[list[dict], list[dict]]:

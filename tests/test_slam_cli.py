@@ -66,6 +66,20 @@ def test_odometry_baseline_stride_max_frames(seq, tmp_path):
     assert s["mode"] == "odometry" and s["frames"] == 5 and not (out / "mesh.ply").exists()
 
 
+def test_keyframe_candidates_option(seq, tmp_path, capsys):
+    """--max-keyframe-candidates N caps global matching; 0 restores the paper's rules."""
+    for n, expect in (("0", None), ("6", 6)):
+        out = tmp_path / f"kc{n}"
+        assert main(["run", str(seq), "--out", str(out), "--max-keyframe-candidates", n, "--max-frames", "6",
+                     "--min-correspondences", "15", "--no-mesh", "--quiet"]) == 0
+        cfg = json.loads((out / "summary.json").read_text())["config"]
+        assert cfg["max_keyframe_candidates"] == expect
+        assert (cfg["optimize_growth"] is None) == (expect is None)
+    assert main(["run", str(seq), "--out", str(tmp_path / "bad"), "--max-keyframe-candidates", "-1",
+                 "--quiet"]) == 2
+    assert "--max-keyframe-candidates" in _error_line(capsys)
+
+
 def test_missing_sequence(tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["run", str(tmp_path / "nope"), "--out", str(out), "--quiet"]) == 2

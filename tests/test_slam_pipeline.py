@@ -164,10 +164,16 @@ def _with_black_run(src: Path, dst: Path, after: int, n_black: int) -> Path:
     return dst
 
 
-def test_black_run_relocalises_to_the_map(seq, tmp_path):
+@pytest.mark.parametrize("appearance_only", [False, True], ids=["all-keyframes", "appearance-top-3"])
+def test_black_run_relocalises_to_the_map(seq, tmp_path, appearance_only):
+    """After the black frames the first keyframe has no odometry link; it joins the map by
+    matching earlier keyframes: all of them (small map), or, with the candidates cut to the
+    appearance top 3 (no recent, no spatial ones), through the global appearance score alone."""
     after, n_black = FRAMES // 2, 5
     dst = _with_black_run(seq, tmp_path / "black", after, n_black)
-    cfg = SlamConfig.preset_config("colon", fuse=False, **CFG)
+    extra = dict(max_keyframe_candidates=3, recent_keyframe_candidates=0, spatial_keyframe_candidates=0) \
+        if appearance_only else {}
+    cfg = SlamConfig.preset_config("colon", fuse=False, **CFG, **extra)
     s = run_slam(dst, tmp_path / "out", cfg, progress=False)
     assert s["skipped_black"] == n_black
     assert s["relocalised_keyframes"] >= 1  # a keyframe with no odometry link joined the map

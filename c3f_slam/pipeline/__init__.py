@@ -4,6 +4,7 @@
 - :mod:`.frontend`: keypoints, descriptor / depth provider seams, pairwise matching;
 - :mod:`.fusion_frames`: where fusion re-reads frames (sequence files, or the predicted-depth cache);
 - :mod:`.fragments`: the new-fragment rule and the intra-fragment pose graph;
+- :mod:`.retrieval`: the bounded set of keyframes a new keyframe is matched against;
 - :mod:`.slam`: the fragment + global keyframe back-end and the odometry baseline;
 - :mod:`.run`: the streaming run loop that writes the outputs;
 - :mod:`.evaluation`: the ``evaluate`` command's metrics and files.

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, fields, replace
 from c3f_slam.errors import InputError
 from c3f_slam.fusion import TSDF_PRESETS, TSDFConfig
 from c3f_slam.matching import MatchFilterConfig
+from c3f_slam.pipeline.retrieval import CandidateConfig
 from c3f_slam.posegraph import POSEGRAPH_PRESETS, PoseGraphConfig
 
 PRESETS = ("colon", "room")
@@ -38,9 +39,34 @@ class SlamConfig:
     (memory). ``intra_all_pairs``: also match each new frame against every frame of the
     active fragment (not only the previous one and the keyframe).
 
-    Global: ``optimize_every_keyframe`` runs the global pose graph after each keyframe that
-    adds a loop edge or merges components (odometry-only keyframes are chained) and always
-    at the end.
+    Global (SPEC §4.2, bounded so that time per frame does not grow with the map):
+
+    - Candidates (:mod:`c3f_slam.pipeline.retrieval`): the paper matches each new keyframe
+      against *all* earlier keyframes. Here, once the map has more than
+      ``max_keyframe_candidates`` keyframes, a new keyframe is matched against at most that
+      many: the ``recent_keyframe_candidates`` most recent ones, up to
+      ``spatial_keyframe_candidates`` keyframes near its odometry pose estimate (camera centre
+      within ``spatial_radius`` metres, viewing direction within ``spatial_max_angle_deg``)
+      and the rest by global appearance over all keyframes. Maps up to the cap match all
+      keyframes exactly as the paper; ``max_keyframe_candidates=None`` always does (quadratic).
+    - Optimisation: ``optimize_every_keyframe`` runs the global pose graph after a keyframe
+      that adds a loop edge or merges components (odometry-only keyframes are chained) and
+      always at the end (False: only at the end). Rate limit (deviation from the paper on
+      big maps): while the map has fewer than ``optimize_small_map`` keyframes every such
+      keyframe optimises; beyond, an optimisation waits until the keyframes added since the
+      last one are at least ``optimize_growth`` x the nodes it would optimise (the new
+      keyframe's component, at most ``max_optimize_nodes``): a geometric schedule (about
+      5 % growth) while whole components are optimised, a fixed gap for windows; a skipped
+      trigger is remembered and runs at the next due keyframe. ``optimize_growth=None``
+      optimises after every such keyframe. ``max_optimize_nodes``: a component larger than
+      this is optimised in a bounded window (breadth first over the graph from the new
+      keyframe(s)) with the rest held fixed, because Open3D's solver is dense (cubic in the
+      nodes); None = always the whole component (the paper). ``window_boundary_edges``: per
+      window node, at most this many edges to fixed newer keyframes (old keyframes of a
+      revisited place collect many); None = all. At the end (``finish``) the main component
+      is optimised whole when it has at most ``final_optimize_nodes`` keyframes (None:
+      always), else by one sweep of overlapping ``max_optimize_nodes`` windows in keyframe
+      order.
 
     Fusion: ``fuse`` (False = --no-mesh), ``eps_f_na`` frames and ``eps_cf_d`` metres (the
     settle rule of :class:`c3f_slam.fusion.FragmentFusion`), ``tsdf`` volume settings.
@@ -60,6 +86,16 @@ class SlamConfig:
     max_fragment_frames: int = 60
     intra_all_pairs: bool = True
     optimize_every_keyframe: bool = True
+    max_keyframe_candidates: int | None = 24
+    recent_keyframe_candidates: int = 4
+    spatial_keyframe_candidates: int = 8
+    spatial_radius: float = 0.02
+    spatial_max_angle_deg: float = 60.0
+    optimize_growth: float | None = 0.05
+    optimize_small_map: int = 40
+    max_optimize_nodes: int | None = 100
+    window_boundary_edges: int | None = 8
+    final_optimize_nodes: int | None = 600
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
     posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])
     tsdf: TSDFConfig = field(default_factory=lambda: TSDF_PRESETS["colon"])
@@ -80,10 +116,34 @@ class SlamConfig:
             raise InputError("min_consecutive_correspondences must be >= 0")
         if self.max_fragment_frames < 1:
             raise InputError("max_fragment_frames must be >= 1")
+        if self.max_keyframe_candidates is not None and self.max_keyframe_candidates < 1:
+            raise InputError("max_keyframe_candidates must be >= 1 (or None: all keyframes)")
+        if self.recent_keyframe_candidates < 0 or self.spatial_keyframe_candidates < 0:
+            raise InputError("recent_keyframe_candidates and spatial_keyframe_candidates must be >= 0")
+        if self.optimize_growth is not None and self.optimize_growth < 0:
+            raise InputError("optimize_growth must be >= 0 (or None: after every keyframe)")
+        if self.window_boundary_edges is not None and self.window_boundary_edges < 0:
+            raise InputError("window_boundary_edges must be >= 0 (or None: all)")
+        for name in ("max_optimize_nodes", "final_optimize_nodes"):
+            v = getattr(self, name)
+            if v is not None and v < 2:
+                raise InputError(f"{name} must be >= 2 (or None: whole components)")
+
+    @property
+    def candidates(self) -> CandidateConfig:
+        """The keyframe candidate settings (:mod:`c3f_slam.pipeline.retrieval`)."""
+        return CandidateConfig(
+            max_candidates=self.max_keyframe_candidates,
+            recent=self.recent_keyframe_candidates,
+            spatial=self.spatial_keyframe_candidates,
+            spatial_radius=self.spatial_radius,
+            spatial_max_angle_deg=self.spatial_max_angle_deg,
+        )
 
     @classmethod
     def preset_config(cls, name: str = "colon", **overrides) -> "SlamConfig":
-        """Defaults for ``colon`` (mm scale) or ``room`` (cm scale; fusion settles after 1 m)."""
+        """Defaults for ``colon`` (mm scale) or ``room`` (cm scale; fusion settles after 1 m,
+        spatial keyframe candidates within 1 m instead of 2 cm)."""
         if name not in PRESETS:
             raise InputError(f"--preset must be one of {PRESETS}, got {name!r}")
         base = dict(
@@ -92,6 +152,7 @@ class SlamConfig:
             posegraph=POSEGRAPH_PRESETS[name],
             tsdf=TSDF_PRESETS[name],
             eps_cf_d=0.05 if name == "colon" else 1.0,
+            spatial_radius=0.02 if name == "colon" else 1.0,
         )
         known = {f.name for f in fields(cls)}
         bad = sorted(set(overrides) - known)

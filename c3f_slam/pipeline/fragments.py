@@ -49,7 +49,7 @@ class Fragment:
         self.frames: list[int] = [keyframe.index]
         self.features: list[FrameFeatures] | None = [keyframe]
         self.keyframe_depth: np.ndarray | None = keyframe_depth
-        self.graph = PoseGraph()
+        self.graph: PoseGraph | None = PoseGraph()  # None once closed
         self.graph.add_node(np.eye(4))
         self.rel_poses: np.ndarray | None = None  # (n, 4, 4) after close()
         self.n_edges = 0
@@ -62,7 +62,8 @@ class Fragment:
         """Keyframe-from-frame pose of the fragment's ``local``-th frame."""
         if self.rel_poses is not None:
             return self.rel_poses[local]
-        return self.graph.poses[local]
+        assert self.graph is not None
+        return self.graph.pose(local)
 
     @property
     def last_pose(self) -> np.ndarray:
@@ -74,7 +75,8 @@ class Fragment:
         """Append ``feat`` linked to the previous frame by ``link`` (T_prev,cur); ``extra``:
         (local index, match T_local,cur) to other frames of the fragment. Returns its local index."""
         prev = len(self.frames) - 1
-        node = self.graph.add_node(self.graph.poses[prev] @ link.T_ij)
+        assert self.graph is not None, "the fragment is closed"
+        node = self.graph.add_node(self.graph.pose(prev) @ link.T_ij)
         self.graph.add_edge(prev, node, link.T_ij, points_j=link.points_j, kind="odometry")
         for local, m in extra or []:
             self.graph.add_edge(local, node, m.T_ij, points_j=m.points_j, uncertain=True, kind="loop")
@@ -87,10 +89,11 @@ class Fragment:
     def close(self, config: PoseGraphConfig) -> None:
         """Optimise the local graph (when it has more than a chain), freeze the relative poses,
         drop the per-frame features."""
+        assert self.graph is not None, "the fragment is closed"
         if any(e.uncertain for e in self.graph.edges):
             res = self.graph.optimize(config, reference_node=0)
             self.pruned = len(res.pruned)
         self.rel_poses = self.graph.poses.astype(np.float64)
-        self.graph = PoseGraph()  # free the edges
+        self.graph = None  # free the nodes and edges
         self.features = None
         self.keyframe_depth = None

@@ -193,7 +193,7 @@ def run_slam(
                 fusion.add_frame(fid, row)
                 T = slam.current_pose()
                 if T is not None:
-                    fusion.step(row, T, pose_of, eligible=slam.main_fragments())
+                    fusion.step(row, T, pose_of, eligible=slam.in_main)
             t0 = timings.add("fusion", t0)
             if bar is not None:
                 bar.set_postfix(kf=len(getattr(slam, "keyframes", [])), refresh=False)

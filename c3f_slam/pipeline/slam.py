@@ -8,12 +8,22 @@ are kept and join when one of their keyframes matches the map later.
 
 Memory: per frame a fragment id, a local index and a timestamp (and, once its fragment is
 closed, a 4x4 relative pose); features only for the active fragment and, compactly
-(capped keypoints, uint8/float16 descriptors, float32 points), for every keyframe.
-Matching a new keyframe against all earlier keyframes costs O(#keyframes) per keyframe.
+(capped keypoints, uint8/float16 descriptors, float32 points), for every keyframe, plus one
+global appearance descriptor and a bounded number of graph edges per keyframe.
+
+Time per frame does not grow with the map (see :class:`SlamConfig` for the switches back to
+the paper's literal rules): a new keyframe is matched against a bounded candidate set
+(:mod:`c3f_slam.pipeline.retrieval`) instead of all earlier keyframes; components and the
+main component are kept incrementally by the pose graph (union-find), poses are read per
+node; the global optimisation is rate-limited on big maps and bounded to a window of
+``max_optimize_nodes`` keyframes around the new ones. What remains proportional to the map
+is vectorised (the appearance scores and the spatial distances over all keyframes: a few
+floats per keyframe), or proportional to a merge (moving the components a keyframe joins).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from array import array
 from collections import defaultdict
@@ -26,6 +36,7 @@ from c3f_slam.geometry import invert_pose
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fragments import FIRST, Fragment, new_fragment_reason
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, match_frames
+from c3f_slam.pipeline.retrieval import Candidates, KeyframeRetrieval, global_descriptor
 from c3f_slam.posegraph import PoseGraph
 
 Matcher = Callable[[FrameFeatures, FrameFeatures], "tuple[PairMatch | None, int]"]
@@ -87,15 +98,21 @@ class FragmentSlam:
         self.fragments: list[Fragment] = []  # fragment id == global node id
         self.keyframes: list[FrameFeatures] = []
         self.graph = PoseGraph()
+        self.retrieval = KeyframeRetrieval(cfg.candidates)
         self.active: Fragment | None = None
         self.prev: FrameFeatures | None = None  # last placed frame (in the active fragment)
         self.gap = True  # the previous streamed frame was skipped / unusable
         self.n_relocalised = 0
         self.n_lone_created = 0
         self.n_optimizations = 0
+        self.n_windowed_optimizations = 0
+        self.max_optimized_nodes = 0
+        self.n_candidates_matched = 0  # keyframe pairs matched (sum over keyframes)
+        self.candidate_sources: dict[str, int] = defaultdict(int)
         self.reasons: dict[str, int] = defaultdict(int)
-        self._main: set[int] = set()
-        self._poses = np.zeros((0, 4, 4))
+        self._last_row = -1  # log row of the last placed frame
+        self._kf_at_last_opt = 0  # keyframes when the global graph was last optimised
+        self._pending = False  # a loop / merge is waiting for the next due optimisation
         self.match: Matcher = lambda a, b: match_frames(a, b, cfg.match_filter, metric, cfg.ratio)
 
     # ------------------------------------------------------------------ per frame
@@ -143,10 +160,22 @@ class FragmentSlam:
             fid, opened = act.id, False
         else:
             fid, opened = self._open_fragment(feat, depth, link, reason), True
+        self._last_row = len(self.log) - 1
         self.prev, self.gap = feat, False
         return fid, opened
 
     # ------------------------------------------------------------------ fragments
+    def _candidates(self, g: np.ndarray, link: PairMatch | None, prev_frag: Fragment | None) -> Candidates:
+        """Keyframes to match a new keyframe against (see :mod:`c3f_slam.pipeline.retrieval`):
+        spatial ones around its pose estimate through the odometry link, in the component of
+        its predecessor."""
+        T_est, accept = None, None
+        if link is not None and prev_frag is not None and self.graph.n_nodes > prev_frag.id:
+            T_est = self.graph.pose(prev_frag.id) @ prev_frag.last_pose @ link.T_ij
+            root = self.graph.find(prev_frag.id)
+            accept = lambda k: self.graph.find(k) == root  # noqa: E731
+        return self.retrieval.candidates(g, self.graph.pose_array(), T_est, accept)
+
     def _open_fragment(self, feat: FrameFeatures, depth: np.ndarray, link: PairMatch | None, reason: str) -> int:
         self.reasons[reason] += 1
         prev_frag = self.active
@@ -161,7 +190,7 @@ class FragmentSlam:
         self.log.append(feat.index, feat.timestamp, fid, 0)
         kf = feat.subset(self.cfg.keyframe_keypoints)
 
-        # edges of the new keyframe: odometry to the previous fragment, matches to all keyframes
+        # edges of the new keyframe: odometry to the previous fragment, matches to the candidates
         t0 = time.perf_counter()
         edges: list[tuple[int, PairMatch, str]] = []
         if link is not None and prev_frag is not None:
@@ -169,20 +198,24 @@ class FragmentSlam:
             edges.append((prev_frag.id, PairMatch(T, link.points_j, link.n), "odometry"))
         same_as_link = link is not None and prev_frag is not None and self.prev is not None \
             and prev_frag.keyframe == self.prev.index
-        for k, other in enumerate(self.keyframes):
+        g = global_descriptor(kf.descriptors)
+        cands = self._candidates(g, link, prev_frag)
+        for k in cands.ids:
             if same_as_link and prev_frag is not None and k == prev_frag.id:  # the link is this pair
                 continue
-            m, _ = self.match(other, kf)
+            self.n_candidates_matched += 1
+            m, _ = self.match(self.keyframes[k], kf)
             if m is not None:
                 kind = "keyframe" if prev_frag is not None and k == prev_frag.id else "loop"
                 edges.append((k, m, kind))
+                self.candidate_sources[cands.sources.get(k, "all")] += 1
         self.keyframes.append(kf)
+        self.retrieval.add(g)
         t0 = self.t.add("matching", t0)
 
         node = self.graph.add_node(np.eye(4))
         assert node == fid
-        comps = {v: c for c in self.graph.components() for v in c}
-        merged = self._place(node, edges, comps)
+        merged = self._place(node, edges)
         loops = False
         for k, m, kind in edges:
             uncertain = kind != "odometry"
@@ -192,85 +225,135 @@ class FragmentSlam:
             self.n_lone_created += 1
         elif link is None and prev_frag is not None:
             self.n_relocalised += 1
-        if self.cfg.optimize_every_keyframe and (loops or merged):
-            self.optimize_global(node)
+        if self.cfg.optimize_every_keyframe:
+            self._pending |= loops or merged > 0
+            if self._pending and self.optimization_due(node):
+                self.optimize_global(node)
         self.t.add("posegraph", t0)
-        self._refresh()
         return fid
 
-    def _place(self, node: int, edges: list[tuple[int, PairMatch, str]], comps: dict[int, list[int]]) -> int:
+    def _place(self, node: int, edges: list[tuple[int, PairMatch, str]]) -> int:
         """Initial pose of a new keyframe, and rigid moves that bring the other components it
         connects into the frame of the oldest one (so that optimisation starts consistent).
-        Returns the number of components merged into the anchor."""
+        Touches only the nodes of the components it merges. Returns the number of components
+        merged into the anchor."""
         if not edges:
             return 0
-        by_comp: dict[int, tuple[int, PairMatch, str]] = {}
+        g = self.graph
+        by_comp: dict[int, tuple[int, PairMatch, str]] = {}  # component root -> best edge
         for k, m, kind in edges:
-            c = min(comps[k])
+            c = g.find(k)
             best = by_comp.get(c)
             if best is None or (kind == "odometry") > (best[2] == "odometry") or m.n > best[1].n:
                 by_comp[c] = (k, m, kind)
-        anchor = min(by_comp)
+        anchor = min(by_comp, key=g.component_oldest)
         k, m, _ = by_comp[anchor]
-        T_wn = self.graph.poses[k] @ m.T_ij
-        self.graph.set_pose(node, T_wn)
+        T_wn = g.pose(k) @ m.T_ij
+        g.set_pose(node, T_wn)
         for c, (k, m, _) in by_comp.items():
             if c == anchor:
                 continue
-            G = T_wn @ invert_pose(m.T_ij) @ invert_pose(self.graph.poses[k])
-            for v in comps[k]:
-                self.graph.set_pose(v, G @ self.graph.poses[v])
+            G = T_wn @ invert_pose(m.T_ij) @ invert_pose(g.pose(k))
+            g.transform_nodes(g.component_nodes(k), G)
         return len(by_comp) - 1
 
-    def optimize_global(self, node: int | None = None) -> list[int]:
-        """Optimise the component of ``node`` (default: the main one) anchored at its oldest node."""
-        if self.graph.n_nodes == 0 or not self.graph.edges:
-            return []
-        comps = self.graph.components(include_pruned=True)
-        comp = next(c for c in comps if node in c) if node is not None else comps[0]
-        if len(comp) < 2:
-            return []
-        res = self.graph.optimize(self.cfg.posegraph, reference_node=min(comp))
-        self.n_optimizations += 1
-        self._refresh()
-        return res.pruned
+    # ------------------------------------------------------------------ global optimisation
+    def optimization_due(self, node: int) -> bool:
+        """Whether a pending loop / merge may be optimised now that keyframe ``node`` was
+        added (the rate limit of :class:`SlamConfig`): always on small maps or with
+        ``optimize_growth=None``; else once the keyframes added since the last optimisation
+        are at least ``optimize_growth`` x the nodes an optimisation would take now (the
+        size of ``node``'s component, at most ``max_optimize_nodes``). Each optimisation of s
+        nodes (cost ~ s^3, dense solver) thus follows >= optimize_growth * s keyframes: a
+        geometric schedule while whole components are optimised, constant amortised cost."""
+        n = len(self.keyframes)
+        growth = self.cfg.optimize_growth
+        if growth is None or n < self.cfg.optimize_small_map:
+            return True
+        size = self.graph.component_size(node)
+        if self.cfg.max_optimize_nodes is not None:
+            size = min(size, self.cfg.max_optimize_nodes)
+        return n - self._kf_at_last_opt >= max(1, math.ceil(growth * size))
 
-    def _refresh(self) -> None:
-        comps = self.graph.components()
-        best = max(comps, key=lambda c: (len(c), -c[0])) if comps else []
-        self._main = set(best)
-        self._poses = self.graph.poses
+    def optimize_global(self, node: int | None = None) -> list[int]:
+        """Optimise the component of ``node`` (default: the main one): whole, anchored at its
+        oldest node, when it has at most ``max_optimize_nodes`` keyframes; else a window of
+        that many, breadth first from ``node`` and the keyframes added since the last
+        optimisation, with the rest held fixed. Returns the pruned edges."""
+        g = self.graph
+        if g.n_nodes == 0 or not g.edges:
+            return []
+        if node is None:
+            node = g.component_oldest(g.main_root)
+        cap = self.cfg.max_optimize_nodes
+        seeds = [node]
+        if cap is not None:
+            recent = range(len(self.keyframes) - 1, self._kf_at_last_opt - 1, -1)
+            seeds += [k for k in recent if k != node and g.connected(k, node)][: max(cap // 4, 1)]
+        window = g.reachable(seeds, None if cap is None else cap + 1)
+        whole = cap is None or len(window) <= cap  # reachable() found the whole component
+        return self._optimize(window if whole else window[:cap], whole, g.component_oldest(node))
+
+    def _optimize(self, nodes: list[int], whole: bool, oldest: int) -> list[int]:
+        """Optimise ``nodes``: a whole component (anchored at its oldest node), or a window
+        of one with its other neighbours fixed (``oldest`` fixed too)."""
+        if len(nodes) < 2:
+            return []
+        if whole:
+            res = self.graph.optimize(self.cfg.posegraph, reference_node=min(nodes))
+        else:
+            res = self.graph.optimize(self.cfg.posegraph, reference_node=oldest, nodes=nodes,
+                                      max_boundary_edges=self.cfg.window_boundary_edges)
+            self.n_windowed_optimizations += 1
+        self.n_optimizations += 1
+        self._kf_at_last_opt = len(self.keyframes)
+        self.max_optimized_nodes = max(self.max_optimized_nodes, len(res.optimized_nodes))
+        self._pending = False
+        return res.pruned
 
     # ------------------------------------------------------------------ queries
     def main_fragments(self) -> set[int]:
-        return set(self._main)
+        """Fragments of the main component (a new set, O(its size))."""
+        return set(self.graph.main_component())
+
+    def in_main(self, fid: int) -> bool:
+        """Fragment ``fid`` is registered (in the main component); O(1)."""
+        return self.graph.in_main(fid)
 
     def is_lone(self, fid: int) -> bool:
-        return fid not in self._main
+        return not self.graph.in_main(fid)
 
     def pose_of_log(self, row: int) -> np.ndarray | None:
         """World pose of the frame in log row ``row`` (None when unregistered)."""
         fid = self.log.fragment[row]
-        if fid < 0 or fid not in self._main:
+        if fid < 0 or not self.graph.in_main(fid):
             return None
-        return self._poses[fid] @ self.fragments[fid].pose(self.log.local[row])
+        return self.graph.pose(fid) @ self.fragments[fid].pose(self.log.local[row])
 
     def current_pose(self) -> np.ndarray | None:
         """World pose of the last placed frame (None when lone or none)."""
-        for row in range(len(self.log) - 1, -1, -1):
-            if self.log.fragment[row] >= 0:
-                return self.pose_of_log(row)
-        return None
+        return self.pose_of_log(self._last_row) if self._last_row >= 0 else None
 
     def finish(self) -> None:
-        """Close the active fragment and optimise the main component one last time."""
+        """Close the active fragment and optimise the main component one last time: whole
+        up to ``final_optimize_nodes`` keyframes, else one sweep of overlapping
+        ``max_optimize_nodes`` windows in keyframe order."""
         t0 = time.perf_counter()
         if self.active is not None and self.active.rel_poses is None:
             self.active.close(self.cfg.posegraph)
-        if self.graph.edges:
-            main = max(self.graph.components(include_pruned=True), key=lambda c: (len(c), -c[0]))
-            self.optimize_global(main[0])
-        self._refresh()
+        g = self.graph
+        if g.edges:
+            oldest = g.component_oldest(g.main_root)
+            cap = self.cfg.final_optimize_nodes
+            comp = g.reachable([oldest], None if cap is None else cap + 1)
+            if cap is None or len(comp) <= cap:
+                self._optimize(comp, True, oldest)
+            else:
+                members = g.main_component()
+                w = min(self.cfg.max_optimize_nodes or cap, cap)
+                step = max(w // 2, 1)
+                for start in range(0, max(len(members) - w, 0) + step, step):
+                    self._optimize(members[start:start + w], False, oldest)
         self.t.add("posegraph", t0)
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -289,10 +372,11 @@ class FragmentSlam:
         kinds: dict[str, int] = defaultdict(int)
         for e in self.graph.edges:
             kinds[e.kind] += 1
+        n_kf = len(self.keyframes)
         return {
             "fragments": len(self.fragments),
-            "keyframes": len(self.keyframes),
-            "lone_fragments": len([f for f in range(len(self.fragments)) if f not in self._main]),
+            "keyframes": n_kf,
+            "lone_fragments": len(self.fragments) - len(self.graph.main_component()),
             "lone_created": self.n_lone_created,
             "relocalised_keyframes": self.n_relocalised,
             "global_edges": len(self.graph.edges),
@@ -303,8 +387,12 @@ class FragmentSlam:
             "pruned_edges_intra": sum(f.pruned for f in self.fragments),
             "intra_edges": sum(f.n_edges for f in self.fragments),
             "global_optimizations": self.n_optimizations,
+            "windowed_optimizations": self.n_windowed_optimizations,
+            "max_optimized_nodes": self.max_optimized_nodes,
+            "keyframe_candidates_per_keyframe": self.n_candidates_matched / n_kf if n_kf else 0.0,
+            "keyframe_matches_by_source": dict(self.candidate_sources),
             "new_fragment_reasons": dict(self.reasons),
-            "keyframe_memory_bytes": sum(k.nbytes for k in self.keyframes),
+            "keyframe_memory_bytes": sum(k.nbytes for k in self.keyframes) + self.retrieval.index.nbytes,
         }
 
 
@@ -324,6 +412,7 @@ class OdometrySlam:
         self.last: FrameFeatures | None = None
         self.T_last = np.eye(4)
         self.poses: list[np.ndarray] = []  # per log row (NaN when untracked)
+        self._fids: set[int] = set()  # fusion chunks with a tracked frame
         self.n_lost = 0
         self.match: Matcher = lambda a, b: match_frames(a, b, cfg.match_filter, metric, cfg.ratio)
 
@@ -346,12 +435,16 @@ class OdometrySlam:
                 return -1, False
             T = self.T_last @ m.T_ij
         self.last, self.T_last = feat, T
+        self._fids.add(fid)
         self.log.append(feat.index, feat.timestamp, fid, 0)
         self.poses.append(T)
         return fid, False
 
     def main_fragments(self) -> set[int]:
-        return set(f for f in self.log.fragment if f >= 0)
+        return set(self._fids)
+
+    def in_main(self, fid: int) -> bool:
+        return fid in self._fids
 
     def pose_of_log(self, row: int) -> np.ndarray | None:
         P = self.poses[row]
