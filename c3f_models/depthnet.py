@@ -52,6 +52,25 @@ def read_checkpoint_weights(
     return state
 
 
+def load_weights(
+    module: torch.nn.Module, state: dict[str, torch.Tensor], path: str | Path, option: str,
+    what: str = "the model", hint: str = "",
+) -> None:
+    """Load ``state`` into ``module`` strictly; InputError naming ``option`` and ``path`` with
+    the numbers of missing, unexpected and wrong-shaped keys when it does not fit."""
+    own = module.state_dict()
+    missing = [k for k in own if k not in state]
+    unexpected = [k for k in state if k not in own]
+    wrong = [k for k in own if k in state and state[k].shape != own[k].shape]
+    if missing or unexpected or wrong:
+        example = (missing or unexpected or wrong)[0]
+        raise InputError(
+            f"{option}: {path} does not fit {what} ({len(missing)} missing, {len(unexpected)} unexpected, "
+            f"{len(wrong)} wrong-shaped keys, e.g. {example})" + (f"; {hint}" if hint else "")
+        )
+    module.load_state_dict(state)
+
+
 class DepthNet(L.LightningModule):
     """Self-supervised DepthNet + PoseNet (Monodepth2 architecture, C3Fusion losses).
 
@@ -246,19 +265,8 @@ class DepthNet(L.LightningModule):
 
     def load_init_weights(self, path: str | Path) -> None:
         """Copy model weights from a checkpoint (strict); InputError if the file or keys do not fit."""
-        state = read_checkpoint_weights(path)
-        own = self.state_dict()
-        missing = [k for k in own if k not in state]
-        unexpected = [k for k in state if k not in own]
-        wrong = [k for k in own if k in state and state[k].shape != own[k].shape]
-        if missing or unexpected or wrong:
-            example = (missing or unexpected or wrong)[0]
-            raise InputError(
-                f"model.init_weights: {path} does not fit this DepthNet ({len(missing)} missing, "
-                f"{len(unexpected)} unexpected, {len(wrong)} wrong-shaped keys, e.g. {example}); "
-                "check encoder_layers, dcn and pose_encoder_layers"
-            )
-        self.load_state_dict(state)
+        load_weights(self, read_checkpoint_weights(path), path, "model.init_weights", "this DepthNet",
+                     "check encoder_layers, dcn and pose_encoder_layers")
         self._init_weights_done = True
 
     def setup(self, stage: str) -> None:

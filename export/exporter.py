@@ -21,7 +21,7 @@ import torch
 
 from c3f_models import __version__
 from c3f_models.contrafeat_module import ContraFeat
-from c3f_models.depthnet import DepthNet, read_checkpoint_weights
+from c3f_models.depthnet import DepthNet, load_weights, read_checkpoint_weights
 from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write_text
 from c3f_slam.models.metadata import ModelMetadata, Preprocessing
@@ -57,15 +57,7 @@ def load_checkpoint(model: L.LightningModule, ckpt_path: str | Path, weights_onl
     kind, want = checkpoint_kind(state), type(model).__name__
     if kind is not None and kind != want:
         raise InputError(f"--ckpt_path: {ckpt_path} is a {kind} checkpoint, but the config's model is {want}")
-    try:
-        result = model.load_state_dict(state, strict=False)
-    except RuntimeError as exc:  # wrong-shaped tensors: another encoder depth, descriptor size, ...
-        first = next((ln.strip() for ln in str(exc).splitlines() if "size mismatch" in ln), str(exc).splitlines()[0])
-        raise InputError(f"--ckpt_path: {ckpt_path} does not fit the model in the config: {first}") from None
-    problems = [f"{len(v)} {n} keys (e.g. {v[0]})"
-                for n, v in (("missing", result.missing_keys), ("unexpected", result.unexpected_keys)) if v]
-    if problems:
-        raise InputError(f"--ckpt_path: {ckpt_path} does not fit the model in the config: " + ", ".join(problems))
+    load_weights(model, state, ckpt_path, "--ckpt_path", "the model in the config")
     model.eval()
 
 
