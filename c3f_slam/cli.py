@@ -52,6 +52,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="match a new keyframe against at most N earlier keyframes (recent, nearby, by appearance; "
                         "default 24); 0 = all keyframes and whole-component optimisation after every loop "
                         "(the paper's rules, quadratic on long sequences)")
+    r.add_argument("--max-loop-edges-per-keyframe", type=int,
+                   help="keep at most N keyframe-match (loop) edges per new keyframe: the most recent, then the "
+                        "strongest (default 8); 0 = all (the paper; also implied by --max-keyframe-candidates 0)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     e = sub.add_parser("evaluate", help="ATE / RPE / registered share / coverage of a run against ground truth")
     e.add_argument("out", help="run folder (trajectory.txt, summary.json, mesh.ply)")
@@ -82,9 +85,13 @@ def _run(args: argparse.Namespace) -> int:
             raise InputError(f"--max-keyframe-candidates must be >= 0, got {args.max_keyframe_candidates}")
         if args.max_keyframe_candidates == 0:
             over.update(max_keyframe_candidates=None, optimize_growth=None, max_optimize_nodes=None,
-                        final_optimize_nodes=None)
+                        final_optimize_nodes=None, max_loop_edges_per_keyframe=None)
         else:
             over["max_keyframe_candidates"] = args.max_keyframe_candidates
+    if args.max_loop_edges_per_keyframe is not None:
+        if args.max_loop_edges_per_keyframe < 0:
+            raise InputError(f"--max-loop-edges-per-keyframe must be >= 0, got {args.max_loop_edges_per_keyframe}")
+        over["max_loop_edges_per_keyframe"] = args.max_loop_edges_per_keyframe or None
     cfg = SlamConfig.preset_config(args.preset, mode=args.baseline or "full", fuse=not args.no_mesh, **over)
     s = run_slam(args.sequence, args.out, cfg, args.descriptors, args.depth_source, args.depth_model,
                  args.feature_model, args.max_frames, args.stride, progress=not args.quiet,

@@ -48,11 +48,21 @@ edge), with the main component (largest, ties to the oldest node) tracked as edg
 :meth:`PoseGraph.components` recomputes everything from scratch for callers that need it.
 Poses live in one growable (N, 4, 4) array, so :meth:`PoseGraph.pose` reads one node and
 :meth:`PoseGraph.pose_array` gives a read-only view for vectorised queries.
+
+Memory (a global graph of ~10^5 edges): edges are rows of growable arrays, not Python
+objects (~0.3 KB per edge instead of ~0.75 KB): ends, T_ij as its 3x4 top rows, the
+information matrix as its 21-value upper triangle (float64, exact copies, so optimisation is
+bit-for-bit what it was with whole matrices; a matrix that is not exactly rigid / symmetric is
+kept whole in a side dict), pruned / uncertain flags, a kind code and the confidence; the
+per-node adjacency is a linked list through the edges (two int64 links per edge, two heads per
+node). :attr:`PoseGraph.edges` is a sequence of :class:`Edge` views built on access.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from array import array
+from collections.abc import Iterable, Iterator
+from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, replace
 from functools import cached_property
 from itertools import chain
@@ -143,25 +153,158 @@ def _scale_pose(T: np.ndarray, k: float) -> np.ndarray:
     return T
 
 
-@dataclass(slots=True)
+#: upper triangle (row-major) of a 6x6 matrix: how symmetric information matrices are stored
+_TRI = np.triu_indices(6)
+_N_TRI = len(_TRI[0])  # 21; the last entry is (5, 5), the correspondence count
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0]).tobytes()
+#: the default edge kinds (codes 0, 1, 2); other names get the next codes per graph
+_KINDS = ("odometry", "loop", "keyframe")
+#: edge matrices are stored in blocks of this many edges (the first block grows up to it by
+#: doubling): a big graph's storage is never copied or over-allocated by more than one block
+_BLOCK_SHIFT = 12
+_BLOCK = 1 << _BLOCK_SHIFT
+
+
+class _RowBlocks:
+    """A growable (n, *shape) float64 array kept as a list of blocks of :data:`_BLOCK` rows
+    (the first one grows to that by doubling, from ``capacity`` rows)."""
+
+    __slots__ = ("shape", "blocks")
+
+    def __init__(self, shape: tuple[int, ...], capacity: int = 16) -> None:
+        self.shape = shape
+        self.blocks = [np.zeros((min(capacity, _BLOCK),) + shape)]
+
+    def ensure(self, k: int) -> None:
+        """Make row ``k`` (at most one past the last row) writable."""
+        b, r = k >> _BLOCK_SHIFT, k & (_BLOCK - 1)
+        if b == len(self.blocks):
+            self.blocks.append(np.zeros((_BLOCK,) + self.shape))
+        elif r == len(self.blocks[b]):  # only the first block is ever short
+            grown = np.zeros((min(2 * r, _BLOCK),) + self.shape)
+            grown[:r] = self.blocks[b]
+            self.blocks[b] = grown
+
+    def row(self, k: int) -> np.ndarray:
+        """Row ``k`` (a view)."""
+        return self.blocks[k >> _BLOCK_SHIFT][k & (_BLOCK - 1)]
+
+    def set(self, k: int, value: np.ndarray) -> None:
+        self.blocks[k >> _BLOCK_SHIFT][k & (_BLOCK - 1)] = value
+
+    def take(self, ids: np.ndarray) -> np.ndarray:
+        """Rows ``ids`` (int64 array) as one new (len(ids), *shape) array (exact copies)."""
+        if len(self.blocks) == 1:
+            return self.blocks[0][ids]
+        out = np.empty((len(ids),) + self.shape)
+        b = ids >> _BLOCK_SHIFT
+        for u in np.unique(b).tolist():
+            m = b == u
+            out[m] = self.blocks[u][ids[m] & (_BLOCK - 1)]
+        return out
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in self.blocks)
+
+
 class Edge:
-    """Constraint p_i = T_ij @ p_j between nodes i and j (metres).
+    """View of one edge of a :class:`PoseGraph`: the constraint p_i = T_ij @ p_j between
+    nodes i and j (metres). Built on access from the graph's arrays; ``T_ij`` and
+    ``information`` are fresh copies. ``pruned`` and ``confidence`` can be set and land in
+    the graph (call :meth:`PoseGraph.refresh_components` after setting ``pruned`` by hand;
+    :meth:`PoseGraph.optimize` sets both itself)."""
 
-    Set ``pruned`` through :meth:`PoseGraph.optimize` (or call
-    :meth:`PoseGraph.refresh_components` after changing it by hand)."""
+    __slots__ = ("_g", "_k")
 
-    i: int
-    j: int
-    T_ij: np.ndarray
-    information: np.ndarray
-    uncertain: bool = False
-    kind: str = "odometry"
-    pruned: bool = False
-    confidence: float = 1.0
+    def __init__(self, graph: "PoseGraph", k: int) -> None:
+        self._g = graph
+        self._k = k
+
+    @property
+    def id(self) -> int:
+        return self._k
+
+    @property
+    def i(self) -> int:
+        return self._g._ei[self._k]
+
+    @property
+    def j(self) -> int:
+        return self._g._ej[self._k]
+
+    @property
+    def T_ij(self) -> np.ndarray:
+        return self._g._transform(self._k)
+
+    @property
+    def information(self) -> np.ndarray:
+        return self._g._information(self._k)
+
+    @property
+    def uncertain(self) -> bool:
+        return bool(self._g._unc[self._k])
+
+    @property
+    def kind(self) -> str:
+        return self._g._kind_names[int(self._g._kind[self._k])]
+
+    @property
+    def pruned(self) -> bool:
+        return bool(self._g._pruned[self._k])
+
+    @pruned.setter
+    def pruned(self, value: bool) -> None:
+        self._g._pruned[self._k] = bool(value)
+
+    @property
+    def confidence(self) -> float:
+        return float(self._g._conf[self._k])
+
+    @confidence.setter
+    def confidence(self, value: float) -> None:
+        self._g._conf[self._k] = float(value)
 
     @property
     def n_correspondences(self) -> float:
-        return float(self.information[5, 5])
+        return self._g._n_correspondences(self._k)
+
+    def as_dict(self) -> dict:
+        """The edge's values (what the former ``Edge`` dataclass held), as plain objects."""
+        return dict(i=self.i, j=self.j, T_ij=self.T_ij, information=self.information, uncertain=self.uncertain,
+                    kind=self.kind, pruned=self.pruned, confidence=self.confidence)
+
+    def __repr__(self) -> str:
+        return (f"Edge(i={self.i}, j={self.j}, kind={self.kind!r}, uncertain={self.uncertain}, "
+                f"pruned={self.pruned}, confidence={self.confidence:.3g})")
+
+
+class EdgeList(SequenceABC):
+    """The edges of a :class:`PoseGraph` as a read-only sequence of :class:`Edge` views
+    (``len``, indexing, slicing, iteration); the data stay in the graph's arrays."""
+
+    __slots__ = ("_g",)
+
+    def __init__(self, graph: "PoseGraph") -> None:
+        self._g = graph
+
+    def __len__(self) -> int:
+        return self._g._m
+
+    def __getitem__(self, k: int | slice) -> "Edge | list[Edge]":  # type: ignore[override]
+        m = self._g._m
+        if isinstance(k, slice):
+            return [Edge(self._g, n) for n in range(*k.indices(m))]
+        k = int(k)
+        if k < 0:
+            k += m
+        if not 0 <= k < m:
+            raise IndexError(f"edge {k} not in graph of {m} edges")
+        return Edge(self._g, k)
+
+    def __iter__(self) -> Iterator[Edge]:
+        g = self._g
+        return (Edge(g, k) for k in range(g._m))
 
 
 class OptimizationResult:
@@ -191,7 +334,7 @@ class OptimizationResult:
 
     @cached_property
     def confidence(self) -> np.ndarray:
-        return np.array([e.confidence for e in self._graph.edges])
+        return self._graph._conf[: self._graph._m].copy()
 
     @cached_property
     def edge_rms(self) -> np.ndarray:
@@ -208,19 +351,166 @@ class PoseGraph:
     def __init__(self) -> None:
         self._P = np.zeros((16, 4, 4))  # growable pose array; rows [0, n) are the nodes
         self._n = 0
-        self.edges: list[Edge] = []
-        # per node, ids of its edges (pruned ones too) to older nodes (bounded: added with the
-        # node) and to newer ones (grows as later nodes match it)
-        self._older: list[list[int]] = []
-        self._newer: list[list[int]] = []
+        self._init_edge_storage()
         # union-find over the non-pruned edges, with member lists at the roots
         self._parent: list[int] = []
         self._size: list[int] = []
         self._cmin: list[int] = []  # oldest (smallest) node of a root's component
         self._members: list[list[int] | None] = []
         self._main = -1  # root of the main component (largest, ties to the oldest)
-        self._ends = np.zeros((16, 2), np.int64)  # per edge (i, j), growable
-        self._pruned = np.zeros(16, bool)  # per edge, mirrors Edge.pruned
+
+    # ------------------------------------------------------------------ edge storage
+    def _init_edge_storage(self, capacity: int = 16) -> None:
+        """Edges live in growable arrays (rows [0, m) are the edges), not in Python objects:
+        ends and adjacency links as int64 ``array``s (fast scalar reads in the graph walks),
+        T_ij as its top 3x4 rows and the symmetric information matrix as its 21-value upper
+        triangle (float64, exact copies: matrices that are not exactly rigid / symmetric are
+        kept whole in a side dict) in blocks of :data:`_BLOCK` edges (:class:`_RowBlocks`),
+        flags, kind codes and confidences as (doubling) NumPy arrays."""
+        self._m = 0
+        self._ei, self._ej = array("q"), array("q")
+        # adjacency as linked lists through the edges: each edge is in the list of its newer
+        # end ("older" edges of that node, bounded: added with the node) and of its older end
+        # ("newer" edges, growing as later nodes match it); per node the last edge of each
+        # list, per edge the previous edge of the same list (-1 = none)
+        self._tail_older, self._tail_newer = array("q"), array("q")
+        self._prev_older, self._prev_newer = array("q"), array("q")
+        self._T = _RowBlocks((3, 4), capacity)
+        self._info = _RowBlocks((_N_TRI,), capacity)
+        self._T_full: dict[int, np.ndarray] = {}
+        self._info_full: dict[int, np.ndarray] = {}
+        self._pruned = np.zeros(capacity, bool)
+        self._unc = np.zeros(capacity, bool)
+        self._kind = np.zeros(capacity, np.uint8)
+        self._conf = np.ones(capacity)
+        self._kind_names: list[str] = list(_KINDS)
+
+    def _grow_edges(self) -> None:
+        """Double the capacity of the per-edge flag / code / confidence arrays."""
+        for name in ("_pruned", "_unc", "_kind", "_conf"):
+            a = getattr(self, name)
+            grown = np.zeros((2 * len(a),) + a.shape[1:], a.dtype)
+            grown[: self._m] = a[: self._m]
+            setattr(self, name, grown)
+
+    def _kind_code(self, kind: str) -> int:
+        try:
+            return self._kind_names.index(kind)
+        except ValueError:
+            if len(self._kind_names) >= 255:
+                raise ValueError("too many edge kinds (at most 255)") from None
+            self._kind_names.append(kind)
+            return len(self._kind_names) - 1
+
+    def _transform(self, k: int) -> np.ndarray:
+        """T_ij of edge ``k`` (a new 4x4 array)."""
+        full = self._T_full.get(k)
+        if full is not None:
+            return full.copy()
+        T = np.zeros((4, 4))
+        T[:3] = self._T.row(k)
+        T[3, 3] = 1.0
+        return T
+
+    def _information(self, k: int) -> np.ndarray:
+        """Information matrix of edge ``k`` (a new 6x6 array)."""
+        full = self._info_full.get(k)
+        if full is not None:
+            return full.copy()
+        L = np.empty((6, 6))
+        tri = self._info.row(k)
+        L[_TRI] = tri
+        L[_TRI[1], _TRI[0]] = tri
+        return L
+
+    def _n_correspondences(self, k: int) -> float:
+        full = self._info_full.get(k)
+        return float(full[5, 5] if full is not None else self._info.row(k)[_N_TRI - 1])
+
+    def _transforms(self, ids: np.ndarray) -> np.ndarray:
+        """(E, 4, 4) T_ij of edges ``ids`` (new array)."""
+        X = np.zeros((len(ids), 4, 4))
+        X[:, :3] = self._T.take(ids)
+        X[:, 3, 3] = 1.0
+        if self._T_full:
+            for n, k in enumerate(ids.tolist()):
+                if k in self._T_full:
+                    X[n] = self._T_full[k]
+        return X
+
+    def _informations(self, ids: np.ndarray) -> np.ndarray:
+        """(E, 6, 6) information matrices of edges ``ids`` (new array)."""
+        tri = self._info.take(ids)
+        L = np.empty((len(ids), 6, 6))
+        L[:, _TRI[0], _TRI[1]] = tri
+        L[:, _TRI[1], _TRI[0]] = tri
+        if self._info_full:
+            for n, k in enumerate(ids.tolist()):
+                if k in self._info_full:
+                    L[n] = self._info_full[k]
+        return L
+
+    def _ends(self) -> tuple[np.ndarray, np.ndarray]:
+        """(i, j) of all edges as int64 arrays (copies)."""
+        m = self._m
+        return (np.frombuffer(self._ei, np.int64, m).copy() if m else np.zeros(0, np.int64),
+                np.frombuffer(self._ej, np.int64, m).copy() if m else np.zeros(0, np.int64))
+
+    def _older_ids(self, v: int) -> list[int]:
+        """Ids of the edges of ``v`` to older nodes, in the order they were added."""
+        out, prev, k = [], self._prev_older, self._tail_older[v]
+        while k >= 0:
+            out.append(k)
+            k = prev[k]
+        out.reverse()
+        return out
+
+    def _newer_ids_recent_first(self, v: int) -> list[int]:
+        """Ids of the edges of ``v`` to newer nodes, the most recently added first."""
+        out, prev, k = [], self._prev_newer, self._tail_newer[v]
+        while k >= 0:
+            out.append(k)
+            k = prev[k]
+        return out
+
+    def _iter_newer(self, v: int) -> Iterator[int]:
+        """Like :meth:`_newer_ids_recent_first`, lazily (for walks that stop early)."""
+        prev, k = self._prev_newer, self._tail_newer[v]
+        while k >= 0:
+            yield k
+            k = prev[k]
+
+    def _other_end(self, k: int, v: int) -> int:
+        i = self._ei[k]
+        return self._ej[k] if i == v else i
+
+    @property
+    def edges(self) -> EdgeList:
+        """The edges as a sequence of :class:`Edge` views (see :class:`EdgeList`)."""
+        return EdgeList(self)
+
+    @property
+    def n_edges(self) -> int:
+        return self._m
+
+    def n_pruned(self) -> int:
+        """Number of pruned edges."""
+        return int(np.count_nonzero(self._pruned[: self._m]))
+
+    def kind_counts(self) -> dict[str, int]:
+        """Edges per kind (``odometry``, ``loop``, ``keyframe``, ...), kinds present only."""
+        counts = np.bincount(self._kind[: self._m], minlength=len(self._kind_names))
+        return {name: int(c) for name, c in zip(self._kind_names, counts) if c}
+
+    def has_uncertain(self) -> bool:
+        return bool(self._unc[: self._m].any())
+
+    def edge_nbytes(self) -> int:
+        """Bytes held by the edge storage (arrays at capacity, side dicts' matrices)."""
+        arrays = (self._T, self._info, self._pruned, self._unc, self._kind, self._conf)  # all have nbytes
+        links = (self._ei, self._ej, self._prev_older, self._prev_newer, self._tail_older, self._tail_newer)
+        return (sum(a.nbytes for a in arrays) + sum(a.itemsize * len(a) for a in links)
+                + 128 * len(self._T_full) + 288 * len(self._info_full))
 
     # ------------------------------------------------------------------ building
     def add_node(self, T_wc: np.ndarray) -> int:
@@ -235,8 +525,8 @@ class PoseGraph:
             self._P = grown
         self._P[n] = T
         self._n = n + 1
-        self._older.append([])
-        self._newer.append([])
+        self._tail_older.append(-1)
+        self._tail_newer.append(-1)
         self._parent.append(n)
         self._size.append(1)
         self._cmin.append(n)
@@ -273,17 +563,41 @@ class PoseGraph:
         T = np.asarray(T_ij, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError("T_ij must be a finite 4x4 matrix")
-        k = len(self.edges)
-        if k == len(self._ends):
-            self._ends = np.concatenate([self._ends, np.zeros_like(self._ends)])
-            self._pruned = np.concatenate([self._pruned, np.zeros_like(self._pruned)])
-        self._ends[k] = (i, j)
+        code = self._kind_code(kind or ("loop" if uncertain else "odometry"))
+        k = self._m
+        if k == len(self._pruned):
+            self._grow_edges()
+        self._T.ensure(k)
+        self._info.ensure(k)
+        self._store_matrices(k, T, info)
         self._pruned[k] = False
-        self.edges.append(Edge(i, j, T.copy(), info, bool(uncertain), kind or ("loop" if uncertain else "odometry")))
-        self._older[max(i, j)].append(k)
-        self._newer[min(i, j)].append(k)
+        self._unc[k] = bool(uncertain)
+        self._kind[k] = code
+        self._conf[k] = 1.0
+        self._ei.append(i)
+        self._ej.append(j)
+        hi, lo = max(i, j), min(i, j)
+        self._prev_older.append(self._tail_older[hi])
+        self._tail_older[hi] = k
+        self._prev_newer.append(self._tail_newer[lo])
+        self._tail_newer[lo] = k
+        self._m = k + 1
         self._union(i, j)
         return k
+
+    def _store_matrices(self, k: int, T: np.ndarray, info: np.ndarray) -> None:
+        """T_ij as its 3x4 top rows and the information as its upper triangle, or whole in
+        the side dicts when the last row is not exactly (0, 0, 0, 1) / the matrix not exactly
+        symmetric (so that every value read back is bit-for-bit the one given)."""
+        if T[3].tobytes() == _LAST_ROW:
+            self._T.set(k, T[:3])
+        else:
+            self._T_full[k] = T.copy()
+        info = np.ascontiguousarray(info, dtype=np.float64)
+        if info.tobytes() == np.ascontiguousarray(info.T).tobytes():
+            self._info.set(k, info[_TRI])
+        else:
+            self._info_full[k] = info.copy()
 
     # ------------------------------------------------------------------ access
     @property
@@ -318,7 +632,7 @@ class PoseGraph:
 
     def edges_of(self, node: int) -> list[int]:
         """Ids of the edges at ``node`` (pruned ones too)."""
-        return self._older[node] + self._newer[node]
+        return self._older_ids(node) + self._newer_ids_recent_first(node)[::-1]
 
     # ------------------------------------------------------------------ components
     def find(self, node: int) -> int:
@@ -350,16 +664,15 @@ class PoseGraph:
     def refresh_components(self) -> None:
         """Rebuild the union-find from the edges' ``pruned`` flags (call it after changing
         them by hand; :meth:`optimize` keeps the components up to date itself)."""
-        E = len(self.edges)
-        self._pruned[:E] = [e.pruned for e in self.edges]
         self._rebuild_components()
 
     def _rebuild_components(self) -> None:
         """Union-find from scratch over the non-pruned edges (scipy, O(N + E) in C)."""
-        n, E = self._n, len(self.edges)
-        keep = ~self._pruned[:E]
-        ends = self._ends[:E][keep]
-        adj = coo_matrix((np.ones(len(ends), np.int8), (ends[:, 0], ends[:, 1])), shape=(n, n))
+        n = self._n
+        keep = ~self._pruned[: self._m]
+        ei, ej = self._ends()
+        ei, ej = ei[keep], ej[keep]
+        adj = coo_matrix((np.ones(len(ei), np.int8), (ei, ej)), shape=(n, n))
         _, labels = connected_components(adj, directed=False)
         order = np.argsort(labels, kind="stable")  # nodes ascending within each label
         starts = np.concatenate([[0], np.flatnonzero(np.diff(labels[order])) + 1]) if n else np.zeros(0, np.int64)
@@ -419,9 +732,8 @@ class PoseGraph:
         while frontier:
             nxt = []
             for v in frontier:
-                for k in chain(self._older[v], reversed(self._newer[v])):
-                    e = self.edges[k]
-                    w = e.j if e.i == v else e.i
+                for k in chain(self._older_ids(v), self._newer_ids_recent_first(v)):
+                    w = self._other_end(k, v)
                     if w not in seen:
                         if limit is not None and len(seen) >= limit:
                             return list(seen)
@@ -443,10 +755,10 @@ class PoseGraph:
                 a = parent[a]
             return a
 
-        for e in self.edges:
-            if e.pruned and not include_pruned:
-                continue
-            ra, rb = find(e.i), find(e.j)
+        ei, ej = self._ends()
+        keep = np.ones(self._m, bool) if include_pruned else ~self._pruned[: self._m]
+        for a, b in zip(ei[keep].tolist(), ej[keep].tolist()):
+            ra, rb = find(a), find(b)
             if ra != rb:
                 parent[max(ra, rb)] = min(ra, rb)
         groups: dict[int, list[int]] = {}
@@ -466,12 +778,12 @@ class PoseGraph:
         """Per-edge RMS point misalignment (metres): sqrt(e^T Lambda e / N) (of ``edges``,
         default all)."""
         P = self._P if poses is None else poses
-        ids = range(len(self.edges)) if edges is None else list(edges)
+        ids = range(self._m) if edges is None else list(edges)
         out = np.zeros(len(ids))
         for n, k in enumerate(ids):
-            e = self.edges[k]
-            r = linearized_residual(e.T_ij, P[e.i], P[e.j])
-            out[n] = np.sqrt(max(float(r @ e.information @ r), 0.0) / max(e.n_correspondences, 1.0))
+            r = linearized_residual(self._transform(k), P[self._ei[k]], P[self._ej[k]])
+            info = self._information(k)
+            out[n] = np.sqrt(max(float(r @ info @ r), 0.0) / max(self._n_correspondences(k), 1.0))
         return out
 
     # ------------------------------------------------------------------ optimisation
@@ -480,15 +792,14 @@ class PoseGraph:
         node to newer nodes outside it), and whether any has its other end outside."""
         ids: set[int] = set()
         outside = False
+        ei, ej = self._ei, self._ej
         for v in free:
-            for k in self._older[v]:
+            for k in self._older_ids(v):
                 ids.add(k)
-                e = self.edges[k]
-                outside |= min(e.i, e.j) not in free_set
+                outside |= min(ei[k], ej[k]) not in free_set
             taken = 0
-            for k in reversed(self._newer[v]):
-                e = self.edges[k]
-                if max(e.i, e.j) in free_set:  # listed with the newer node
+            for k in self._iter_newer(v):
+                if max(ei[k], ej[k]) in free_set:  # listed with the newer node
                     continue
                 if max_boundary is not None and taken >= max_boundary:
                     break
@@ -556,12 +867,12 @@ class PoseGraph:
         # target = i; a fixed target becomes the anchor (map frame-j points into the world);
         # with a fixed source j the edge is reversed (frame-i points into the world)
         E = len(edge_ids)
-        es = [self.edges[k] for k in edge_ids]
-        ei = np.fromiter((e.i for e in es), np.int64, E)
-        ej = np.fromiter((e.j for e in es), np.int64, E)
-        unc = [e.uncertain for e in es]
-        X = np.array([e.T_ij for e in es]).reshape(E, 4, 4)
-        L = np.array([e.information for e in es]).reshape(E, 6, 6)
+        ids = np.asarray(edge_ids, np.int64)
+        ei = np.fromiter((self._ei[k] for k in edge_ids), np.int64, E)
+        ej = np.fromiter((self._ej[k] for k in edge_ids), np.int64, E)
+        unc = self._unc[ids].tolist()
+        X = self._transforms(ids)
+        L = self._informations(ids)
         src, tgt = local[ej], local[ei]
         fixed_i, fixed_j = tgt < 0, src < 0
         if fixed_i.any():
@@ -597,17 +908,17 @@ class PoseGraph:
         n_kept = len(kept)
         newly_pruned = False
         pos = 0
-        for n, e in enumerate(es):
-            was = e.pruned
+        was_pruned = self._pruned[ids].tolist()
+        for n, k in enumerate(edge_ids):
+            was = was_pruned[n]
             if n_kept == E or (pos < n_kept and _same_edge(kept[pos], int(src[n]), int(tgt[n]), X[n])):
-                e.pruned, e.confidence = False, float(kept[pos].confidence) if e.uncertain else 1.0
+                self._conf[k] = float(kept[pos].confidence) if unc[n] else 1.0
                 pos += 1
                 if was:
-                    self._pruned[edge_ids[n]] = False
-                    self._union(e.i, e.j)
+                    self._pruned[k] = False
+                    self._union(int(ei[n]), int(ej[n]))
             else:
-                e.pruned, e.confidence = True, 0.0
-                self._pruned[edge_ids[n]] = True
+                self._pruned[k], self._conf[k] = True, 0.0
                 newly_pruned |= not was
         if pos != n_kept:  # pragma: no cover - would mean Open3D reordered edges
             raise RuntimeError("could not match optimised edges to the input edges")
@@ -618,7 +929,7 @@ class PoseGraph:
 
         return OptimizationResult(
             self,
-            pruned=[k for k, e in zip(edge_ids, es) if e.pruned],
+            pruned=[k for k in edge_ids if self._pruned[k]],
             optimized_nodes=free,
             fixed_nodes=fixed,
             reference_node=reference_node,

@@ -7,8 +7,6 @@ import numpy as np
 import pytest
 
 from c3f_slam import geometry as g
-from c3f_slam.pipeline import SlamConfig
-from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
 from c3f_slam.pipeline.retrieval import (
     AppearanceIndex,
     CandidateConfig,
@@ -16,14 +14,8 @@ from c3f_slam.pipeline.retrieval import (
     select_candidates,
     spatial_neighbours,
 )
-from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.posegraph import PoseGraph, information_from_points, transform_information
-
-
-def _sift(rng: np.random.Generator, n: int = 60) -> np.ndarray:
-    """SIFT-like uint8 descriptors: sparse non-negative histograms."""
-    d = rng.gamma(0.6, 30.0, (n, 128)) * (rng.random((n, 128)) < 0.5)
-    return np.clip(d, 0, 255).astype(np.uint8)
+from tests.fake_places import PlaceWorld, keyframe_per_frame_slam, sift_like
 
 
 def _contrafeat(rng: np.random.Generator, n: int = 60) -> np.ndarray:
@@ -34,7 +26,7 @@ def _contrafeat(rng: np.random.Generator, n: int = 60) -> np.ndarray:
 # ---------------------------------------------------------------------- candidate selection
 
 
-@pytest.mark.parametrize("make", [_sift, _contrafeat], ids=["sift-uint8", "contrafeat-float16"])
+@pytest.mark.parametrize("make", [sift_like, _contrafeat], ids=["sift-uint8", "contrafeat-float16"])
 def test_appearance_ranks_identical_keyframe_first(make):
     rng = np.random.default_rng(0)
     descs = [make(rng) for _ in range(200)]
@@ -71,7 +63,7 @@ def test_selector_cap_recent_and_appearance():
     rng = np.random.default_rng(1)
     n, cfg = 300, CandidateConfig(max_candidates=12, recent=4, spatial=3, spatial_radius=0.02)
     index = AppearanceIndex()
-    descs = [_sift(rng) for _ in range(n)]
+    descs = [sift_like(rng) for _ in range(n)]
     for d in descs:
         index.add(global_descriptor(d))
     c = select_candidates(n, cfg, index.scores(global_descriptor(descs[42])))
@@ -212,45 +204,9 @@ def test_windowed_optimisation_keeps_the_rest_fixed():
 # ---------------------------------------------------------------------- FragmentSlam with a fake matcher
 
 
-def _place_poses(n: int) -> list[np.ndarray]:
-    """A place every 5 mm along x, the camera looking along +z."""
-    return [g.make_pose(g.axis_angle_to_matrix([0.0, 0.02 * k, 0.0]), [0.005 * k, 0.0, 0.0]) for k in range(n)]
-
-
-class _World:
-    """Frames at known places; two frames match (exactly) when their places are within
-    ``reach`` of each other; each place has its own descriptors."""
-
-    def __init__(self, n_places: int, reach: int = 2, seed: int = 0) -> None:
-        rng = np.random.default_rng(seed)
-        self.poses = _place_poses(n_places)
-        self.desc = [_sift(rng, 40) for _ in range(n_places)]
-        self.pts = rng.uniform(-0.01, 0.01, (40, 3)).astype(np.float32) + np.float32([0, 0, 0.03])
-        self.reach = reach
-        self.place: dict[int, int] = {}
-
-    def frame(self, index: int, place: int) -> FrameFeatures:
-        self.place[index] = place
-        return FrameFeatures(index, index / 30.0, np.zeros((40, 2), np.float32), self.desc[place], self.pts.copy())
-
-    def match(self, a: FrameFeatures, b: FrameFeatures):
-        pa, pb = self.place[a.index], self.place[b.index]
-        if abs(pa - pb) > self.reach:
-            return None, 0
-        return PairMatch(g.relative_pose(self.poses[pa], self.poses[pb]), self.pts.astype(float), 40), 40
-
-
-def _slam(world: _World, **over) -> FragmentSlam:
-    # every frame opens a fragment (no frame reaches 10^6 correspondences): one keyframe per frame
-    cfg = SlamConfig.preset_config("colon", min_consecutive_correspondences=10**6, fuse=False, **over)
-    slam = FragmentSlam(cfg, np.eye(3))
-    slam.match = world.match
-    return slam
-
-
 def test_optimisation_schedule_small_then_geometric():
-    world = _World(60, reach=2)
-    slam = _slam(world, optimize_small_map=10, optimize_growth=0.5, max_optimize_nodes=None,
+    world = PlaceWorld(60, reach=2)
+    slam = keyframe_per_frame_slam(world, optimize_small_map=10, optimize_growth=0.5, max_optimize_nodes=None,
                  final_optimize_nodes=None)
     fired: list[int] = []
     inner = slam.optimize_global
@@ -275,8 +231,8 @@ def test_optimisation_schedule_small_then_geometric():
 
 
 def test_every_keyframe_switch_and_paper_rules():
-    world = _World(30, reach=2)
-    slam = _slam(world, optimize_growth=None, max_keyframe_candidates=None)
+    world = PlaceWorld(30, reach=2)
+    slam = keyframe_per_frame_slam(world, optimize_growth=None, max_keyframe_candidates=None)
     for k in range(30):
         slam.add(world.frame(k, k), np.zeros((4, 4)))
     assert slam.n_optimizations == 28  # every keyframe with a loop (keyframes 2..29)
@@ -287,8 +243,8 @@ def test_bounded_candidates_windows_and_relocalisation():
     """Many keyframes: at most the cap is matched per keyframe, optimisations stay within the
     window, the final sweep covers the map; after lost tracking, a keyframe of an old place
     is found by appearance alone (not recent, no pose estimate) and joins the map."""
-    world = _World(80, reach=2)
-    slam = _slam(world, max_keyframe_candidates=6, recent_keyframe_candidates=2, spatial_keyframe_candidates=2,
+    world = PlaceWorld(80, reach=2)
+    slam = keyframe_per_frame_slam(world, max_keyframe_candidates=6, recent_keyframe_candidates=2, spatial_keyframe_candidates=2,
                  optimize_small_map=10, optimize_growth=0.1, max_optimize_nodes=12, final_optimize_nodes=30)
     sizes: list[int] = []
     inner = slam.graph.optimize

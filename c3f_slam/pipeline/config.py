@@ -49,6 +49,15 @@ class SlamConfig:
       within ``spatial_radius`` metres, viewing direction within ``spatial_max_angle_deg``)
       and the rest by global appearance over all keyframes. Maps up to the cap match all
       keyframes exactly as the paper; ``max_keyframe_candidates=None`` always does (quadratic).
+    - Loop edges: ``max_loop_edges_per_keyframe`` (a count of edges, default 8) bounds the
+      keyframe-match edges (kinds ``keyframe`` and ``loop``, the uncertain ones) a new
+      keyframe adds to the global graph, which otherwise grow with how often a place is
+      revisited (~20 per keyframe on a ping-pong stream, the graph's memory): of its accepted
+      matches it keeps the one to the most recent keyframe, the strongest match into each
+      other component it reaches (so no merge is lost), then the strongest others (most inlier
+      correspondences), and discards the rest (deviation from the paper on revisit-heavy
+      streams). The odometry edge is always kept and not counted. ``None`` or 0 keeps all
+      accepted matches (the paper).
     - Optimisation: ``optimize_every_keyframe`` runs the global pose graph after a keyframe
       that adds a loop edge or merges components (odometry-only keyframes are chained) and
       always at the end (False: only at the end). Rate limit (deviation from the paper on
@@ -87,6 +96,7 @@ class SlamConfig:
     intra_all_pairs: bool = True
     optimize_every_keyframe: bool = True
     max_keyframe_candidates: int | None = 24
+    max_loop_edges_per_keyframe: int | None = 8
     recent_keyframe_candidates: int = 4
     spatial_keyframe_candidates: int = 8
     spatial_radius: float = 0.02
@@ -118,6 +128,9 @@ class SlamConfig:
             raise InputError("max_fragment_frames must be >= 1")
         if self.max_keyframe_candidates is not None and self.max_keyframe_candidates < 1:
             raise InputError("max_keyframe_candidates must be >= 1 (or None: all keyframes)")
+        if self.max_loop_edges_per_keyframe is not None and self.max_loop_edges_per_keyframe < 0:
+            raise InputError("max_loop_edges_per_keyframe must be >= 0 (0 or None: keep all), "
+                             f"got {self.max_loop_edges_per_keyframe}")
         if self.recent_keyframe_candidates < 0 or self.spatial_keyframe_candidates < 0:
             raise InputError("recent_keyframe_candidates and spatial_keyframe_candidates must be >= 0")
         if self.optimize_growth is not None and self.optimize_growth < 0:

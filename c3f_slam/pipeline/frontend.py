@@ -146,11 +146,12 @@ class ModelDepth:
         return self.predict(frame).frame
 
 
-@dataclass
+@dataclass(slots=True)
 class FrameFeatures:
     """What the runtime keeps of a frame (never the image): keypoints (N, 2) float32 px,
     descriptors (N, D) in the provider's storage dtype, points (N, 3) float32 camera-frame
-    metres (NaN = no depth)."""
+    metres (NaN = no depth). The length is the number of descriptors: stored keyframes keep
+    no pixel keypoints (``xy`` (0, 2); matching reads descriptors and points only)."""
 
     index: int
     timestamp: float
@@ -159,7 +160,7 @@ class FrameFeatures:
     points: np.ndarray
 
     def __len__(self) -> int:
-        return int(len(self.xy))
+        return int(len(self.descriptors))
 
     def subset(self, n: int) -> "FrameFeatures":
         """The first ``n`` (strongest) keypoints with depth."""

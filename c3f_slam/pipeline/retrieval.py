@@ -74,12 +74,18 @@ def _matvec(G: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.concatenate([G[a:a + _BLOCK] @ v for a in range(0, len(G), _BLOCK)])
 
 
+#: rows per storage block of :class:`AppearanceIndex` (the first block grows to it by
+#: doubling): the matrix is never copied or over-allocated by more than one block as it grows;
+#: equal to the default :data:`_BLOCK`, so the products are the same as on one matrix
+_STORE_ROWS = 2048
+
+
 class AppearanceIndex:
-    """Global descriptors of all keyframes (a growable (N, D) float32 matrix) and their
-    centred-cosine scores against a query."""
+    """Global descriptors of all keyframes (a growable (N, D) float32 matrix, stored in
+    blocks of :data:`_STORE_ROWS` rows) and their centred-cosine scores against a query."""
 
     def __init__(self) -> None:
-        self._G: np.ndarray | None = None
+        self._blocks: list[np.ndarray] = []
         self._sq = np.zeros(64, np.float32)  # squared norms of the rows (1, or 0 when empty)
         self._n = 0
         self._sum: np.ndarray | None = None
@@ -89,22 +95,27 @@ class AppearanceIndex:
 
     @property
     def nbytes(self) -> int:
-        return 0 if self._G is None else int(self._G[: self._n].nbytes)
+        return 0 if not self._blocks else self._n * self._blocks[0].shape[1] * 4
 
     def add(self, g: np.ndarray) -> int:
         """Append a keyframe's global descriptor; returns its index."""
         g = np.asarray(g, dtype=np.float32).reshape(-1)
-        if self._G is None:
-            self._G = np.zeros((64, len(g)), np.float32)
+        if not self._blocks:
+            self._blocks = [np.zeros((min(64, _STORE_ROWS), len(g)), np.float32)]
             self._sum = np.zeros(len(g), np.float64)
-        if len(g) != self._G.shape[1]:
-            raise ValueError(f"descriptor has {len(g)} values, the index {self._G.shape[1]}")
-        if self._n == len(self._G):
-            grown = np.zeros((2 * len(self._G), self._G.shape[1]), np.float32)
-            grown[: self._n] = self._G[: self._n]
-            self._G = grown
+        D = self._blocks[0].shape[1]
+        if len(g) != D:
+            raise ValueError(f"descriptor has {len(g)} values, the index {D}")
+        b, r = divmod(self._n, _STORE_ROWS)
+        if b == len(self._blocks):
+            self._blocks.append(np.zeros((_STORE_ROWS, D), np.float32))
+        elif r == len(self._blocks[b]):  # only the first block is ever short
+            grown = np.zeros((min(2 * r, _STORE_ROWS), D), np.float32)
+            grown[:r] = self._blocks[b]
+            self._blocks[b] = grown
+        if self._n == len(self._sq):
             self._sq = np.concatenate([self._sq, np.zeros_like(self._sq)])
-        self._G[self._n] = g
+        self._blocks[b][r] = g
         self._sq[self._n] = float(g @ g)
         assert self._sum is not None
         self._sum += g
@@ -114,18 +125,27 @@ class AppearanceIndex:
     def scores(self, g: np.ndarray) -> np.ndarray:
         """(N,) cosine similarity of (G_k - mu) and (g - mu), mu the mean of the N stored
         descriptors; vectorised (two matrix-vector products, no (N, D) temporary)."""
-        if self._n == 0 or self._G is None or self._sum is None:
+        if self._n == 0 or self._sum is None:
             return np.zeros(0, np.float32)
-        G = self._G[: self._n]
         q = np.asarray(g, dtype=np.float32).reshape(-1)
         mu = (self._sum / self._n).astype(np.float32)
-        Gq, Gmu = _matvec(G, q), _matvec(G, mu)
+        Gq, Gmu = self._matvec(q), self._matvec(mu)
         G2 = self._sq[: self._n]
         mq, mm = float(mu @ q), float(mu @ mu)
         dot = Gq - Gmu - mq + mm
         norm_k = np.sqrt(np.maximum(G2 - 2.0 * Gmu + mm, 0.0))
         norm_q = np.sqrt(max(float(q @ q) - 2.0 * mq + mm, 0.0))
         return dot / np.maximum(norm_k * norm_q, 1e-12)
+
+    def _matvec(self, v: np.ndarray) -> np.ndarray:
+        """(N,) products of the stored rows with ``v``, block by block (:func:`_matvec`)."""
+        parts = []
+        for b, B in enumerate(self._blocks):
+            rows = min(len(B), self._n - b * _STORE_ROWS)
+            if rows <= 0:
+                break
+            parts.append(_matvec(B[:rows], v))
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 @dataclass(frozen=True)

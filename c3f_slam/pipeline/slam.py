@@ -8,8 +8,10 @@ are kept and join when one of their keyframes matches the map later.
 
 Memory: per frame a fragment id, a local index and a timestamp (and, once its fragment is
 closed, a 4x4 relative pose); features only for the active fragment and, compactly
-(capped keypoints, uint8/float16 descriptors, float32 points), for every keyframe, plus one
-global appearance descriptor and a bounded number of graph edges per keyframe.
+(capped keypoints, uint8/float16 descriptors, float32 points, no pixel keypoints), for every
+keyframe, plus one global appearance descriptor and a bounded number of graph edges per
+keyframe (its odometry edge and at most ``max_loop_edges_per_keyframe`` keyframe matches,
+:func:`cap_keyframe_edges`), kept in the pose graph's arrays (~0.3 KB per edge).
 
 Time per frame does not grow with the map (see :class:`SlamConfig` for the switches back to
 the paper's literal rules): a new keyframe is matched against a bounded candidate set
@@ -40,6 +42,46 @@ from c3f_slam.pipeline.retrieval import Candidates, KeyframeRetrieval, global_de
 from c3f_slam.posegraph import PoseGraph
 
 Matcher = Callable[[FrameFeatures, FrameFeatures], "tuple[PairMatch | None, int]"]
+KeyframeEdge = tuple[int, PairMatch, str]  # (earlier keyframe k, match T_k,new, kind)
+#: the (absent) pixel keypoints of a stored keyframe, shared by all of them
+_NO_XY = np.zeros((0, 2), np.float32)
+_NO_XY.flags.writeable = False
+
+
+def cap_keyframe_edges(
+    edges: list[KeyframeEdge], cap: int | None, component: Callable[[int], int] | None = None
+) -> tuple[list[KeyframeEdge], int]:
+    """Bound the keyframe-match edges of a new keyframe (see ``max_loop_edges_per_keyframe``
+    of :class:`SlamConfig`); returns (kept edges in their input order, number discarded).
+
+    ``odometry`` edges are always kept and not counted. Of the others (kinds ``keyframe`` and
+    ``loop``, uncertain), at most ``cap`` are kept (None or 0: all), chosen in this order:
+    the match to the most recent keyframe (highest id); then, for each component
+    (``component(k)``, e.g. the pose graph's union-find root) that no kept edge reaches yet,
+    its strongest match, so that no merge of components is lost; then the strongest of the
+    rest. Strength = inlier correspondences (``PairMatch.n``), ties to the more recent keyframe.
+    """
+    matches = [n for n, e in enumerate(edges) if e[2] != "odometry"]
+    if not cap or len(matches) <= cap:
+        return list(edges), 0
+    comp = component or (lambda k: k)
+    covered = {comp(k) for k, _, kind in edges if kind == "odometry"}
+    by_strength = sorted(matches, key=lambda n: (edges[n][1].n, edges[n][0]), reverse=True)
+    most_recent = max(matches, key=lambda n: edges[n][0])
+    chosen = [most_recent]
+    covered.add(comp(edges[most_recent][0]))
+    for n in by_strength:
+        c = comp(edges[n][0])
+        if len(chosen) < cap and c not in covered:
+            chosen.append(n)
+            covered.add(c)
+    for n in by_strength:
+        if len(chosen) >= cap:
+            break
+        if n not in chosen:
+            chosen.append(n)
+    keep = set(chosen) | {n for n, e in enumerate(edges) if e[2] == "odometry"}
+    return [e for n, e in enumerate(edges) if n in keep], len(matches) - len(chosen)
 
 
 class Timings:
@@ -108,6 +150,7 @@ class FragmentSlam:
         self.n_windowed_optimizations = 0
         self.max_optimized_nodes = 0
         self.n_candidates_matched = 0  # keyframe pairs matched (sum over keyframes)
+        self.n_edges_capped = 0  # accepted keyframe matches discarded by max_loop_edges_per_keyframe
         self.candidate_sources: dict[str, int] = defaultdict(int)
         self.reasons: dict[str, int] = defaultdict(int)
         self._last_row = -1  # log row of the last placed frame
@@ -192,7 +235,7 @@ class FragmentSlam:
 
         # edges of the new keyframe: odometry to the previous fragment, matches to the candidates
         t0 = time.perf_counter()
-        edges: list[tuple[int, PairMatch, str]] = []
+        edges: list[KeyframeEdge] = []
         if link is not None and prev_frag is not None:
             T = prev_frag.last_pose @ link.T_ij  # previous keyframe <- new keyframe
             edges.append((prev_frag.id, PairMatch(T, link.points_j, link.n), "odometry"))
@@ -209,7 +252,9 @@ class FragmentSlam:
                 kind = "keyframe" if prev_frag is not None and k == prev_frag.id else "loop"
                 edges.append((k, m, kind))
                 self.candidate_sources[cands.sources.get(k, "all")] += 1
-        self.keyframes.append(kf)
+        edges, dropped = cap_keyframe_edges(edges, self.cfg.max_loop_edges_per_keyframe, self.graph.find)
+        self.n_edges_capped += dropped
+        self.keyframes.append(self._keyframe_record(kf))
         self.retrieval.add(g)
         t0 = self.t.add("matching", t0)
 
@@ -232,7 +277,13 @@ class FragmentSlam:
         self.t.add("posegraph", t0)
         return fid
 
-    def _place(self, node: int, edges: list[tuple[int, PairMatch, str]]) -> int:
+    def _keyframe_record(self, kf: FrameFeatures) -> FrameFeatures:
+        """What the global stage keeps of a keyframe for later matching: its descriptors
+        and 3D points (:func:`match_frames` reads nothing else); the pixel keypoints are
+        dropped (an empty (0, 2) array)."""
+        return FrameFeatures(kf.index, kf.timestamp, _NO_XY, kf.descriptors, kf.points)
+
+    def _place(self, node: int, edges: list[KeyframeEdge]) -> int:
         """Initial pose of a new keyframe, and rigid moves that bring the other components it
         connects into the frame of the oldest one (so that optimisation starts consistent).
         Touches only the nodes of the components it merges. Returns the number of components
@@ -240,7 +291,7 @@ class FragmentSlam:
         if not edges:
             return 0
         g = self.graph
-        by_comp: dict[int, tuple[int, PairMatch, str]] = {}  # component root -> best edge
+        by_comp: dict[int, KeyframeEdge] = {}  # component root -> best edge
         for k, m, kind in edges:
             c = g.find(k)
             best = by_comp.get(c)
@@ -368,10 +419,8 @@ class FragmentSlam:
         return np.asarray(self.log.index), np.asarray(self.log.stamp), poses, reg
 
     def stats(self) -> dict:
-        pruned = sum(e.pruned for e in self.graph.edges)
-        kinds: dict[str, int] = defaultdict(int)
-        for e in self.graph.edges:
-            kinds[e.kind] += 1
+        pruned = self.graph.n_pruned()
+        kinds: dict[str, int] = defaultdict(int, self.graph.kind_counts())
         n_kf = len(self.keyframes)
         return {
             "fragments": len(self.fragments),
@@ -379,7 +428,7 @@ class FragmentSlam:
             "lone_fragments": len(self.fragments) - len(self.graph.main_component()),
             "lone_created": self.n_lone_created,
             "relocalised_keyframes": self.n_relocalised,
-            "global_edges": len(self.graph.edges),
+            "global_edges": self.graph.n_edges,
             "odometry_edges": kinds["odometry"],
             "keyframe_edges": kinds["keyframe"],
             "loop_edges": kinds["loop"],
@@ -390,6 +439,7 @@ class FragmentSlam:
             "windowed_optimizations": self.n_windowed_optimizations,
             "max_optimized_nodes": self.max_optimized_nodes,
             "keyframe_candidates_per_keyframe": self.n_candidates_matched / n_kf if n_kf else 0.0,
+            "keyframe_matches_capped": self.n_edges_capped,
             "keyframe_matches_by_source": dict(self.candidate_sources),
             "new_fragment_reasons": dict(self.reasons),
             "keyframe_memory_bytes": sum(k.nbytes for k in self.keyframes) + self.retrieval.index.nbytes,
