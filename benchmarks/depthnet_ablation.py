@@ -1,13 +1,20 @@
 """DepthNet ablation: the full C3Fusion objective vs the Monodepth2 baseline, trained identically.
 
-Both runs use the same simulator sequences, seed, steps, batch size and network (the small
-CPU variant unless --full-size); only the loss switches differ (configs/depthnet/small.yaml
-vs small_monodepth2.yaml). Each is then tested on held-out sequences with the project's
-metric function (per-image median scaling). Sq Rel and RMSE are printed in centimetres,
-as the paper's table is. Training throughput is images/s over the whole fit (data loading
-included).
+All runs use the same simulator sequences, seed, steps, batch size and network (the small
+CPU variant, configs/depthnet/small*.yaml); only the loss switches differ: the Monodepth2
+baseline (small_monodepth2.yaml), the full objective (small.yaml) and, with --variants, the
+full objective with one switch off (full-no-dc, full-no-extra, full-no-outlier,
+full-no-specular) or the baseline plus outlier removal. Each is then tested on held-out
+sequences with the project's metric function (per-image median scaling), next to the score
+of a constant depth. Sq Rel and RMSE are printed in centimetres, as the paper's table is.
+Training throughput is images/s over the whole fit (data loading included).
 
-    python benchmarks/depthnet_ablation.py --data runs/bench/depth_data --steps 400
+    python benchmarks/depthnet_ablation.py --data runs/bench/depth_slow --steps 500
+    python benchmarks/depthnet_ablation.py --data runs/bench/depth_slow --steps 150 \
+        --variants full-no-dc,full-no-outlier --out runs/switches.md
+
+Sequences missing from --data are generated (--frames, --coverage: keep the per-frame motion
+near the paper's; the table's set-up line reports it).
 
 Writes benchmarks/results/depthnet_ablation.md (numbers + the command line).
 """
@@ -26,22 +33,45 @@ METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
 IN_CM = {"sq_rel": 100.0, "rmse": 100.0}  # metres -> cm for the table (Sq Rel has units of depth)
 
 
-def generate(data: Path, names: list[str], frames: int, size: int) -> None:
+def generate(data: Path, names: list[str], frames: int, size: int, coverage: float) -> None:
     for k, name in enumerate(names):
         out = data / name
         if (out / "camera.json").is_file():
             continue
         preset = f"seq{k % 8 + 1}"
         cmd = [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", preset, "--frames", str(frames),
-               "--size", str(size), "--seed", str(100 + k), "--out", str(out), "--no-progress", "--overwrite"]
+               "--size", str(size), "--seed", str(100 + k), "--set", f"path.coverage={coverage}",
+               "--out", str(out), "--no-progress", "--overwrite"]
         subprocess.run(cmd, check=True, cwd=ROOT)
 
 
-def run(config: str, data: Path, train: list[str], test: list[str], steps: int, batch: int, size: int, root: Path) -> dict:
+def motion_per_frame(data: Path, names: list[str]) -> dict[str, float]:
+    """Ground-truth motion between consecutive frames, median over the given sequences' steps:
+    rotation (degrees), translation (mm) and translation / the sequence's median depth."""
+    import numpy as np
+
+    from c3f_slam.evaluate import frame_motion
+    from c3f_slam.io.sequence import Sequence
+
+    rot, trans, rel = [], [], []
+    for name in names:
+        seq = Sequence(data / name)
+        m = frame_motion(np.asarray(seq.poses))
+        depth = np.median([np.median(d[d > 0]) for d in (seq.read_depth(i) for i in range(0, len(seq), 10))])
+        rot.append(m.rot_deg.median)
+        trans.append(m.trans.median)
+        rel.append(m.trans.median / depth)
+    return {"rot_p50": float(np.median(rot)), "t_mm_p50": 1e3 * float(np.median(trans)),
+            "t_rel_p50": float(np.median(rel))}
+
+
+def run(config: str, overrides: dict, data: Path, train: list[str], test: list[str], steps: int, batch: int, size: int,
+        root: Path) -> dict:
     from c3f_models.cli import main
 
+    switches = [a for k, v in overrides.items() for a in (f"--model.init_args.{k}", str(v).lower())]
     common = [
-        "--config", "configs/trainer/cpu_smoke.yaml", "--config", config,
+        "--config", "configs/trainer/cpu_smoke.yaml", "--config", config, *switches,
         "--data.data_dir", str(data), "--data.train", json.dumps(train), "--data.val", "[]",
         "--data.test", json.dumps(test), "--data.size", f"[{size}, {size}]", "--data.batch_size", str(batch),
         "--trainer.default_root_dir", str(root), "--trainer.logger.init_args.save_dir", str(root),
@@ -54,8 +84,35 @@ def run(config: str, data: Path, train: list[str], test: list[str], steps: int, 
     ckpt = Path(cli.trainer.checkpoint_callback.last_model_path)
     cli = main(["test", *common, "--ckpt_path", str(ckpt), "--trainer.limit_test_batches", "1.0"])
     metrics = {k: float(cli.trainer.callback_metrics[f"test/{k}"]) for k in METRICS}
+    metrics["depth_cv"] = float(cli.trainer.callback_metrics["test/depth_cv"])
     metrics["images_per_s"] = steps * batch / fit_s
     return metrics
+
+
+def constant_depth_metrics(data: Path, test: list[str], size: int) -> dict:
+    """Metrics of a flat prediction on the test sequences' centre frames, same pipeline as ``test``.
+
+    ``depth_cv`` here is the ground truth's own spatial coefficient of variation.
+    """
+    import torch
+
+    from c3f_models.metrics import depth_metrics
+    from datamodules.sequence import C3FSequenceDataModule
+
+    dm = C3FSequenceDataModule(data_dir=str(data), train=[], val=[], test=test, size=[size, size],
+                               frame_offsets=[-1, 0, 1], specular=True, batch_size=8, num_workers=0)
+    dm.setup("test")
+    sums: dict[str, float] = {}
+    n = 0
+    for batch in dm.test_dataloader():
+        gt = batch["depth"][:, 1]
+        m = depth_metrics(torch.ones_like(gt), gt)
+        k = m["n_images"]
+        for name in METRICS:
+            sums[name] = sums.get(name, 0.0) + m[name] * k
+        sums["depth_cv"] = sums.get("depth_cv", 0.0) + m["gt_cv"] * k
+        n += k
+    return {name: v / max(n, 1) for name, v in sums.items()}
 
 
 def main() -> None:
@@ -63,11 +120,17 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT / "runs/bench/depth_data")
     ap.add_argument("--train-seqs", type=int, default=4)
     ap.add_argument("--test-seqs", type=int, default=2)
-    ap.add_argument("--frames", type=int, default=200)
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--coverage", type=float, default=0.15,
+                    help="share of the colon each sequence travels (simulator path.coverage); with 300 frames, "
+                         "0.15 moves ~0.6 mm and ~0.5 deg per frame. The generator's default (1.0) crosses the "
+                         "whole 1.25 m colon, at its 5 mm/frame cap for short sequences (the paper: ~0.3 mm/frame).")
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--batch", type=int, default=4)
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1 is fastest on a shared 2-core machine)")
+    ap.add_argument("--variants", default="baseline,full",
+                    help=f"comma-separated, from: {', '.join(VARIANTS)} (full-no-X: the full objective with one switch off)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/depthnet_ablation.md")
     a = ap.parse_args()
     import torch
@@ -76,26 +139,42 @@ def main() -> None:
 
     train = [f"train{k}" for k in range(a.train_seqs)]
     test = [f"test{k}" for k in range(a.test_seqs)]
-    generate(a.data, train + test, a.frames, a.size)
-    results = {}
-    for name, cfg in (("Monodepth2 baseline", "configs/depthnet/small_monodepth2.yaml"),
-                      ("C3Fusion (full)", "configs/depthnet/small.yaml")):
-        results[name] = run(cfg, a.data, train, test, a.steps, a.batch, a.size, a.data.parent / name.split()[0].lower())
+    generate(a.data, train + test, a.frames, a.size, a.coverage)
+    motion = motion_per_frame(a.data, train + test)
+    variants = [v.strip() for v in a.variants.split(",") if v.strip()]
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        ap.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
+    results = {"constant depth (reference)": constant_depth_metrics(a.data, test, a.size)}
+    for v in variants:
+        cfg, overrides = VARIANTS[v]
+        results[LABELS.get(v, v)] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size,
+                                        a.data.parent / v.replace("+", "_plus_"))
 
-    head = "| method | AbsRel | SqRel (cm) | RMSE (cm) | RMSElog | δ1 | δ2 | δ3 | train img/s |\n|---|---|---|---|---|---|---|---|---|\n"
+    head = ("| method | AbsRel | SqRel (cm) | RMSE (cm) | RMSElog | δ1 | δ2 | δ3 | depth CV | train img/s |\n"
+            "|---|---|---|---|---|---|---|---|---|---|\n")
     rows = "".join(
-        f"| {n} | " + " | ".join(f"{m[k] * IN_CM.get(k, 1.0):.4f}" for k in METRICS) + f" | {m['images_per_s']:.2f} |\n"
+        f"| {n} | " + " | ".join(f"{m[k] * IN_CM.get(k, 1.0):.4f}" for k in METRICS)
+        + f" | {m['depth_cv']:.3f} | " + (f"{m['images_per_s']:.2f}" if "images_per_s" in m else "-") + " |\n"
         for n, m in results.items()
     )
-    base, full = results["Monodepth2 baseline"], results["C3Fusion (full)"]
-    ratio = f"Sq Rel full / baseline = {full['sq_rel'] / base['sq_rel']:.3f} (paper: 0.049 / 0.058 = 0.845)\n"
+    ratio = ""
+    if "baseline" in variants and "full" in variants:
+        base, full = results[LABELS["baseline"]], results[LABELS["full"]]
+        ratio = f"Sq Rel full / baseline = {full['sq_rel'] / base['sq_rel']:.3f} (paper: 0.049 / 0.058 = 0.845)\n"
     cmd = "python " + " ".join([str(Path(sys.argv[0]).relative_to(ROOT) if Path(sys.argv[0]).is_absolute() else sys.argv[0]), *sys.argv[1:]])
     text = (
         "# DepthNet ablation: full objective vs Monodepth2 baseline\n\n"
         f"Command: `{cmd}`\n\n"
         f"Setup: ResNet18 without DCN (the small CPU variant), {a.size}x{a.size}, batch {a.batch}, {a.steps} steps each, "
         f"seed 7, CPU ({a.threads} torch thread). Data: simulator, {a.train_seqs} training sequences and {a.test_seqs} held-out test sequences of "
-        f"{a.frames} frames (presets seq1.., seeds 100+k). Metrics on the test sequences only, per-image median scaling.\n\n"
+        f"{a.frames} frames (presets seq1.., seeds 100+k, path.coverage {a.coverage}; ground-truth motion between "
+        f"consecutive frames, median of the sequences' medians: rotation {motion['rot_p50']:.2f} deg, "
+        f"translation {motion['t_mm_p50']:.2f} mm, {100 * motion['t_rel_p50']:.1f} % of the median depth). Metrics on the test sequences only, per-image median scaling. "
+        "Depth CV: spatial coefficient of variation of the predicted depth (std/mean over each image, averaged); "
+        "the ground truth's is given in the reference row, and a CV near 0 means the network predicts a flat depth. "
+        "The constant-depth row predicts the same depth everywhere (after median scaling: the ground-truth median), "
+        "the score a network must beat to have learnt any structure.\n\n"
         + head + rows + "\n" + ratio
     )
     a.out.parent.mkdir(parents=True, exist_ok=True)

@@ -209,9 +209,20 @@ class DepthNet(L.LightningModule):
         self.log(f"{stage}/automask_kept", terms.automask.float().mean(), on_step=on_step, on_epoch=not on_step,
                  batch_size=batch_size, sync_dist=not on_step)
 
+    def _log_depth_spread(self, stage: str, depth: torch.Tensor) -> None:
+        """``{stage}/depth_cv``: spatial std / mean of the predicted depth of frame t, averaged
+        over the batch. Near 0 means a flat prediction: the network has collapsed (a failure
+        mode of self-supervised depth when the photometric signal is weak)."""
+        flat = depth.detach().flatten(1).float()
+        cv = (flat.std(dim=1) / flat.mean(dim=1).clamp(min=1e-12)).mean()
+        on_step = stage == "train"
+        self.log(f"{stage}/depth_cv", cv, on_step=on_step, on_epoch=not on_step, batch_size=depth.shape[0],
+                 sync_dist=not on_step)
+
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        terms, _ = self.compute_loss(batch)
+        terms, disparities = self.compute_loss(batch)
         self._log_terms("train", terms, batch["image"].shape[0])
+        self._log_depth_spread("train", self.depth_net.to_depth(disparities[1][0]))
         return terms.loss
 
     # ------------------------------------------------------------------ evaluation
@@ -220,6 +231,7 @@ class DepthNet(L.LightningModule):
         b = batch["image"].shape[0]
         self._log_terms(stage, terms, b)
         pred = self.depth_net.to_depth(disparities[1][0])
+        self._log_depth_spread(stage, pred)
         metrics = None
         if "depth" in batch:
             gt = batch["depth"][:, 1]

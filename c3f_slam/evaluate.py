@@ -198,6 +198,16 @@ def rpe(est_poses: np.ndarray, gt_poses: np.ndarray, delta: int = 1, scale: floa
     return RPEResult(delta, ErrorStats.of(trans), ErrorStats.of(np.asarray(rot)))
 
 
+def frame_motion(poses: np.ndarray, delta: int = 1) -> RPEResult:
+    """Camera motion between frames i and i + ``delta`` of camera-to-world ``poses``:
+    translation (m) and rotation (degrees), i.e. the RPE of a camera that never moves.
+
+    Describes how hard a sequence is (per-frame baseline) for benchmarks and data reports.
+    """
+    gt = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    return rpe(np.broadcast_to(np.eye(4), gt.shape), gt, delta)
+
+
 def registered_share(n_registered: int, n_frames: int) -> float:
     """Share of input frames that ended up registered (in the main component), in [0, 1]."""
     if n_frames <= 0:

@@ -81,3 +81,12 @@ def test_shape_errors():
         depth_metrics(np.zeros((2, 2)), np.zeros((3, 3)))
     with pytest.raises(ValueError):
         depth_metrics(np.zeros((1, 3, 2, 2)), np.zeros((1, 3, 2, 2)))
+
+
+def test_coefficient_of_variation_flags_a_flat_prediction():
+    flat = np.full_like(GT, 0.02)
+    m = depth_metrics(flat, GT, median_scaling=True)
+    assert m["pred_cv"] == pytest.approx(0.0, abs=1e-12)
+    assert m["gt_cv"] == pytest.approx(np.std(GT) / np.mean(GT), rel=1e-9)
+    # scale-free: any multiple of the ground truth has the ground truth's CV
+    assert depth_metrics(GT * 5.0, GT)["pred_cv"] == pytest.approx(m["gt_cv"], rel=1e-9)

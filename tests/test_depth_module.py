@@ -43,6 +43,8 @@ def test_fast_dev_run_on_planes(plane_dataset, tmp_path, switches):
     m = tr.callback_metrics
     assert math.isfinite(float(m["train/loss"])) and math.isfinite(float(m["val/loss"]))
     assert 0 < float(m["val/abs_rel"]) < 1 and 0 <= float(m["val/a1"]) <= 1
+    # the collapse indicator: a random network's depth is not flat, and it is a ratio >= 0
+    assert 0 < float(m["train/depth_cv"]) < 10 and 0 < float(m["val/depth_cv"]) < 10
     if switches:
         assert "train/ph_extra" not in m and "train/dc" not in m
     else:

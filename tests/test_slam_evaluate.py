@@ -14,6 +14,7 @@ from c3f_slam.evaluate import (
     apply_sim3,
     associate,
     ate,
+    frame_motion,
     evaluate_trajectory,
     plot_trajectories,
     registered_share,
@@ -165,3 +166,16 @@ def test_evaluate_trajectory_and_plot(tmp_path):
     plot_trajectories(png, gt[:, :3, 3], est[:, :3, 3] * 2, title="test")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["traj.png"]
+
+
+def test_frame_motion_of_a_constant_step():
+    # each step moves 2 mm along the camera's x axis and turns 1.5 degrees about its y axis
+    step = g.make_pose(g.axis_angle_to_matrix([0.0, np.radians(1.5), 0.0]), [0.002, 0.0, 0.0])
+    poses = [np.eye(4)]
+    for _ in range(20):
+        poses.append(poses[-1] @ step)
+    m = frame_motion(np.array(poses))
+    assert m.trans.median == pytest.approx(0.002, rel=1e-9)
+    assert m.rot_deg.median == pytest.approx(1.5, rel=1e-9)
+    assert m.trans.n == 20
+    assert frame_motion(np.array(poses), delta=2).rot_deg.max == pytest.approx(3.0, rel=1e-9)
