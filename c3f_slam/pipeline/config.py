@@ -76,6 +76,11 @@ class SlamConfig:
       is optimised whole when it has at most ``final_optimize_nodes`` keyframes (None:
       always), else by one sweep of overlapping ``max_optimize_nodes`` windows in keyframe
       order.
+    - Keyframe storage: ``keyframe_cache`` (default True): :func:`c3f_slam.pipeline.run.run_slam`
+      keeps the stored keyframes' descriptors and 3D points in a file under
+      ``OUT/.keyframe_cache`` (removed at the end of the run, also on errors) and only a
+      34-byte record per keyframe plus an LRU of 64 keyframes in RAM; False keeps them in RAM
+      (~5 KB per keyframe with SIFT). Results are identical either way.
 
     Fusion: ``fuse`` (False = --no-mesh), ``eps_f_na`` frames and ``eps_cf_d`` metres (the
     settle rule of :class:`c3f_slam.fusion.FragmentFusion`), ``tsdf`` volume settings.
@@ -106,6 +111,7 @@ class SlamConfig:
     max_optimize_nodes: int | None = 100
     window_boundary_edges: int | None = 8
     final_optimize_nodes: int | None = 600
+    keyframe_cache: bool = True
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
     posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])
     tsdf: TSDFConfig = field(default_factory=lambda: TSDF_PRESETS["colon"])

@@ -90,7 +90,7 @@ class Fragment:
         """Optimise the local graph (when it has more than a chain), freeze the relative poses,
         drop the per-frame features."""
         assert self.graph is not None, "the fragment is closed"
-        if any(e.uncertain for e in self.graph.edges):
+        if self.graph.has_uncertain():
             res = self.graph.optimize(config, reference_node=0)
             self.pruned = len(res.pruned)
         self.rel_poses = self.graph.poses.astype(np.float64)

@@ -5,9 +5,11 @@ video in model-depth mode), flagged frames (black / saturated) are skipped and c
 depth provider gives its depth (files, or DepthNet ONNX), the frontend keeps only keypoints,
 descriptors (SIFT or ContraFeat ONNX) and 3D points, fusion re-reads settled fragments through
 :mod:`c3f_slam.pipeline.fusion_frames` (the sequence's files, or the on-disk cache of
-predicted depth, removed at the end). Whatever happens, the outputs so far (trajectory.txt,
-summary.json with the error, keyframe graph) are written atomically before the error is
-passed on.
+predicted depth, removed at the end); the global stage keeps its keyframes' descriptors and
+3D points in ``OUT/.keyframe_cache`` (:mod:`c3f_slam.pipeline.keyframe_store`, removed at the
+end, also on errors; ``SlamConfig.keyframe_cache=False`` keeps them in RAM). Whatever
+happens, the outputs so far (trajectory.txt, summary.json with the error, keyframe graph) are
+written atomically before the error is passed on.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from c3f_slam.pipeline.frontend import (
     SiftDescriptors,
 )
 from c3f_slam.pipeline.fusion_frames import fusion_frames
+from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
 from c3f_slam.pipeline.slam import FragmentSlam, OdometrySlam, Timings
 from c3f_slam.stream import FrameStream
 
@@ -153,7 +156,10 @@ def run_slam(
         front = Frontend(K, desc, cfg.max_keypoints, cfg.sift_contrast_threshold, cfg.mask_specular,
                          cfg.specular_dilation_px)
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
-        slam = factory(cfg, K, desc.metric, timings)
+        if isinstance(factory, type) and issubclass(factory, FragmentSlam) and cfg.keyframe_cache:
+            slam = factory(cfg, K, desc.metric, timings, keyframe_cache=outputs.root / KEYFRAME_CACHE_DIR)
+        else:
+            slam = factory(cfg, K, desc.metric, timings)
 
         def pose_of(row: int):
             return slam.pose_of_log(row)
@@ -218,6 +224,8 @@ def run_slam(
             bar.close()
         if frames is not None:
             frames.close()
+        if isinstance(slam, FragmentSlam):
+            slam.close()  # removes OUT/.keyframe_cache
     _write(outputs, slam, summary, counts, timings, t_start)
     if summary.get("registered_frames", 0) == 0:
         msg = (f"{sequence}: no frame could be registered ({counts['frames']} frames, "
@@ -247,7 +255,7 @@ def _write(outputs: RunOutputs, slam, summary: dict, counts: dict, timings: Timi
                 main = slam.main_fragments()
                 graph = KeyframeGraph.from_posegraph(
                     slam.graph, [f.keyframe for f in slam.fragments],
-                    [k.timestamp for k in slam.keyframes],
+                    slam.keyframes.timestamps.tolist(),
                     lone={f for f in range(len(slam.fragments)) if f not in main},
                     fragments=list(range(len(slam.fragments))),
                 )

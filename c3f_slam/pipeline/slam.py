@@ -9,9 +9,11 @@ are kept and join when one of their keyframes matches the map later.
 Memory: per frame a fragment id, a local index and a timestamp (and, once its fragment is
 closed, a 4x4 relative pose); features only for the active fragment and, compactly
 (capped keypoints, uint8/float16 descriptors, float32 points, no pixel keypoints), for every
-keyframe, plus one global appearance descriptor and a bounded number of graph edges per
-keyframe (its odometry edge and at most ``max_loop_edges_per_keyframe`` keyframe matches,
-:func:`cap_keyframe_edges`), kept in the pose graph's arrays (~0.3 KB per edge).
+keyframe (in RAM, or on disk with a 34-byte record and a small LRU in RAM when a cache
+folder is given: :class:`c3f_slam.pipeline.keyframe_store.KeyframeStore`), plus one global
+appearance descriptor and a bounded number of graph edges per keyframe (its odometry edge
+and at most ``max_loop_edges_per_keyframe`` keyframe matches, :func:`cap_keyframe_edges`),
+kept in the pose graph's arrays (~0.3 KB per edge).
 
 Time per frame does not grow with the map (see :class:`SlamConfig` for the switches back to
 the paper's literal rules): a new keyframe is matched against a bounded candidate set
@@ -30,6 +32,7 @@ import time
 from array import array
 from collections import defaultdict
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -38,14 +41,12 @@ from c3f_slam.geometry import invert_pose
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fragments import FIRST, Fragment, new_fragment_reason
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, match_frames
+from c3f_slam.pipeline.keyframe_store import KeyframeStore
 from c3f_slam.pipeline.retrieval import Candidates, KeyframeRetrieval, global_descriptor
 from c3f_slam.posegraph import PoseGraph
 
 Matcher = Callable[[FrameFeatures, FrameFeatures], "tuple[PairMatch | None, int]"]
 KeyframeEdge = tuple[int, PairMatch, str]  # (earlier keyframe k, match T_k,new, kind)
-#: the (absent) pixel keypoints of a stored keyframe, shared by all of them
-_NO_XY = np.zeros((0, 2), np.float32)
-_NO_XY.flags.writeable = False
 
 
 def cap_keyframe_edges(
@@ -131,14 +132,17 @@ class FragmentSlam:
 
     mode = "full"
 
-    def __init__(self, cfg: SlamConfig, K: np.ndarray, metric: str = "l2", timings: Timings | None = None) -> None:
+    def __init__(self, cfg: SlamConfig, K: np.ndarray, metric: str = "l2", timings: Timings | None = None,
+                 keyframe_cache: str | Path | None = None) -> None:
+        """``keyframe_cache``: folder for the stored keyframes' features (emptied now, removed
+        by :meth:`close`); None keeps them in RAM (:class:`KeyframeStore`). Same results."""
         self.cfg = cfg
         self.K = np.asarray(K, dtype=np.float64)
         self.metric = metric
         self.t = timings or Timings()
         self.log = FrameLog()
         self.fragments: list[Fragment] = []  # fragment id == global node id
-        self.keyframes: list[FrameFeatures] = []
+        self.keyframes = KeyframeStore(keyframe_cache)
         self.graph = PoseGraph()
         self.retrieval = KeyframeRetrieval(cfg.candidates)
         self.active: Fragment | None = None
@@ -254,7 +258,7 @@ class FragmentSlam:
                 self.candidate_sources[cands.sources.get(k, "all")] += 1
         edges, dropped = cap_keyframe_edges(edges, self.cfg.max_loop_edges_per_keyframe, self.graph.find)
         self.n_edges_capped += dropped
-        self.keyframes.append(self._keyframe_record(kf))
+        self.keyframes.append(kf)
         self.retrieval.add(g)
         t0 = self.t.add("matching", t0)
 
@@ -276,12 +280,6 @@ class FragmentSlam:
                 self.optimize_global(node)
         self.t.add("posegraph", t0)
         return fid
-
-    def _keyframe_record(self, kf: FrameFeatures) -> FrameFeatures:
-        """What the global stage keeps of a keyframe for later matching: its descriptors
-        and 3D points (:func:`match_frames` reads nothing else); the pixel keypoints are
-        dropped (an empty (0, 2) array)."""
-        return FrameFeatures(kf.index, kf.timestamp, _NO_XY, kf.descriptors, kf.points)
 
     def _place(self, node: int, edges: list[KeyframeEdge]) -> int:
         """Initial pose of a new keyframe, and rigid moves that bring the other components it
@@ -407,6 +405,11 @@ class FragmentSlam:
                     self._optimize(members[start:start + w], False, oldest)
         self.t.add("posegraph", t0)
 
+    def close(self) -> None:
+        """Free the keyframe store's file and cache folder (if any); the trajectory, graph and
+        stats stay available, matching new keyframes does not."""
+        self.keyframes.close()
+
     def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(frame indices, timestamps, poses (N, 4, 4) NaN when unregistered, registered mask)."""
         n = len(self.log)
@@ -417,6 +420,11 @@ class FragmentSlam:
             if P is not None:
                 poses[r], reg[r] = P, True
         return np.asarray(self.log.index), np.asarray(self.log.stamp), poses, reg
+
+    def keyframe_memory_bytes(self) -> int:
+        """Bytes of keyframe data held in RAM: the store's (features, or their records and
+        LRU when on disk) and the appearance index (global descriptors)."""
+        return self.keyframes.nbytes + self.retrieval.index.nbytes
 
     def stats(self) -> dict:
         pruned = self.graph.n_pruned()
@@ -442,7 +450,8 @@ class FragmentSlam:
             "keyframe_matches_capped": self.n_edges_capped,
             "keyframe_matches_by_source": dict(self.candidate_sources),
             "new_fragment_reasons": dict(self.reasons),
-            "keyframe_memory_bytes": sum(k.nbytes for k in self.keyframes) + self.retrieval.index.nbytes,
+            "keyframe_memory_bytes": self.keyframe_memory_bytes(),
+            "keyframe_disk_bytes": self.keyframes.disk_bytes,
         }
 
 
