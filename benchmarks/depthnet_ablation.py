@@ -65,6 +65,19 @@ def motion_per_frame(data: Path, names: list[str]) -> dict[str, float]:
             "t_rel_p50": float(np.median(rel))}
 
 
+# name -> (config, loss-switch overrides). "full-no-X" is the full objective with one switch off.
+VARIANTS = {
+    "baseline": ("configs/depthnet/small_monodepth2.yaml", {}),
+    "full": ("configs/depthnet/small.yaml", {}),
+    "full-no-dc": ("configs/depthnet/small.yaml", {"use_depth_consistency": False}),
+    "full-no-extra": ("configs/depthnet/small.yaml", {"use_extra_photometric": False}),
+    "full-no-outlier": ("configs/depthnet/small.yaml", {"use_outlier_mask": False}),
+    "full-no-specular": ("configs/depthnet/small.yaml", {"use_specular_mask": False}),
+    "baseline+outlier": ("configs/depthnet/small_monodepth2.yaml", {"use_outlier_mask": True}),
+}
+LABELS = {"baseline": "Monodepth2 baseline", "full": "C3Fusion (full)"}
+
+
 def run(config: str, overrides: dict, data: Path, train: list[str], test: list[str], steps: int, batch: int, size: int,
         root: Path) -> dict:
     from c3f_models.cli import main
