@@ -308,3 +308,23 @@ def test_inspect(models, tmp_path, capsys):
     bad.write_bytes(b"not onnx")
     assert main(["inspect", str(bad)]) == 2
     assert "bad.onnx" in _cli_error(capsys)
+
+
+def test_models_with_the_same_preprocessing_share_one_prepared_input(models, monkeypatch):
+    """Depth and descriptor models see the same frame: crop/resize/inpainting run once."""
+    import c3f_slam.models.nets as nets
+
+    calls = []
+    real = nets.prepare_network_input
+    monkeypatch.setattr(nets, "prepare_network_input", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(nets.FrameModel, "_last_input", None)
+    depth, desc = DepthModel(models["depth"]), DescriptorModel(models["feat"])
+    cam = CAM
+    rgb = np.random.default_rng(0).integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8)
+    x1, _ = depth.prepare(rgb, cam)
+    x2, _ = desc.prepare(rgb, cam)
+    assert len(calls) == 1 and x1 is x2
+    depth.predict(rgb, cam)  # the cached input runs through onnxruntime (read-only array)
+    other = rgb.copy()  # equal pixels, another frame object: prepared again
+    x3, _ = desc.prepare(other, cam)
+    assert len(calls) == 2 and np.array_equal(x3, x1)

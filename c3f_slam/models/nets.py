@@ -15,6 +15,7 @@ Conventions: metres; pixel centres at integer coordinates; camera x right, y dow
 
 from __future__ import annotations
 
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -36,9 +37,16 @@ class FrameModel:
     """Common part: the ONNX session, the metadata and the frame -> network-input step.
 
     ``option``: the option named in error messages (default :data:`OPTIONS` of the kind).
+
+    The last prepared input is shared by all models (one entry, class level): when a depth
+    and a descriptor model with the same pre-processing see the same frame array, the crop,
+    resize and inpainting run once. The entry is keyed by the frame object itself (a weak
+    reference), the camera and the pre-processing, so a new frame array is always prepared;
+    frames must not be modified in place between the two calls.
     """
 
     kind = ""
+    _last_input: tuple | None = None  # (weakref to the frame, camera, preprocessing, input)
 
     def __init__(self, path: str | Path, threads: int = 2, option: str | None = None) -> None:
         self.onnx = OnnxModel(path, expect_kind=self.kind, threads=threads, option=option or OPTIONS[self.kind])
@@ -63,10 +71,15 @@ class FrameModel:
             raise InputError(f"frame must be (H, W, 3) uint8 RGB, got {rgb.dtype} {rgb.shape}")
         view = self.view(camera)
         pp = self.metadata.preprocessing
+        last = FrameModel._last_input
+        if last is not None and last[0]() is rgb and last[1] == camera and last[2] == pp:
+            return last[3], view
         net_rgb, _, _ = prepare_network_input(
             rgb, camera, pp.crop, pp.size, pp.specular_inpaint, pp.specular_threshold, pp.specular_dilation_px
         )
         x = np.ascontiguousarray(net_rgb.transpose(2, 0, 1), dtype=np.float32) / np.float32(255.0)
+        x.flags.writeable = False
+        FrameModel._last_input = (weakref.ref(rgb), camera, pp, x)
         return x, view
 
     def __repr__(self) -> str:
