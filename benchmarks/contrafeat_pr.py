@@ -238,12 +238,12 @@ def main() -> None:
         "",
         "## Notes",
         "",
-        "- This is a CPU-budget run (under a thousand steps from scratch at 128x128); the paper trains for many "
+        f"- This is a CPU-budget run ({steps} steps from scratch at {args.size}x{args.size}); the paper trains for many "
         "epochs on GPU at full resolution. Compare the CDF rows with the untrained control to see what the "
         "training budget bought, not with the paper's numbers.",
         "- kpf precision below 100 % with weak descriptors most likely comes from the tube's symmetry: wrong matches that "
         "are rotated about the lumen axis (or slid along it) fit one rigid motion, so the keypoint filter "
-        "cannot reject them; (the accepted wrong sets we inspected were 18-40 px off yet fit one motion within 1 mm). SIFT+kpf meets this less often because SIFT's wrong matches are less structured.",
+        "cannot reject them (in an earlier run, the accepted wrong sets inspected by hand were 18-40 px off yet fit one motion within 1 mm). SIFT+kpf meets this less often because SIFT's wrong matches are less structured.",
         "",
     ]
     args.out.parent.mkdir(parents=True, exist_ok=True)
