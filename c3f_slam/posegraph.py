@@ -129,22 +129,25 @@ def linearized_residual(T_ij: np.ndarray, T_wi: np.ndarray, T_wj: np.ndarray) ->
     return np.concatenate([w, M[:3, 3]])
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def transform_information(info: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Information matrix of the same points expressed in another frame: ``info`` was built
     from points p (:func:`information_from_points`), the result equals the one built from
     T @ p. With A = Ad(T) = [[R, 0], [[t]x R, R]] (rotation, translation order) the small
-    motions relate by xi' = A xi and the result is A^-T info A^-1."""
+    motions relate by xi' = A xi and the result is A^-T info A^-1. Works on one (6, 6) / (4, 4)
+    pair or on stacks (E, 6, 6) / (E, 4, 4)."""
     T = np.asarray(T, dtype=np.float64)
-    R, t = T[:3, :3], T[:3, 3]
-    A_inv = np.zeros((6, 6))
-    A_inv[:3, :3] = R.T
-    A_inv[3:, 3:] = R.T
-    A_inv[3:, :3] = -R.T @ _skew(t)
-    return A_inv.T @ np.asarray(info, dtype=np.float64) @ A_inv
+    L = np.asarray(info, dtype=np.float64)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    t = T[..., :3, 3]
+    skew = np.zeros(t.shape[:-1] + (3, 3))
+    skew[..., 0, 1], skew[..., 0, 2] = -t[..., 2], t[..., 1]
+    skew[..., 1, 0], skew[..., 1, 2] = t[..., 2], -t[..., 0]
+    skew[..., 2, 0], skew[..., 2, 1] = -t[..., 1], t[..., 0]
+    A_inv = np.zeros(t.shape[:-1] + (6, 6))
+    A_inv[..., :3, :3] = Rt
+    A_inv[..., 3:, 3:] = Rt
+    A_inv[..., 3:, :3] = -Rt @ skew
+    return np.swapaxes(A_inv, -1, -2) @ L @ A_inv
 
 
 def _scale_pose(T: np.ndarray, k: float) -> np.ndarray:
@@ -669,11 +672,7 @@ class PoseGraph:
     def _rebuild_components(self) -> None:
         """Union-find from scratch over the non-pruned edges (scipy, O(N + E) in C)."""
         n = self._n
-        keep = ~self._pruned[: self._m]
-        ei, ej = self._ends()
-        ei, ej = ei[keep], ej[keep]
-        adj = coo_matrix((np.ones(len(ei), np.int8), (ei, ej)), shape=(n, n))
-        _, labels = connected_components(adj, directed=False)
+        labels = self._component_labels(~self._pruned[: self._m])
         order = np.argsort(labels, kind="stable")  # nodes ascending within each label
         starts = np.concatenate([[0], np.flatnonzero(np.diff(labels[order])) + 1]) if n else np.zeros(0, np.int64)
         roots = order[starts]  # the oldest node of each label
@@ -747,24 +746,19 @@ class PoseGraph:
         from scratch (O(graph); see :meth:`component_nodes` / :meth:`in_main` for the
         incremental queries). Pruned edges are ignored unless ``include_pruned``.
         """
-        parent = list(range(self.n_nodes))
-
-        def find(a: int) -> int:
-            while parent[a] != a:
-                parent[a] = parent[parent[a]]
-                a = parent[a]
-            return a
-
-        ei, ej = self._ends()
         keep = np.ones(self._m, bool) if include_pruned else ~self._pruned[: self._m]
-        for a, b in zip(ei[keep].tolist(), ej[keep].tolist()):
-            ra, rb = find(a), find(b)
-            if ra != rb:
-                parent[max(ra, rb)] = min(ra, rb)
         groups: dict[int, list[int]] = {}
-        for v in range(self.n_nodes):
-            groups.setdefault(find(v), []).append(v)
+        for v, label in enumerate(self._component_labels(keep).tolist()):
+            groups.setdefault(label, []).append(v)
         return sorted(groups.values(), key=lambda c: (-len(c), c[0]))
+
+    def _component_labels(self, keep: np.ndarray) -> np.ndarray:
+        """Per node, the label of its connected component over the edges where ``keep``
+        (bool per edge) is True (scipy, O(N + E) in C)."""
+        n = self._n
+        ei, ej = self._ends()
+        adj = coo_matrix((np.ones(int(keep.sum()), np.int8), (ei[keep], ej[keep])), shape=(n, n))
+        return connected_components(adj, directed=False)[1]
 
     def component_of(self, node: int, include_pruned: bool = False) -> list[int]:
         """Sorted nodes of ``node``'s component (pruned edges ignored unless ``include_pruned``)."""
@@ -880,8 +874,8 @@ class PoseGraph:
             tgt[fixed_i] = 0
         if fixed_j.any():
             T = X[fixed_j]
-            L[fixed_j] = _transform_information_batch(L[fixed_j], T)
-            X[fixed_j] = self._P[ej[fixed_j]] @ _invert_batch(T)
+            L[fixed_j] = transform_information(L[fixed_j], T)
+            X[fixed_j] = self._P[ej[fixed_j]] @ invert_pose(T)
             src[fixed_j], tgt[fixed_j] = local[ei[fixed_j]], 0
         fixed = sorted(set(ei[fixed_i].tolist()) | set(ej[fixed_j].tolist()))
         X[:, :3, 3] *= k_scale
@@ -934,31 +928,6 @@ class PoseGraph:
             fixed_nodes=fixed,
             reference_node=reference_node,
         )
-
-
-def _invert_batch(T: np.ndarray) -> np.ndarray:
-    """Inverses of (E, 4, 4) rigid transforms."""
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(T[:, :3, :3], 1, 2)
-    out[:, :3, :3] = Rt
-    out[:, :3, 3] = -np.einsum("eij,ej->ei", Rt, T[:, :3, 3])
-    out[:, 3, 3] = 1.0
-    return out
-
-
-def _transform_information_batch(L: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """:func:`transform_information` of (E, 6, 6) matrices by (E, 4, 4) transforms."""
-    Rt = np.swapaxes(T[:, :3, :3], 1, 2)
-    t = T[:, :3, 3]
-    skew = np.zeros((len(T), 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2] = -t[:, 2], t[:, 1]
-    skew[:, 1, 0], skew[:, 1, 2] = t[:, 2], -t[:, 0]
-    skew[:, 2, 0], skew[:, 2, 1] = -t[:, 1], t[:, 0]
-    A_inv = np.zeros((len(T), 6, 6))
-    A_inv[:, :3, :3] = Rt
-    A_inv[:, 3:, 3:] = Rt
-    A_inv[:, 3:, :3] = -Rt @ skew
-    return np.swapaxes(A_inv, 1, 2) @ L @ A_inv
 
 
 def _same_edge(edge: "_reg.PoseGraphEdge", s: int, t: int, X: np.ndarray) -> bool:
