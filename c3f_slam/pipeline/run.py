@@ -118,7 +118,8 @@ def run_slam(
     ``camera``: intrinsics of a video (default camera.json beside it); ``threads``:
     onnxruntime intra-op threads. Raises InputError (after writing summary.json with the
     error) on bad input, including a run in which no frame could be registered.
-    ``slam_factory(cfg, K, metric, timings)`` may replace the back-end (tests).
+    ``slam_factory(cfg, K, metric, timings, keyframe_cache=folder or None)`` may replace the
+    back-end (tests).
     """
     cfg = cfg or SlamConfig()
     outputs = RunOutputs(out)
@@ -156,10 +157,8 @@ def run_slam(
         front = Frontend(K, desc, cfg.max_keypoints, cfg.sift_contrast_threshold, cfg.mask_specular,
                          cfg.specular_dilation_px)
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
-        if isinstance(factory, type) and issubclass(factory, FragmentSlam) and cfg.keyframe_cache:
-            slam = factory(cfg, K, desc.metric, timings, keyframe_cache=outputs.root / KEYFRAME_CACHE_DIR)
-        else:
-            slam = factory(cfg, K, desc.metric, timings)
+        cache = outputs.root / KEYFRAME_CACHE_DIR if cfg.keyframe_cache else None
+        slam = factory(cfg, K, desc.metric, timings, keyframe_cache=cache)
 
         def pose_of(row: int):
             return slam.pose_of_log(row)
@@ -224,7 +223,7 @@ def run_slam(
             bar.close()
         if frames is not None:
             frames.close()
-        if isinstance(slam, FragmentSlam):
+        if slam is not None:
             slam.close()  # removes OUT/.keyframe_cache
     _write(outputs, slam, summary, counts, timings, t_start)
     if summary.get("registered_frames", 0) == 0:

@@ -463,7 +463,9 @@ class OdometrySlam:
     mode = "odometry"
 
     def __init__(self, cfg: SlamConfig, K: np.ndarray, metric: str = "l2", timings: Timings | None = None,
-                 chunk: int = 30) -> None:
+                 keyframe_cache: str | Path | None = None, chunk: int = 30) -> None:
+        """``keyframe_cache`` is accepted for the back-ends' common signature and unused (the
+        baseline stores no keyframes)."""
         self.cfg = cfg
         self.t = timings or Timings()
         self.log = FrameLog()
@@ -478,6 +480,9 @@ class OdometrySlam:
     def skip(self, index: int, stamp: float) -> None:
         self.log.append(index, stamp)
         self.poses.append(np.full((4, 4), np.nan))
+
+    def close(self) -> None:
+        """Nothing to free (the common interface of the back-ends)."""
 
     def add(self, feat: FrameFeatures, depth: np.ndarray) -> tuple[int, bool]:
         fid = len(self.log) // self.chunk  # fusion chunks
