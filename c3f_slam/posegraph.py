@@ -72,6 +72,7 @@ import open3d as o3d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from c3f_slam.blocks import BlockRows
 from c3f_slam.geometry import invert_pose
 
 _reg = o3d.pipelines.registration
@@ -162,53 +163,8 @@ _N_TRI = len(_TRI[0])  # 21; the last entry is (5, 5), the correspondence count
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0]).tobytes()
 #: the default edge kinds (codes 0, 1, 2); other names get the next codes per graph
 _KINDS = ("odometry", "loop", "keyframe")
-#: edge matrices are stored in blocks of this many edges (the first block grows up to it by
-#: doubling): a big graph's storage is never copied or over-allocated by more than one block
-_BLOCK_SHIFT = 12
-_BLOCK = 1 << _BLOCK_SHIFT
-
-
-class _RowBlocks:
-    """A growable (n, *shape) float64 array kept as a list of blocks of :data:`_BLOCK` rows
-    (the first one grows to that by doubling, from ``capacity`` rows)."""
-
-    __slots__ = ("shape", "blocks")
-
-    def __init__(self, shape: tuple[int, ...], capacity: int = 16) -> None:
-        self.shape = shape
-        self.blocks = [np.zeros((min(capacity, _BLOCK),) + shape)]
-
-    def ensure(self, k: int) -> None:
-        """Make row ``k`` (at most one past the last row) writable."""
-        b, r = k >> _BLOCK_SHIFT, k & (_BLOCK - 1)
-        if b == len(self.blocks):
-            self.blocks.append(np.zeros((_BLOCK,) + self.shape))
-        elif r == len(self.blocks[b]):  # only the first block is ever short
-            grown = np.zeros((min(2 * r, _BLOCK),) + self.shape)
-            grown[:r] = self.blocks[b]
-            self.blocks[b] = grown
-
-    def row(self, k: int) -> np.ndarray:
-        """Row ``k`` (a view)."""
-        return self.blocks[k >> _BLOCK_SHIFT][k & (_BLOCK - 1)]
-
-    def set(self, k: int, value: np.ndarray) -> None:
-        self.blocks[k >> _BLOCK_SHIFT][k & (_BLOCK - 1)] = value
-
-    def take(self, ids: np.ndarray) -> np.ndarray:
-        """Rows ``ids`` (int64 array) as one new (len(ids), *shape) array (exact copies)."""
-        if len(self.blocks) == 1:
-            return self.blocks[0][ids]
-        out = np.empty((len(ids),) + self.shape)
-        b = ids >> _BLOCK_SHIFT
-        for u in np.unique(b).tolist():
-            m = b == u
-            out[m] = self.blocks[u][ids[m] & (_BLOCK - 1)]
-        return out
-
-    @property
-    def nbytes(self) -> int:
-        return sum(a.nbytes for a in self.blocks)
+#: edge matrices are stored in blocks of this many edges (:class:`c3f_slam.blocks.BlockRows`)
+_EDGE_BLOCK = 4096
 
 
 class Edge:
@@ -368,7 +324,7 @@ class PoseGraph:
         ends and adjacency links as int64 ``array``s (fast scalar reads in the graph walks),
         T_ij as its top 3x4 rows and the symmetric information matrix as its 21-value upper
         triangle (float64, exact copies: matrices that are not exactly rigid / symmetric are
-        kept whole in a side dict) in blocks of :data:`_BLOCK` edges (:class:`_RowBlocks`),
+        kept whole in a side dict) in blocks of :data:`_EDGE_BLOCK` edges (:class:`~c3f_slam.blocks.BlockRows`),
         flags, kind codes and confidences as (doubling) NumPy arrays."""
         self._m = 0
         self._ei, self._ej = array("q"), array("q")
@@ -378,8 +334,8 @@ class PoseGraph:
         # list, per edge the previous edge of the same list (-1 = none)
         self._tail_older, self._tail_newer = array("q"), array("q")
         self._prev_older, self._prev_newer = array("q"), array("q")
-        self._T = _RowBlocks((3, 4), capacity)
-        self._info = _RowBlocks((_N_TRI,), capacity)
+        self._T = BlockRows((3, 4), np.float64, _EDGE_BLOCK, capacity)
+        self._info = BlockRows((_N_TRI,), np.float64, _EDGE_BLOCK, capacity)
         self._T_full: dict[int, np.ndarray] = {}
         self._info_full: dict[int, np.ndarray] = {}
         self._pruned = np.zeros(capacity, bool)

@@ -101,7 +101,7 @@ def test_block_stored_appearance_index_scores(monkeypatch):
     blocked = AppearanceIndex()
     for d in descs:
         blocked.add(d)
-    assert len(blocked._blocks) == 5 and blocked.nbytes == whole.nbytes == 70 * 128 * 4
+    assert len(blocked._rows.blocks) == 5 and blocked.nbytes == whole.nbytes == 70 * 128 * 4
     assert blocked.scores(descs[3]).tobytes() == whole.scores(descs[3]).tobytes()
 
 
@@ -238,3 +238,19 @@ def test_cli_loop_edge_cap_option(tiny_sequence, tmp_path, capsys):
                  "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--max-loop-edges-per-keyframe" in err[0]
+
+
+def test_block_rows_grow_and_read_back_exactly():
+    from c3f_slam.blocks import BlockRows
+
+    rows = BlockRows((3,), np.float32, block_rows=8, capacity=2)
+    data = np.random.default_rng(0).normal(size=(21, 3)).astype(np.float32)
+    for k, v in enumerate(data):
+        rows.ensure(k)
+        rows.set(k, v)
+    assert [len(b) for b in rows.blocks] == [8, 8, 8]  # 2 -> 4 -> 8, then whole blocks
+    ids = np.array([20, 0, 9, 7, 16], np.int64)
+    assert rows.take(ids).tobytes() == data[ids].tobytes()
+    assert np.concatenate(list(rows.filled(21))).tobytes() == data.tobytes()
+    with pytest.raises(ValueError, match="power of two"):
+        BlockRows((3,), block_rows=6)

@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from c3f_slam.blocks import BlockRows
+
 
 def global_descriptor(descriptors: np.ndarray) -> np.ndarray:
     """(D,) float32 unit-norm appearance descriptor of one frame's (N, D) local descriptors
@@ -74,9 +76,8 @@ def _matvec(G: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.concatenate([G[a:a + _BLOCK] @ v for a in range(0, len(G), _BLOCK)])
 
 
-#: rows per storage block of :class:`AppearanceIndex` (the first block grows to it by
-#: doubling): the matrix is never copied or over-allocated by more than one block as it grows;
-#: equal to the default :data:`_BLOCK`, so the products are the same as on one matrix
+#: rows per storage block of :class:`AppearanceIndex` (:class:`c3f_slam.blocks.BlockRows`);
+#: equal to :data:`_BLOCK`, so the products are the same as on one matrix
 _STORE_ROWS = 2048
 
 
@@ -85,7 +86,7 @@ class AppearanceIndex:
     blocks of :data:`_STORE_ROWS` rows) and their centred-cosine scores against a query."""
 
     def __init__(self) -> None:
-        self._blocks: list[np.ndarray] = []
+        self._rows: BlockRows | None = None  # created with the first descriptor (its length D)
         self._sq = np.zeros(64, np.float32)  # squared norms of the rows (1, or 0 when empty)
         self._n = 0
         self._sum: np.ndarray | None = None
@@ -95,27 +96,21 @@ class AppearanceIndex:
 
     @property
     def nbytes(self) -> int:
-        return 0 if not self._blocks else self._n * self._blocks[0].shape[1] * 4
+        return 0 if self._rows is None else self._n * self._rows.shape[0] * 4
 
     def add(self, g: np.ndarray) -> int:
         """Append a keyframe's global descriptor; returns its index."""
         g = np.asarray(g, dtype=np.float32).reshape(-1)
-        if not self._blocks:
-            self._blocks = [np.zeros((min(64, _STORE_ROWS), len(g)), np.float32)]
+        if self._rows is None:
+            self._rows = BlockRows((len(g),), np.float32, _STORE_ROWS, capacity=64)
             self._sum = np.zeros(len(g), np.float64)
-        D = self._blocks[0].shape[1]
+        D = self._rows.shape[0]
         if len(g) != D:
             raise ValueError(f"descriptor has {len(g)} values, the index {D}")
-        b, r = divmod(self._n, _STORE_ROWS)
-        if b == len(self._blocks):
-            self._blocks.append(np.zeros((_STORE_ROWS, D), np.float32))
-        elif r == len(self._blocks[b]):  # only the first block is ever short
-            grown = np.zeros((min(2 * r, _STORE_ROWS), D), np.float32)
-            grown[:r] = self._blocks[b]
-            self._blocks[b] = grown
+        self._rows.ensure(self._n)
         if self._n == len(self._sq):
             self._sq = np.concatenate([self._sq, np.zeros_like(self._sq)])
-        self._blocks[b][r] = g
+        self._rows.set(self._n, g)
         self._sq[self._n] = float(g @ g)
         assert self._sum is not None
         self._sum += g
@@ -139,12 +134,8 @@ class AppearanceIndex:
 
     def _matvec(self, v: np.ndarray) -> np.ndarray:
         """(N,) products of the stored rows with ``v``, block by block (:func:`_matvec`)."""
-        parts = []
-        for b, B in enumerate(self._blocks):
-            rows = min(len(B), self._n - b * _STORE_ROWS)
-            if rows <= 0:
-                break
-            parts.append(_matvec(B[:rows], v))
+        assert self._rows is not None
+        parts = [_matvec(B, v) for B in self._rows.filled(self._n)]
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
