@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from c3f_slam.io import Sequence, write_tum  # noqa: E402
-from c3f_slam.pipeline import SlamConfig, run_slam  # noqa: E402
+from c3f_slam.pipeline import PAPER_RULES, SlamConfig, run_slam  # noqa: E402
 from c3f_slam.pipeline.slam import FragmentSlam  # noqa: E402
 from datamodules.synthetic.fixture import make_tiny_sequence  # noqa: E402
 
@@ -135,8 +135,7 @@ def main() -> None:
     if args.keyframes_in_ram:
         over["keyframe_cache"] = False
     if args.paper_rules:
-        over.update(max_keyframe_candidates=None, optimize_growth=None, max_optimize_nodes=None,
-                    final_optimize_nodes=None, max_loop_edges_per_keyframe=None)
+        over.update(PAPER_RULES)
     cfg = SlamConfig.preset_config("colon", **over)
     t = time.perf_counter()
     error = ""

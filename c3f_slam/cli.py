@@ -65,7 +65,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from c3f_slam.pipeline import SlamConfig, run_slam
+    from c3f_slam.pipeline import PAPER_RULES, SlamConfig, run_slam
 
     if args.stride < 1:
         raise InputError(f"--stride must be >= 1, got {args.stride}")
@@ -84,8 +84,7 @@ def _run(args: argparse.Namespace) -> int:
         if args.max_keyframe_candidates < 0:
             raise InputError(f"--max-keyframe-candidates must be >= 0, got {args.max_keyframe_candidates}")
         if args.max_keyframe_candidates == 0:
-            over.update(max_keyframe_candidates=None, optimize_growth=None, max_optimize_nodes=None,
-                        final_optimize_nodes=None, max_loop_edges_per_keyframe=None)
+            over.update(PAPER_RULES)
         else:
             over["max_keyframe_candidates"] = args.max_keyframe_candidates
     if args.max_loop_edges_per_keyframe is not None:

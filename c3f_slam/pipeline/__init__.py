@@ -10,7 +10,7 @@
 - :mod:`.evaluation`: the ``evaluate`` command's metrics and files.
 """
 
-from c3f_slam.pipeline.config import SlamConfig
+from c3f_slam.pipeline.config import PAPER_RULES, SlamConfig
 from c3f_slam.pipeline.run import run_slam
 
-__all__ = ["SlamConfig", "run_slam"]
+__all__ = ["PAPER_RULES", "SlamConfig", "run_slam"]

@@ -18,6 +18,11 @@ from c3f_slam.posegraph import POSEGRAPH_PRESETS, PoseGraphConfig
 
 PRESETS = ("colon", "room")
 MODES = ("full", "odometry")
+#: SlamConfig overrides that restore the paper's literal rules at any map size: every new
+#: keyframe matched against all keyframes, all its accepted matches kept, the whole
+#: component optimised after every loop or merge (quadratic on long sequences)
+PAPER_RULES = dict(max_keyframe_candidates=None, max_loop_edges_per_keyframe=None, optimize_growth=None,
+                   max_optimize_nodes=None, final_optimize_nodes=None)
 
 
 @dataclass(frozen=True)
