@@ -205,6 +205,25 @@ def test_paths_move_as_specified():
     assert 0.3 * len(s) < top < 0.7 * len(s) and s[-1] - s[0] < 0.5 * (s[top] - s[0])
 
 
+def test_event_labels_cover_the_fast_motion():
+    """Events move the camera fastest while they ramp in and out: those frames carry the
+    event's label too, so no fast motion is labelled as a plain frame (frames.csv)."""
+    colon = build_colon(ColonParams(length=0.4, polyps=0), stream(5, 1))
+    scene = make_scene(colon)
+    p = apply_overrides(SimParams(), {"path.frames": 600, "path.coverage": 0.3, "path.closeups": 8,
+                                      "path.bursts": 0, "path.occlusions": 8, "path.roll_events": 0}).path
+    path = plan_path(colon, p, stream(5, 4), scene)
+    rel = [np.linalg.inv(a) @ b for a, b in zip(path.poses[:-1], path.poses[1:])]
+    rot = np.degrees([np.linalg.norm(g.matrix_to_axis_angle(T[:3, :3])) for T in rel])
+    trans = np.array([np.linalg.norm(T[:3, 3]) for T in rel])
+    plain = np.array([not (path.labels[i] or path.labels[i + 1]) for i in range(len(rel))])
+    assert plain.sum() > 100 and (~plain).sum() > 30
+    # plain frames move like the sequence's base motion; the fast pairs are all in events
+    assert rot[plain].max() < 4 * np.median(rot[plain]) + 0.5, (rot[plain].max(), np.median(rot[plain]))
+    assert trans[plain].max() < 4 * np.median(trans[plain]), (trans[plain].max(), np.median(trans[plain]))
+    assert rot[~plain].max() > 2 * rot[plain].max()
+
+
 def test_events_look_like_what_they_claim(tmp_path):
     """Close-up and fold-occlusion frames see the wall much nearer than plain frames."""
     p = apply_overrides(tiny_params(frames=90, size=48, seed=2), {

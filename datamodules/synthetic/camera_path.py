@@ -70,7 +70,7 @@ class CameraPath:
 
     poses: np.ndarray  # (F, 4, 4)
     controls: Controls
-    labels: list[str]  # '' or the event ('closeup', 'burst', 'occluded', 'roll')
+    labels: list[str]  # '' or the event ('closeup', 'burst', 'occluded', 'roll'), ramps included
     wall_distance: np.ndarray  # (F,) distance of each camera centre to the mesh, m
     colon: Colon = field(repr=False)
     allowed: "AllowedRadius" = field(repr=False)
@@ -190,6 +190,17 @@ def _blend_angle(base: np.ndarray, target: float, e: np.ndarray, centre: int) ->
     return base * (1 - e) + target * e
 
 
+def _label(labels: list[str], name: str, a: int, b: int, e: np.ndarray | None = None) -> None:
+    """Label the event's frames [a, b) and, where its envelope ``e`` ramps in and out
+    beyond them (the fastest motion of an event), the ramp frames no other event holds."""
+    for i in range(a, b):
+        labels[i] = name
+    if e is not None:
+        for i in np.flatnonzero(e > 0).tolist():
+            if not labels[i]:
+                labels[i] = name
+
+
 def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator, scene: o3d.t.geometry.RaycastingScene) -> CameraPath:
     """Draw a trajectory (deterministic for a given generator state)."""
     n = p.frames
@@ -233,8 +244,7 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator, scene: o3d.
         phi = _blend_angle(phi, target, e, (a + b) // 2)
         psi = _blend_angle(psi, target, e, (a + b) // 2)
         beta = beta * (1 - e) + math.radians(rng.uniform(40, 70)) * e
-        for i in range(a, b):
-            labels[i] = "closeup"
+        _label(labels, "closeup", a, b, e)
     for _ in range(_count(rng, p.bursts, n)):
         w = _place(rng, n, int(rng.integers(3, 9)), taken)
         if w is None:
@@ -246,8 +256,7 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator, scene: o3d.
             v = v * (1 - 2 * e)
         roll = roll + e * rng.uniform(-0.3, 0.3)
         beta = beta + e * math.radians(rng.uniform(0, 15))
-        for i in range(a, b):
-            labels[i] = "burst"
+        _label(labels, "burst", a, b, e)
     for _ in range(_count(rng, p.roll_events, n)):
         w = _place(rng, n, int(rng.integers(12, 31)), taken)
         if w is None:
@@ -255,8 +264,7 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator, scene: o3d.
         a, b = w
         step = np.clip((np.arange(n) - a) / (b - a), 0, 1)
         roll = roll + (0.5 - 0.5 * np.cos(np.pi * step)) * rng.choice([-1, 1]) * math.radians(rng.uniform(60, 120))
-        for i in range(a, b):
-            labels[i] = "roll"
+        _label(labels, "roll", a, b)
     occlusions = [w for w in (_place(rng, n, int(rng.integers(12, 30)), taken) for _ in range(_count(rng, p.occlusions, n))) if w]
 
     # arc length from the speed profile
@@ -294,8 +302,7 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator, scene: o3d.
         phi = _blend_angle(phi, target, e, c)
         psi = _blend_angle(psi, target, e, c)
         beta = beta * (1 - e) + math.radians(15) * e
-        for i in range(a, b):
-            labels[i] = "occluded"
+        _label(labels, "occluded", a, b, e)
     s = np.clip(s, 0.5 * START_MARGIN, L - 0.5 * END_MARGIN)
 
     ctl = Controls(s=s, m=m, phi=phi, beta=beta, psi=psi, roll=roll)

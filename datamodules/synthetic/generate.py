@@ -9,7 +9,8 @@ Output (SPEC §5.2, via :class:`c3f_slam.io.SequenceWriter`)::
       poses.txt           TUM, camera-to-world, metres, timestamps = index / fps
       mesh.ply            the ground-truth mesh the depth was ray cast against
       params.json         seed and every parameter (SimParams.from_dict reads it back)
-      frames.csv          per frame: time, arc length, event label, wall distance
+      frames.csv          per frame: time, arc length, event label (the event's frames and
+                          its ramps in and out), wall distance
 
 The sequence is written into a hidden sibling folder and renamed to OUT at the end, so an
 interrupted run never leaves a half sequence under OUT; an existing non-empty OUT is only
