@@ -10,13 +10,15 @@ import cv2
 import numpy as np
 import pytest
 
+from c3f_slam.errors import InputError
 from c3f_slam.evaluate import evaluate_trajectory
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import make_pose
 from c3f_slam.io import Sequence, read_tum, write_tum
 from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.fragments import CORRESPONDENCES, OVERLAP, SIZE, Fragment, new_fragment_reason
-from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
+from c3f_slam.matching import MatchFilterConfig
+from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, explain_match, match_frames
 from c3f_slam.pipeline.slam import FragmentSlam, OdometrySlam
 from datamodules.synthetic.fixture import make_tiny_sequence
 
@@ -61,6 +63,31 @@ def test_overlap_decides_on_synthetic_motion():
 def _feat(i: int, n: int = 20) -> FrameFeatures:
     return FrameFeatures(i, float(i), np.zeros((n, 2), np.float32), np.zeros((n, 128), np.uint8),
                          np.zeros((n, 3), np.float32))
+
+
+def test_explain_match_reports_each_step():
+    """A known rigid motion is recovered with every correspondence; each failure names its step."""
+    rng = np.random.default_rng(3)
+    n = 40
+    desc = rng.gamma(0.6, 30.0, (n, 128)).clip(0, 255).astype(np.uint8)
+    pts_j = (rng.uniform(-0.01, 0.01, (n, 3)) + [0, 0, 0.03]).astype(np.float32)
+    T = make_pose(cv2.Rodrigues(np.array([0.0, 0.05, 0.02]))[0], [0.002, -0.001, 0.0005])
+    pts_i = (pts_j @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+    fi = FrameFeatures(0, 0.0, np.zeros((n, 2), np.float32), desc, pts_i)
+    fj = FrameFeatures(1, 1.0, np.zeros((n, 2), np.float32), desc, pts_j)
+    cfg = MatchFilterConfig()
+    a = explain_match(fi, fj, cfg)
+    assert a.reason == "" and a.candidates == n and a.filtered == n and a.match is not None
+    np.testing.assert_allclose(a.match.T_ij, T, atol=1e-5)
+    m, k = match_frames(fi, fj, cfg)
+    assert k == n and np.allclose(m.T_ij, a.match.T_ij)
+    # scrambled 3D points: descriptors agree, geometry does not
+    bad = FrameFeatures(1, 1.0, fj.xy, desc, rng.permutation(pts_j))
+    a = explain_match(fi, bad, cfg)
+    assert a.match is None and a.candidates == n and a.filtered < cfg.min_matches
+    assert "pairwise-consistent" in a.reason and match_frames(fi, bad, cfg) == (None, 0)
+    few = FrameFeatures(1, 1.0, fj.xy[:5], desc[:5], pts_j[:5])
+    assert explain_match(fi, few, cfg).reason.startswith("too few keypoints")
 
 
 def test_fragment_chains_and_optimises_relative_to_keyframe():
@@ -117,6 +144,31 @@ def test_odometry_baseline_and_injected_wrong_edge(seq, tmp_path):
     broken = _evaluate(tmp_path / "odo_bad", seq)["ate_sim3"]["rmse_m"]
     assert clean < 0.002
     assert broken > 5 * clean and broken > 0.003
+
+
+def test_blas_threads_are_capped_during_a_run_and_restored(seq, tmp_path):
+    from threadpoolctl import threadpool_info
+
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    before = blas_threads()
+    seen: list[list[int]] = []
+
+    class Watching(OdometrySlam):
+        def add(self, feat, depth):
+            seen.append(blas_threads())
+            return super().add(feat, depth)
+
+    cfg = SlamConfig.preset_config("colon", mode="odometry", fuse=False, **CFG)
+    run_slam(seq, tmp_path / "b1", cfg, progress=False, max_frames=4, slam_factory=Watching)
+    assert seen and all(all(n == 1 for n in t) for t in seen), seen
+    assert blas_threads() == before
+    seen.clear()
+    run_slam(seq, tmp_path / "b0", cfg.with_(blas_threads=None), progress=False, max_frames=4, slam_factory=Watching)
+    assert all(t == before for t in seen)
+    with pytest.raises(InputError, match="blas_threads"):
+        SlamConfig(blas_threads=0)
 
 
 def test_false_loop_closure_is_pruned(seq, tmp_path):

@@ -228,6 +228,43 @@ class PairMatch:
     n: int
 
 
+@dataclass(frozen=True)
+class MatchAttempt:
+    """Everything :func:`explain_match` found for frames i and j: ``candidates`` mutual
+    nearest-neighbour descriptor matches, ``filtered`` the filter's survivors (also when it
+    rejected the set), ``match`` the accepted match or None, and ``reason`` why not ("" when
+    accepted)."""
+
+    candidates: int
+    filtered: int
+    match: PairMatch | None
+    reason: str
+
+
+def explain_match(
+    fi: FrameFeatures,
+    fj: FrameFeatures,
+    cfg: MatchFilterConfig,
+    metric: str = "l2",
+    ratio: float | None = 0.9,
+) -> MatchAttempt:
+    """Mutual NN (+ ratio test) then :func:`filter_matches`, with the outcome of each step
+    (the runtime's pair matching; :func:`match_frames` returns its result only)."""
+    if len(fi) < cfg.min_matches or len(fj) < cfg.min_matches:
+        return MatchAttempt(0, 0, None, f"too few keypoints ({len(fi)}, {len(fj)} < {cfg.min_matches})")
+    m, dist = mutual_nearest_neighbours(
+        fi.descriptors.astype(np.float32), fj.descriptors.astype(np.float32), metric, ratio=ratio
+    )
+    if len(m) < cfg.min_matches:
+        return MatchAttempt(len(m), 0, None, f"too few descriptor matches ({len(m)} < {cfg.min_matches})")
+    pi, pj = fi.points[m[:, 0]].astype(np.float64), fj.points[m[:, 1]].astype(np.float64)
+    res = filter_matches(pi, pj, cfg, priority=dist)
+    if not res.accepted:
+        return MatchAttempt(len(m), len(res.inlier_indices), None, res.reason)
+    kept = res.kept
+    return MatchAttempt(len(m), len(kept), PairMatch(res.T_ij, pj[kept], int(len(kept))), "")
+
+
 def match_frames(
     fi: FrameFeatures,
     fj: FrameFeatures,
@@ -236,16 +273,5 @@ def match_frames(
     ratio: float | None = 0.9,
 ) -> tuple[PairMatch | None, int]:
     """Mutual NN + :func:`filter_matches`; returns (match or None, number of inliers)."""
-    if len(fi) < cfg.min_matches or len(fj) < cfg.min_matches:
-        return None, 0
-    m, dist = mutual_nearest_neighbours(
-        fi.descriptors.astype(np.float32), fj.descriptors.astype(np.float32), metric, ratio=ratio
-    )
-    if len(m) < cfg.min_matches:
-        return None, 0
-    pi, pj = fi.points[m[:, 0]].astype(np.float64), fj.points[m[:, 1]].astype(np.float64)
-    res = filter_matches(pi, pj, cfg, priority=dist)
-    if not res.accepted:
-        return None, 0
-    kept = res.kept
-    return PairMatch(res.T_ij, pj[kept], int(len(kept))), int(len(kept))
+    a = explain_match(fi, fj, cfg, metric, ratio)
+    return a.match, (a.match.n if a.match is not None else 0)

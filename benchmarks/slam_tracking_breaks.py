@@ -1,0 +1,139 @@
+"""Where and why consecutive-frame tracking breaks on a sequence (RGB-D; outside CI).
+
+Runs the SLAM frontend (SIFT outside speculars, depth from the sequence's depth/ files) and the
+runtime's pair matching (:func:`c3f_slam.pipeline.frontend.explain_match`, default
+:class:`SlamConfig` thresholds) on every pair of consecutive frames, and reports:
+
+- pairs the runtime cannot link (no accepted match: the full system opens a fragment whose
+  keyframe must match some earlier keyframe, the odometry baseline loses track), with the
+  filter's reason;
+- pairs under the new-fragment threshold (``--min-correspondences``);
+- for each, the ground-truth motion between the two frames (poses.txt) and, for simulator
+  sequences, the event the frames belong to (frames.csv: closeup, burst, occluded, roll).
+
+    python benchmarks/slam_tracking_breaks.py /work/slam_ate4500/seq1_s1 --report /tmp/breaks.md
+
+Writes a Markdown report (the command line, a summary by event and the broken pairs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from c3f_slam.geometry import invert_pose, matrix_to_axis_angle  # noqa: E402
+from c3f_slam.io import Sequence  # noqa: E402
+from c3f_slam.pipeline import SlamConfig  # noqa: E402
+from c3f_slam.pipeline.frontend import Frontend, SiftDescriptors, explain_match  # noqa: E402
+from c3f_slam.stream import FrameStream  # noqa: E402
+
+
+def events_of(seq: Path, n: int) -> list[str]:
+    """Per-frame simulator event labels ('' = none; all '' without frames.csv)."""
+    path = seq / "frames.csv"
+    if not path.is_file():
+        return [""] * n
+    with open(path, newline="") as f:
+        labels = [row.get("event", "") or "" for row in csv.DictReader(f)]
+    return (labels + [""] * n)[:n]
+
+
+def reason_kind(reason: str) -> str:
+    """The filter's reason without its numbers."""
+    return reason.split(" (")[0] if reason else ""
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("sequence", type=Path, help="sequence folder with depth/ (and poses.txt, frames.csv if any)")
+    ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--min-correspondences", type=int, default=15, help="new-fragment threshold to report against")
+    ap.add_argument("--list", type=int, default=60, help="broken pairs listed one by one (0 = none)")
+    ap.add_argument("--report", type=Path, default=None, help="Markdown report (default: print only)")
+    a = ap.parse_args()
+
+    cfg = SlamConfig()
+    stream = FrameStream(a.sequence, use_depth=True, max_frames=a.max_frames)
+    seq = Sequence(a.sequence)
+    poses = np.asarray(seq.poses) if seq.has_poses else None
+    front = Frontend(stream.camera.K, SiftDescriptors(), cfg.max_keypoints, cfg.sift_contrast_threshold,
+                     cfg.mask_specular, cfg.specular_dilation_px)
+    rows = []
+    prev = None
+    for frame in stream:
+        if frame.depth is None:
+            raise SystemExit(f"{a.sequence}: no depth/ folder (this diagnostic runs in RGB-D mode)")
+        feat = front.describe(frame, front.keypoints(frame.rgb), frame.depth)
+        if prev is not None:
+            att = explain_match(prev, feat, cfg.match_filter, "l2", cfg.ratio)
+            row = {"i": frame.index, "kp": len(feat), "candidates": att.candidates, "filtered": att.filtered,
+                   "n": att.match.n if att.match else 0, "reason": att.reason}
+            if poses is not None:
+                rel = invert_pose(poses[frame.index - 1]) @ poses[frame.index]
+                row["rot_deg"] = float(np.degrees(np.linalg.norm(matrix_to_axis_angle(rel[:3, :3]))))
+                row["trans_mm"] = 1e3 * float(np.linalg.norm(rel[:3, 3]))
+            rows.append(row)
+        prev = feat
+    n_frames = len(rows) + 1
+    events = events_of(a.sequence, n_frames)
+    for r in rows:  # a pair belongs to an event when either frame does
+        r["event"] = events[r["i"]] or events[r["i"] - 1]
+
+    broken = [r for r in rows if r["n"] == 0]
+    weak = [r for r in rows if 0 < r["n"] < a.min_correspondences]
+    by_event: dict[str, list] = defaultdict(list)
+    for r in rows:
+        by_event[r["event"] or "none"].append(r)
+    have_motion = poses is not None
+
+    def med(rs, key):
+        return f"{np.median([r[key] for r in rs]):.2f}" if rs and have_motion else "-"
+
+    lines = [
+        "# Consecutive-frame tracking breaks", "",
+        f"Command: `python benchmarks/slam_tracking_breaks.py {' '.join(sys.argv[1:])}`", "",
+        f"- {n_frames} frames, {len(rows)} consecutive pairs; SIFT (max {cfg.max_keypoints} keypoints, contrast "
+        f"threshold {cfg.sift_contrast_threshold}), ratio {cfg.ratio}, match filter defaults (>= "
+        f"{cfg.match_filter.min_matches} correspondences, residual {1e3 * cfg.match_filter.max_residual:g} mm).",
+        f"- Broken pairs (no accepted match): {len(broken)}; accepted but under {a.min_correspondences} "
+        f"correspondences: {len(weak)}; median correspondences of all pairs: {np.median([r['n'] for r in rows]):.0f}.",
+        "- Reasons of the broken pairs: " + (", ".join(f"{k} {v}" for k, v in
+                                                     Counter(reason_kind(r["reason"]) for r in broken).most_common())
+                                             or "-") + ".", "",
+        "| event | pairs | broken | under threshold | median rotation deg/frame | median translation mm/frame "
+        "| median rotation of broken pairs | median translation of broken pairs |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for ev in sorted(by_event, key=lambda e: (e != "none", e)):
+        rs = by_event[ev]
+        br = [r for r in rs if r["n"] == 0]
+        wk = [r for r in rs if 0 < r["n"] < a.min_correspondences]
+        lines.append(f"| {ev} | {len(rs)} | {len(br)} | {len(wk)} | {med(rs, 'rot_deg')} | {med(rs, 'trans_mm')} | "
+                     f"{med(br, 'rot_deg')} | {med(br, 'trans_mm')} |")
+    if a.list and broken:
+        lines += ["", "Broken pairs (frame i-1 -> i):", "",
+                  "| frame i | event | keypoints | descriptor matches | filter survivors | rotation deg | "
+                  "translation mm | reason |", "|---|---|---|---|---|---|---|---|"]
+        for r in broken[: a.list]:
+            lines.append(f"| {r['i']} | {r['event'] or '-'} | {r['kp']} | {r['candidates']} | {r['filtered']} | "
+                         + (f"{r['rot_deg']:.1f} | {r['trans_mm']:.2f}" if have_motion else "- | -")
+                         + f" | {r['reason']} |")
+        if len(broken) > a.list:
+            lines.append(f"\n({len(broken) - a.list} more not listed)")
+    text = "\n".join(lines) + "\n"
+    if a.report:
+        a.report.parent.mkdir(parents=True, exist_ok=True)
+        a.report.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
