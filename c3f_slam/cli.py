@@ -55,6 +55,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--max-loop-edges-per-keyframe", type=int,
                    help="keep at most N keyframe-match (loop) edges per new keyframe: the most recent, then the "
                         "strongest (default 8); 0 = all (the paper; also implied by --max-keyframe-candidates 0)")
+    r.add_argument("--blas-threads", type=int,
+                   help="BLAS threads NumPy may use during the run (default 1: the runtime's matrices are small); "
+                        "0 = the BLAS library's own setting")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     e = sub.add_parser("evaluate", help="ATE / RPE / registered share / coverage of a run against ground truth")
     e.add_argument("out", help="run folder (trajectory.txt, summary.json, mesh.ply)")
@@ -91,6 +94,10 @@ def _run(args: argparse.Namespace) -> int:
         if args.max_loop_edges_per_keyframe < 0:
             raise InputError(f"--max-loop-edges-per-keyframe must be >= 0, got {args.max_loop_edges_per_keyframe}")
         over["max_loop_edges_per_keyframe"] = args.max_loop_edges_per_keyframe or None
+    if args.blas_threads is not None:
+        if args.blas_threads < 0:
+            raise InputError(f"--blas-threads must be >= 0, got {args.blas_threads}")
+        over["blas_threads"] = args.blas_threads or None
     cfg = SlamConfig.preset_config(args.preset, mode=args.baseline or "full", fuse=not args.no_mesh, **over)
     s = run_slam(args.sequence, args.out, cfg, args.descriptors, args.depth_source, args.depth_model,
                  args.feature_model, args.max_frames, args.stride, progress=not args.quiet,

@@ -80,6 +80,16 @@ def test_keyframe_candidates_option(seq, tmp_path, capsys):
     assert "--max-keyframe-candidates" in _error_line(capsys)
 
 
+def test_blas_threads_option(seq, tmp_path, capsys):
+    """--blas-threads N caps NumPy's BLAS threads during the run (default 1; 0 = the library's)."""
+    for args, expect in (([], 1), (["--blas-threads", "2"], 2), (["--blas-threads", "0"], None)):
+        out = tmp_path / f"b{len(args)}{args[-1] if args else ''}"
+        assert main(["run", str(seq), "--out", str(out), "--max-frames", "3", "--no-mesh", "--quiet", *args]) == 0
+        assert json.loads((out / "summary.json").read_text())["config"]["blas_threads"] == expect
+    assert main(["run", str(seq), "--out", str(tmp_path / "bad"), "--blas-threads", "-1", "--quiet"]) == 2
+    assert "--blas-threads" in _error_line(capsys)
+
+
 def test_missing_sequence(tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["run", str(tmp_path / "nope"), "--out", str(out), "--quiet"]) == 2

@@ -87,6 +87,12 @@ class SlamConfig:
       34-byte record per keyframe plus an LRU of 64 keyframes in RAM; False keeps them in RAM
       (~5 KB per keyframe with SIFT). Results are identical either way.
 
+    Threads: ``blas_threads`` caps the BLAS (OpenBLAS / MKL) threads NumPy uses during a run
+    (threadpoolctl; None leaves the library's setting). The runtime's matrices are small (a
+    ~100x128 descriptor product per frame pair, 3x3 SVDs), where a multi-threaded BLAS spends
+    more on waking its threads than it saves, 20x more on a busy machine
+    (benchmarks/slam_blas_threads.py); 1 is the default.
+
     Fusion: ``fuse`` (False = --no-mesh), ``eps_f_na`` frames and ``eps_cf_d`` metres (the
     settle rule of :class:`c3f_slam.fusion.FragmentFusion`), ``tsdf`` volume settings.
     """
@@ -117,6 +123,7 @@ class SlamConfig:
     window_boundary_edges: int | None = 8
     final_optimize_nodes: int | None = 600
     keyframe_cache: bool = True
+    blas_threads: int | None = 1
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
     posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])
     tsdf: TSDFConfig = field(default_factory=lambda: TSDF_PRESETS["colon"])
@@ -148,6 +155,8 @@ class SlamConfig:
             raise InputError("optimize_growth must be >= 0 (or None: after every keyframe)")
         if self.window_boundary_edges is not None and self.window_boundary_edges < 0:
             raise InputError("window_boundary_edges must be >= 0 (or None: all)")
+        if self.blas_threads is not None and self.blas_threads < 1:
+            raise InputError(f"blas_threads must be >= 1 (or None: the BLAS library's default), got {self.blas_threads}")
         for name in ("max_optimize_nodes", "final_optimize_nodes"):
             v = getattr(self, name)
             if v is not None and v < 2:

@@ -19,6 +19,7 @@ import traceback
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
@@ -134,7 +135,10 @@ def run_slam(
     counts = {"frames": 0, "processed": 0, "skipped_black": 0, "skipped_saturated": 0, "skipped_featureless": 0}
     t_start = time.perf_counter()
     bar = None
+    blas = None
     try:
+        if cfg.blas_threads is not None:
+            blas = threadpool_limits(limits=cfg.blas_threads, user_api="blas")
         descriptors, depth_source = resolve_sources(descriptors, depth_source, depth_model, feature_model)
         summary.update(descriptors=descriptors, depth_source=depth_source)
         stream = FrameStream(sequence, camera=camera, use_depth=depth_source == "files", step=stride,
@@ -219,6 +223,8 @@ def run_slam(
         _write(outputs, slam, summary, counts, timings, t_start)
         raise
     finally:
+        if blas is not None:
+            blas.restore_original_limits()
         if bar is not None:
             bar.close()
         if frames is not None:
