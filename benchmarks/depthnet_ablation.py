@@ -4,7 +4,10 @@ All runs use the same simulator sequences, seed, steps, batch size and network (
 CPU variant, configs/depthnet/small*.yaml); only the loss switches differ: the Monodepth2
 baseline (small_monodepth2.yaml), the full objective (small.yaml) and, with --variants, the
 full objective with one switch off (full-no-dc, full-no-extra, full-no-outlier,
-full-no-specular) or the baseline plus outlier removal. Each is then tested on held-out
+full-no-specular), the baseline plus outlier removal, or the full objective with the weight of
+L_dc ramped up from 0 (full-dc-warmup, ``model.lambda_dc_warmup_steps``; not in the paper).
+``--init CKPT`` starts every variant from the weights of a checkpoint (``model.init_weights``;
+e.g. a baseline run, to test the extra losses on a network that already predicts structure). Each is then tested on held-out
 sequences with the project's metric function (per-image median scaling), next to the score
 of a constant depth. Sq Rel and RMSE are printed in centimetres, as the paper's table is.
 Training throughput is images/s over the whole fit (data loading included).
@@ -12,6 +15,8 @@ Training throughput is images/s over the whole fit (data loading included).
     python benchmarks/depthnet_ablation.py --data runs/bench/depth_slow --steps 500
     python benchmarks/depthnet_ablation.py --data runs/bench/depth_slow --steps 150 \
         --variants full-no-dc,full-no-outlier --out runs/switches.md
+    python benchmarks/depthnet_ablation.py --data runs/bench/depth_slow --steps 400 \
+        --init runs/bench/baseline/tb/version_0/checkpoints/last.ckpt --out runs/warm.md
 
 Sequences missing from --data are generated (--frames, --coverage: keep the per-frame motion
 near the paper's; the table's set-up line reports it).
@@ -74,6 +79,7 @@ VARIANTS = {
     "full-no-outlier": ("configs/depthnet/small.yaml", {"use_outlier_mask": False}),
     "full-no-specular": ("configs/depthnet/small.yaml", {"use_specular_mask": False}),
     "baseline+outlier": ("configs/depthnet/small_monodepth2.yaml", {"use_outlier_mask": True}),
+    "full-dc-warmup": ("configs/depthnet/small.yaml", {}),  # + lambda_dc_warmup_steps (--dc-warmup-steps)
 }
 LABELS = {"baseline": "Monodepth2 baseline", "full": "C3Fusion (full)"}
 
@@ -82,7 +88,8 @@ def run(config: str, overrides: dict, data: Path, train: list[str], test: list[s
         root: Path) -> dict:
     from c3f_models.cli import main
 
-    switches = [a for k, v in overrides.items() for a in (f"--model.init_args.{k}", str(v).lower())]
+    switches = [a for k, v in overrides.items()
+                for a in (f"--model.init_args.{k}", str(v).lower() if isinstance(v, bool) else str(v))]
     common = [
         "--config", "configs/trainer/cpu_smoke.yaml", "--config", config, *switches,
         "--data.data_dir", str(data), "--data.train", json.dumps(train), "--data.val", "[]",
@@ -144,6 +151,10 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1 is fastest on a shared 2-core machine)")
     ap.add_argument("--variants", default="baseline,full",
                     help=f"comma-separated, from: {', '.join(VARIANTS)} (full-no-X: the full objective with one switch off)")
+    ap.add_argument("--dc-warmup-steps", type=int, default=None,
+                    help="full-dc-warmup: steps over which the weight of L_dc ramps from 0 (default: half of --steps)")
+    ap.add_argument("--init", type=Path, default=None,
+                    help="checkpoint whose weights start every variant (model.init_weights; optimiser not resumed)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/depthnet_ablation.md")
     a = ap.parse_args()
     import torch
@@ -159,10 +170,18 @@ def main() -> None:
     if unknown:
         ap.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
     results = {"constant depth (reference)": constant_depth_metrics(a.data, test, a.size)}
+    if a.init is not None and not a.init.is_file():
+        ap.error(f"--init: no such checkpoint: {a.init}")
+    warmup = a.dc_warmup_steps if a.dc_warmup_steps is not None else a.steps // 2
     for v in variants:
         cfg, overrides = VARIANTS[v]
-        results[LABELS.get(v, v)] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size,
-                                        a.data.parent / v.replace("+", "_plus_"))
+        overrides = dict(overrides)
+        if v == "full-dc-warmup":
+            overrides["lambda_dc_warmup_steps"] = warmup
+        if a.init is not None:
+            overrides["init_weights"] = str(a.init.resolve())
+        root = a.data.parent / (v.replace("+", "_plus_") + ("-init" if a.init is not None else ""))
+        results[LABELS.get(v, v)] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size, root)
 
     head = ("| method | AbsRel | SqRel (cm) | RMSE (cm) | RMSElog | δ1 | δ2 | δ3 | depth CV | train img/s |\n"
             "|---|---|---|---|---|---|---|---|---|---|\n")
@@ -180,7 +199,10 @@ def main() -> None:
         "# DepthNet ablation: full objective vs Monodepth2 baseline\n\n"
         f"Command: `{cmd}`\n\n"
         f"Setup: ResNet18 without DCN (the small CPU variant), {a.size}x{a.size}, batch {a.batch}, {a.steps} steps each, "
-        f"seed 7, CPU ({a.threads} torch thread). Data: simulator, {a.train_seqs} training sequences and {a.test_seqs} held-out test sequences of "
+        f"seed 7, CPU ({a.threads} torch thread)"
+        + (f", every variant starting from the weights of {a.init} (optimiser not resumed)" if a.init else "")
+        + (f", full-dc-warmup: weight of L_dc ramped from 0 over {warmup} steps" if "full-dc-warmup" in variants else "")
+        + ". Data: simulator, {a.train_seqs} training sequences and {a.test_seqs} held-out test sequences of "
         f"{a.frames} frames (presets seq1.., seeds 100+k, path.coverage {a.coverage}; ground-truth motion between "
         f"consecutive frames, median of the sequences' medians: rotation {motion['rot_p50']:.2f} deg, "
         f"translation {motion['t_mm_p50']:.2f} mm, {100 * motion['t_rel_p50']:.1f} % of the median depth). Metrics on the test sequences only, per-image median scaling. "

@@ -90,6 +90,11 @@ class DepthNet(L.LightningModule):
             use_specular_mask: loss switches (all True = C3Fusion; the last four False =
             Monodepth2 without its smoothness term).
         lambda_ph_extra, lambda_dc: weights of L_ph-extra and L_dc.
+        lambda_dc_warmup_steps: training steps over which the weight of L_dc ramps linearly
+            from 0 to ``lambda_dc`` (0 = constant from the start, as the paper). Not in the
+            paper: a guard for training from scratch, where L_dc pulls the depth flat while
+            PoseNet is still far off (benchmarks/results/depthnet_diagnosis.md). Validation
+            and test losses always use ``lambda_dc``.
         ssim_alpha: SSIM weight in the photometric error.
         outlier_percentile: quantile above which pixels are outliers (0.8).
         lr, weight_decay: AdamW (betas 0.9, 0.999).
@@ -120,6 +125,7 @@ class DepthNet(L.LightningModule):
         use_specular_mask: bool = True,
         lambda_ph_extra: float = 0.1,
         lambda_dc: float = 0.1,
+        lambda_dc_warmup_steps: int = 0,
         ssim_alpha: float = 0.85,
         outlier_percentile: float = 0.8,
         lr: float = 1e-4,
@@ -138,6 +144,8 @@ class DepthNet(L.LightningModule):
             raise InputError(f"model.num_scales must be 1..4, got {num_scales}")
         if not 0 < outlier_percentile <= 1:
             raise InputError(f"model.outlier_percentile must be in (0, 1], got {outlier_percentile}")
+        if lambda_dc_warmup_steps < 0:
+            raise InputError(f"model.lambda_dc_warmup_steps must be >= 0, got {lambda_dc_warmup_steps}")
         self.save_hyperparameters()
         self.depth_net = DepthNetwork(encoder_layers, dcn, num_scales, min_depth, max_depth, pretrained_path)
         self.pose_net = PoseNetwork(pose_encoder_layers, pose_pretrained_path, pose_translation_scale)
@@ -219,11 +227,23 @@ class DepthNet(L.LightningModule):
         self.log(f"{stage}/depth_cv", cv, on_step=on_step, on_epoch=not on_step, batch_size=depth.shape[0],
                  sync_dist=not on_step)
 
+    def dc_weight(self, step: int) -> float:
+        """Weight of L_dc in the training loss at optimiser step ``step`` (the warm-up ramp of
+        ``lambda_dc_warmup_steps``, then ``lambda_dc``)."""
+        n = self.hparams.lambda_dc_warmup_steps
+        return self.loss_config.lambda_dc * (1.0 if n <= 0 else min(1.0, step / n))
+
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         terms, disparities = self.compute_loss(batch)
         self._log_terms("train", terms, batch["image"].shape[0])
         self._log_depth_spread("train", self.depth_net.to_depth(disparities[1][0]))
-        return terms.loss
+        loss = terms.loss
+        if terms.dc is not None and self.hparams.lambda_dc_warmup_steps > 0:
+            w = self.dc_weight(self.global_step)
+            # the objective added lambda_dc * L_dc (mean over scales, linear): swap in w
+            loss = loss - (self.loss_config.lambda_dc - w) * terms.dc
+            self.log("train/lambda_dc", w, on_step=True, on_epoch=False, batch_size=batch["image"].shape[0])
+        return loss
 
     # ------------------------------------------------------------------ evaluation
     def _evaluate(self, stage: str, batch: dict, batch_idx: int) -> dict[str, float] | None:

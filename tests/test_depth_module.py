@@ -83,6 +83,33 @@ def test_training_reduces_the_loss_in_30_steps(plane_dataset, switches):
     assert min(losses[-5:]) < 0.2 * losses[0], losses
 
 
+def test_depth_consistency_warmup(plane_dataset, tmp_path):
+    """lambda_dc_warmup_steps ramps the weight of L_dc in the training loss from 0 (step 0)
+    to lambda_dc (from step N on); without it the training loss is the objective's."""
+    torch.manual_seed(0)
+    dm = datamodule(plane_dataset, size=32, batch_size=2)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    model = DepthNet(**TINY, lambda_dc=0.1, lambda_dc_warmup_steps=4)
+    assert [model.dc_weight(s) for s in (0, 2, 4, 9)] == pytest.approx([0.0, 0.05, 0.1, 0.1])
+    torch.manual_seed(1)
+    terms, _ = model.compute_loss(batch)
+    assert float(terms.dc.detach()) > 0
+    torch.manual_seed(1)
+    at_start = model.training_step(batch, 0)  # no trainer: global_step 0
+    assert float(at_start.detach()) == pytest.approx(float(terms.ph + 0.1 * terms.ph_extra), rel=1e-5)
+    plain = DepthNet(**TINY, lambda_dc=0.1)
+    plain.load_state_dict(model.state_dict())
+    torch.manual_seed(1)
+    assert float(plain.training_step(batch, 0)) == pytest.approx(float(terms.loss), rel=1e-5)
+    with pytest.raises(InputError, match="lambda_dc_warmup_steps"):
+        DepthNet(**TINY, lambda_dc_warmup_steps=-1)
+    # in a fit, the ramp follows the trainer's step and is logged
+    tr = trainer(tmp_path, max_steps=3, limit_val_batches=0, log_every_n_steps=1)
+    tr.fit(model, datamodule=datamodule(plane_dataset))
+    assert float(tr.callback_metrics["train/lambda_dc"]) == pytest.approx(0.05)
+
+
 def test_forward_and_predict_give_metric_depth():
     model = DepthNet(**TINY, min_depth=0.002, max_depth=0.2).eval()
     with torch.no_grad():
