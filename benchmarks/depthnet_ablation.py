@@ -6,6 +6,7 @@ baseline (small_monodepth2.yaml), the full objective (small.yaml) and, with --va
 full objective with one switch off (full-no-dc, full-no-extra, full-no-outlier,
 full-no-specular), the baseline plus outlier removal, or the full objective with the weight of
 L_dc ramped up from 0 (full-dc-warmup, ``model.lambda_dc_warmup_steps``; not in the paper).
+``--model KEY=VALUE`` overrides a model argument of every variant (e.g. ``lambda_dc=0.01``).
 ``--init CKPT`` starts every variant from the weights of a checkpoint (``model.init_weights``;
 e.g. a baseline run, to test the extra losses on a network that already predicts structure). Each is then tested on held-out
 sequences with the project's metric function (per-image median scaling), next to the score
@@ -153,10 +154,24 @@ def main() -> None:
                     help=f"comma-separated, from: {', '.join(VARIANTS)} (full-no-X: the full objective with one switch off)")
     ap.add_argument("--dc-warmup-steps", type=int, default=None,
                     help="full-dc-warmup: steps over which the weight of L_dc ramps from 0 (default: half of --steps)")
+    ap.add_argument("--model", dest="model_overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="model argument for every variant (repeatable), e.g. lambda_dc=0.01")
     ap.add_argument("--init", type=Path, default=None,
                     help="checkpoint whose weights start every variant (model.init_weights; optimiser not resumed)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/depthnet_ablation.md")
     a = ap.parse_args()
+    variants = [v.strip() for v in a.variants.split(",") if v.strip()]
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        ap.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
+    if a.init is not None and not a.init.is_file():
+        ap.error(f"--init: no such checkpoint: {a.init}")
+    extra = {}
+    for kv in a.model_overrides:
+        key, sep, value = kv.partition("=")
+        if not sep or not key:
+            ap.error(f"--model: expected KEY=VALUE, got {kv!r}")
+        extra[key.strip()] = value.strip()
     import torch
 
     torch.set_num_threads(a.threads)
@@ -165,23 +180,20 @@ def main() -> None:
     test = [f"test{k}" for k in range(a.test_seqs)]
     generate(a.data, train + test, a.frames, a.size, a.coverage)
     motion = motion_per_frame(a.data, train + test)
-    variants = [v.strip() for v in a.variants.split(",") if v.strip()]
-    unknown = [v for v in variants if v not in VARIANTS]
-    if unknown:
-        ap.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
     results = {"constant depth (reference)": constant_depth_metrics(a.data, test, a.size)}
-    if a.init is not None and not a.init.is_file():
-        ap.error(f"--init: no such checkpoint: {a.init}")
     warmup = a.dc_warmup_steps if a.dc_warmup_steps is not None else a.steps // 2
+    tag = "".join(f"-{k}={v}" for k, v in extra.items()) + ("-init" if a.init is not None else "")
+    keys: dict[str, str] = {}
     for v in variants:
         cfg, overrides = VARIANTS[v]
-        overrides = dict(overrides)
+        overrides = {**overrides, **extra}
         if v == "full-dc-warmup":
             overrides["lambda_dc_warmup_steps"] = warmup
         if a.init is not None:
             overrides["init_weights"] = str(a.init.resolve())
-        root = a.data.parent / (v.replace("+", "_plus_") + ("-init" if a.init is not None else ""))
-        results[LABELS.get(v, v)] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size, root)
+        root = a.data.parent / (v.replace("+", "_plus_") + tag)
+        keys[v] = LABELS.get(v, v) + (f" ({', '.join(a.model_overrides)})" if extra else "")
+        results[keys[v]] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size, root)
 
     head = ("| method | AbsRel | SqRel (cm) | RMSE (cm) | RMSElog | δ1 | δ2 | δ3 | depth CV | train img/s |\n"
             "|---|---|---|---|---|---|---|---|---|---|\n")
@@ -192,7 +204,7 @@ def main() -> None:
     )
     ratio = ""
     if "baseline" in variants and "full" in variants:
-        base, full = results[LABELS["baseline"]], results[LABELS["full"]]
+        base, full = results[keys["baseline"]], results[keys["full"]]
         ratio = f"Sq Rel full / baseline = {full['sq_rel'] / base['sq_rel']:.3f} (paper: 0.049 / 0.058 = 0.845)\n"
     cmd = "python " + " ".join([str(Path(sys.argv[0]).relative_to(ROOT) if Path(sys.argv[0]).is_absolute() else sys.argv[0]), *sys.argv[1:]])
     text = (
@@ -201,6 +213,7 @@ def main() -> None:
         f"Setup: ResNet18 without DCN (the small CPU variant), {a.size}x{a.size}, batch {a.batch}, {a.steps} steps each, "
         f"seed 7, CPU ({a.threads} torch thread)"
         + (f", every variant starting from the weights of {a.init} (optimiser not resumed)" if a.init else "")
+        + (f", model overrides for every variant: {', '.join(a.model_overrides)}" if extra else "")
         + (f", full-dc-warmup: weight of L_dc ramped from 0 over {warmup} steps" if "full-dc-warmup" in variants else "")
         + ". Data: simulator, {a.train_seqs} training sequences and {a.test_seqs} held-out test sequences of "
         f"{a.frames} frames (presets seq1.., seeds 100+k, path.coverage {a.coverage}; ground-truth motion between "

@@ -88,6 +88,7 @@ def main() -> None:
         for p in spinners:
             p.join()
 
+    load = os.getloadavg()[0]
     blas = [f"{i['internal_api']} {i['version']} ({i['num_threads']} threads)" for i in threadpool_info()
             if i["user_api"] == "blas"]
 
@@ -102,7 +103,8 @@ def main() -> None:
         "# SLAM runtime: BLAS capped at one thread vs the library default", "",
         f"Command: `python benchmarks/slam_blas_threads.py {' '.join(sys.argv[1:])}`", "",
         f"- {a.max_frames} frames of {a.sequence.name}, RGB-D, SIFT, full system, no mesh; {a.repeats} alternating "
-        f"runs per setting, medians; {a.busy} busy-looping processes beside the runs; {os.cpu_count()} CPUs; "
+        f"runs per setting, medians; {a.busy} busy-looping processes beside the runs; {os.cpu_count()} CPUs, "
+        f"load average {load:.1f} at the end; "
         f"BLAS: {', '.join(blas) or 'none found'}.",
         f"- Identical results: registered share {res[one][0]['registered_share']:.3f} vs "
         f"{res[lib][0]['registered_share']:.3f}, keyframes {res[one][0].get('keyframes')} vs {res[lib][0].get('keyframes')}.",
