@@ -89,9 +89,9 @@ class SlamConfig:
 
     Threads: ``blas_threads`` caps the BLAS (OpenBLAS / MKL) threads NumPy uses during a run
     (threadpoolctl; None leaves the library's setting). The runtime's matrices are small (a
-    ~100x128 descriptor product per frame pair, 3x3 SVDs), where a multi-threaded BLAS spends
-    more on waking its threads than it saves, 20x more on a busy machine
-    (benchmarks/slam_blas_threads.py); 1 is the default.
+    ~100x128 descriptor product per frame pair, 3x3 SVDs): a second OpenBLAS thread gains
+    nothing on an idle machine and made whole runs 1.7-2.8x slower when other jobs shared the
+    cores (benchmarks/results/slam_blas_threads.md); 1 is the default.
 
     Fusion: ``fuse`` (False = --no-mesh), ``eps_f_na`` frames and ``eps_cf_d`` metres (the
     settle rule of :class:`c3f_slam.fusion.FragmentFusion`), ``tsdf`` volume settings.
