@@ -86,7 +86,7 @@ LABELS = {"baseline": "Monodepth2 baseline", "full": "C3Fusion (full)"}
 
 
 def run(config: str, overrides: dict, data: Path, train: list[str], test: list[str], steps: int, batch: int, size: int,
-        root: Path) -> dict:
+        root: Path, seed: int = 7) -> dict:
     from c3f_models.cli import main
 
     switches = [a for k, v in overrides.items()
@@ -96,7 +96,7 @@ def run(config: str, overrides: dict, data: Path, train: list[str], test: list[s
         "--data.data_dir", str(data), "--data.train", json.dumps(train), "--data.val", "[]",
         "--data.test", json.dumps(test), "--data.size", f"[{size}, {size}]", "--data.batch_size", str(batch),
         "--trainer.default_root_dir", str(root), "--trainer.logger.init_args.save_dir", str(root),
-        "--trainer.enable_progress_bar", "false", "--seed_everything", "7",
+        "--trainer.enable_progress_bar", "false", "--seed_everything", str(seed),
     ]
     t0 = time.perf_counter()
     cli = main(["fit", *common, "--trainer.max_steps", str(steps), "--trainer.limit_train_batches", "1.0",
@@ -149,6 +149,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--batch", type=int, default=4)
+    ap.add_argument("--seed", type=int, default=7, help="seed_everything of every run (the tables so far: 7)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1 is fastest on a shared 2-core machine)")
     ap.add_argument("--variants", default="baseline,full",
                     help=f"comma-separated, from: {', '.join(VARIANTS)} (full-no-X: the full objective with one switch off)")
@@ -182,7 +183,8 @@ def main() -> None:
     motion = motion_per_frame(a.data, train + test)
     results = {"constant depth (reference)": constant_depth_metrics(a.data, test, a.size)}
     warmup = a.dc_warmup_steps if a.dc_warmup_steps is not None else a.steps // 2
-    tag = "".join(f"-{k}={v}" for k, v in extra.items()) + ("-init" if a.init is not None else "")
+    tag = ("".join(f"-{k}={v}" for k, v in extra.items()) + ("-init" if a.init is not None else "")
+           + (f"-seed{a.seed}" if a.seed != 7 else ""))
     keys: dict[str, str] = {}
     for v in variants:
         cfg, overrides = VARIANTS[v]
@@ -193,7 +195,7 @@ def main() -> None:
             overrides["init_weights"] = str(a.init.resolve())
         root = a.data.parent / (v.replace("+", "_plus_") + tag)
         keys[v] = LABELS.get(v, v) + (f" ({', '.join(a.model_overrides)})" if extra else "")
-        results[keys[v]] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size, root)
+        results[keys[v]] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size, root, a.seed)
 
     head = ("| method | AbsRel | SqRel (cm) | RMSE (cm) | RMSElog | δ1 | δ2 | δ3 | depth CV | train img/s |\n"
             "|---|---|---|---|---|---|---|---|---|---|\n")
@@ -211,7 +213,7 @@ def main() -> None:
         "# DepthNet ablation: full objective vs Monodepth2 baseline\n\n"
         f"Command: `{cmd}`\n\n"
         f"Setup: ResNet18 without DCN (the small CPU variant), {a.size}x{a.size}, batch {a.batch}, {a.steps} steps each, "
-        f"seed 7, CPU ({a.threads} torch thread)"
+        f"seed {a.seed}, CPU ({a.threads} torch thread)"
         + (f", every variant starting from the weights of {a.init} (optimiser not resumed)" if a.init else "")
         + (f", model overrides for every variant: {', '.join(a.model_overrides)}" if extra else "")
         + (f", full-dc-warmup: weight of L_dc ramped from 0 over {warmup} steps" if "full-dc-warmup" in variants else "")
