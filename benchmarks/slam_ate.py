@@ -27,7 +27,6 @@ method of the preset registered.
 from __future__ import annotations
 
 import argparse
-import csv
 import hashlib
 import subprocess
 import sys
@@ -40,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 from c3f_slam.evaluate import evaluate_trajectory, frame_motion  # noqa: E402
 from c3f_slam.io import Sequence, read_tum  # noqa: E402
 from c3f_slam.pipeline import SlamConfig, run_slam  # noqa: E402
+from datamodules.synthetic.generate import read_event_labels  # noqa: E402
 
 
 def sequence_dir(out: Path, preset: str, seed: int, overrides: list[str]) -> Path:
@@ -66,8 +66,7 @@ def generate(preset: str, frames: int, size: int, seed: int, out: Path, override
 
 def event_share(seq: Path) -> float:
     """Share of the frames inside a simulator event (frames.csv ``event`` column)."""
-    with open(seq / "frames.csv", newline="") as f:
-        events = [row.get("event", "") for row in csv.DictReader(f)]
+    events = read_event_labels(seq)
     return sum(1 for e in events if e) / max(len(events), 1)
 
 

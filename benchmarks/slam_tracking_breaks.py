@@ -19,7 +19,6 @@ Writes a Markdown report (the command line, a summary by event and the broken pa
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -29,21 +28,17 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from c3f_slam.geometry import invert_pose, matrix_to_axis_angle  # noqa: E402
+from c3f_slam.evaluate import relative_motion  # noqa: E402
 from c3f_slam.io import Sequence  # noqa: E402
 from c3f_slam.pipeline import SlamConfig  # noqa: E402
 from c3f_slam.pipeline.frontend import Frontend, SiftDescriptors, explain_match  # noqa: E402
 from c3f_slam.stream import FrameStream  # noqa: E402
+from datamodules.synthetic.generate import read_event_labels  # noqa: E402
 
 
 def events_of(seq: Path, n: int) -> list[str]:
     """Per-frame simulator event labels ('' = none; all '' without frames.csv)."""
-    path = seq / "frames.csv"
-    if not path.is_file():
-        return [""] * n
-    with open(path, newline="") as f:
-        labels = [row.get("event", "") or "" for row in csv.DictReader(f)]
-    return (labels + [""] * n)[:n]
+    return (read_event_labels(seq) + [""] * n)[:n]
 
 
 def reason_kind(reason: str) -> str:
@@ -63,7 +58,8 @@ def main() -> None:
     cfg = SlamConfig()
     stream = FrameStream(a.sequence, use_depth=True, max_frames=a.max_frames)
     seq = Sequence(a.sequence)
-    poses = np.asarray(seq.poses) if seq.has_poses else None
+    # ground-truth motion of each consecutive pair (i - 1, i), at index i - 1
+    step_t, step_rot = relative_motion(seq.poses) if seq.has_poses else (None, None)
     front = Frontend(stream.camera.K, SiftDescriptors(), cfg.max_keypoints, cfg.sift_contrast_threshold,
                      cfg.mask_specular, cfg.specular_dilation_px)
     rows = []
@@ -76,10 +72,9 @@ def main() -> None:
             att = explain_match(prev, feat, cfg.match_filter, "l2", cfg.ratio)
             row = {"i": frame.index, "kp": len(feat), "candidates": att.candidates, "filtered": att.filtered,
                    "n": att.match.n if att.match else 0, "reason": att.reason}
-            if poses is not None:
-                rel = invert_pose(poses[frame.index - 1]) @ poses[frame.index]
-                row["rot_deg"] = float(np.degrees(np.linalg.norm(matrix_to_axis_angle(rel[:3, :3]))))
-                row["trans_mm"] = 1e3 * float(np.linalg.norm(rel[:3, 3]))
+            if step_t is not None:
+                row["rot_deg"] = float(step_rot[frame.index - 1])
+                row["trans_mm"] = 1e3 * float(step_t[frame.index - 1])
             rows.append(row)
         prev = feat
     n_frames = len(rows) + 1
@@ -92,7 +87,7 @@ def main() -> None:
     by_event: dict[str, list] = defaultdict(list)
     for r in rows:
         by_event[r["event"] or "none"].append(r)
-    have_motion = poses is not None
+    have_motion = step_t is not None
 
     def med(rs, key):
         return f"{np.median([r[key] for r in rs]):.2f}" if rs and have_motion else "-"

@@ -192,10 +192,27 @@ def rpe(est_poses: np.ndarray, gt_poses: np.ndarray, delta: int = 1, scale: floa
         return RPEResult(delta, ErrorStats.of(np.zeros(0)), ErrorStats.of(np.zeros(0)))
     d_est = invert_pose(est[:-delta]) @ est[delta:]
     d_gt = invert_pose(gt[:-delta]) @ gt[delta:]
-    E = invert_pose(d_gt) @ d_est
-    trans = np.linalg.norm(E[:, :3, 3], axis=1)
-    rot = np.degrees([np.linalg.norm(matrix_to_axis_angle(M[:3, :3])) for M in E])
-    return RPEResult(delta, ErrorStats.of(trans), ErrorStats.of(np.asarray(rot)))
+    trans, rot = motion_magnitudes(invert_pose(d_gt) @ d_est)
+    return RPEResult(delta, ErrorStats.of(trans), ErrorStats.of(rot))
+
+
+def motion_magnitudes(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation length (m) and rotation angle (degrees) of each rigid transform of (N, 4, 4) ``T``."""
+    T = np.asarray(T, dtype=np.float64).reshape(-1, 4, 4)
+    trans = np.linalg.norm(T[:, :3, 3], axis=1)
+    rot = np.degrees([np.linalg.norm(matrix_to_axis_angle(M[:3, :3])) for M in T]).reshape(-1)
+    return trans, rot
+
+
+def relative_motion(poses: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair of camera-to-world poses (i, i + ``delta``): the camera's translation (m) and
+    rotation (degrees) between them, (N - delta,) each; :func:`frame_motion` summarises them."""
+    P = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    if delta < 1:
+        raise ValueError(f"delta must be >= 1, got {delta}")
+    if len(P) <= delta:
+        return np.zeros(0), np.zeros(0)
+    return motion_magnitudes(invert_pose(P[:-delta]) @ P[delta:])
 
 
 def frame_motion(poses: np.ndarray, delta: int = 1) -> RPEResult:
@@ -204,8 +221,8 @@ def frame_motion(poses: np.ndarray, delta: int = 1) -> RPEResult:
 
     Describes how hard a sequence is (per-frame baseline) for benchmarks and data reports.
     """
-    gt = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-    return rpe(np.broadcast_to(np.eye(4), gt.shape), gt, delta)
+    trans, rot = relative_motion(poses, delta)
+    return RPEResult(delta, ErrorStats.of(trans), ErrorStats.of(rot))
 
 
 def registered_share(n_registered: int, n_frames: int) -> float:

@@ -16,13 +16,14 @@ import pytest
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
+from c3f_slam.evaluate import relative_motion
 from c3f_slam.io import Sequence
 from c3f_slam.preprocess import specular_mask
 from datamodules.synthetic import generate_sequence, get_preset, make_tiny_sequence, tiny_params
 from datamodules.synthetic.__main__ import main as cli_main
 from datamodules.synthetic.camera_path import plan_path
 from datamodules.synthetic.colon import build_colon
-from datamodules.synthetic.generate import build_scene, render_frames
+from datamodules.synthetic.generate import build_scene, read_event_labels, render_frames
 from datamodules.synthetic.noise import stream
 from datamodules.synthetic.params import PAPER_TABLE, PRESETS, ColonParams, SimParams, apply_overrides
 from datamodules.synthetic.render import cast_depth, make_scene
@@ -213,15 +214,22 @@ def test_event_labels_cover_the_fast_motion():
     p = apply_overrides(SimParams(), {"path.frames": 600, "path.coverage": 0.3, "path.closeups": 8,
                                       "path.bursts": 0, "path.occlusions": 8, "path.roll_events": 0}).path
     path = plan_path(colon, p, stream(5, 4), scene)
-    rel = [np.linalg.inv(a) @ b for a, b in zip(path.poses[:-1], path.poses[1:])]
-    rot = np.degrees([np.linalg.norm(g.matrix_to_axis_angle(T[:3, :3])) for T in rel])
-    trans = np.array([np.linalg.norm(T[:3, 3]) for T in rel])
-    plain = np.array([not (path.labels[i] or path.labels[i + 1]) for i in range(len(rel))])
+    trans, rot = relative_motion(path.poses)
+    plain = np.array([not (path.labels[i] or path.labels[i + 1]) for i in range(len(rot))])
     assert plain.sum() > 100 and (~plain).sum() > 30
     # plain frames move like the sequence's base motion; the fast pairs are all in events
     assert rot[plain].max() < 4 * np.median(rot[plain]) + 0.5, (rot[plain].max(), np.median(rot[plain]))
     assert trans[plain].max() < 4 * np.median(trans[plain]), (trans[plain].max(), np.median(trans[plain]))
     assert rot[~plain].max() > 2 * rot[plain].max()
+
+
+def test_read_event_labels(tiny, tmp_path):
+    """frames.csv's event column in frame order: the tiny fixture has no events; a missing file gives []."""
+    assert read_event_labels(tiny) == [""] * len(Sequence(tiny))
+    (tmp_path / "frames.csv").write_text("index,timestamp,s_m,event,wall_distance_mm\n"
+                                         "1,0.03,0.1,closeup,5\n0,0.0,0.1,,5\n2,0.07,0.1,roll,5\n")
+    assert read_event_labels(tmp_path) == ["", "closeup", "roll"]
+    assert read_event_labels(tmp_path / "nothing") == []
 
 
 def test_events_look_like_what_they_claim(tmp_path):

@@ -18,6 +18,7 @@ from c3f_slam.evaluate import (
     evaluate_trajectory,
     plot_trajectories,
     registered_share,
+    relative_motion,
     rpe,
     umeyama,
 )
@@ -179,3 +180,10 @@ def test_frame_motion_of_a_constant_step():
     assert m.rot_deg.median == pytest.approx(1.5, rel=1e-9)
     assert m.trans.n == 20
     assert frame_motion(np.array(poses), delta=2).rot_deg.max == pytest.approx(3.0, rel=1e-9)
+    # per pair: one faster step shows up at its own index
+    poses[11] = poses[10] @ g.make_pose(np.eye(3), [0.0, 0.0, 0.005])
+    trans, rot = relative_motion(np.array(poses[:12]))
+    assert trans.shape == rot.shape == (11,)
+    np.testing.assert_allclose(trans[:10], 0.002, rtol=1e-9)
+    assert trans[10] == pytest.approx(0.005, rel=1e-9) and rot[10] == pytest.approx(0.0, abs=1e-9)
+    assert relative_motion(np.array(poses[:1]))[0].shape == (0,)

@@ -147,12 +147,14 @@ def test_odometry_baseline_and_injected_wrong_edge(seq, tmp_path):
 
 
 def test_blas_threads_are_capped_during_a_run_and_restored(seq, tmp_path):
-    from threadpoolctl import threadpool_info
+    from threadpoolctl import threadpool_info, threadpool_limits
 
     def blas_threads() -> list[int]:
         return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
 
+    outer = threadpool_limits(limits=2, user_api="blas")  # a known setting to change and restore
     before = blas_threads()
+    assert before and all(n == 2 for n in before), before
     seen: list[list[int]] = []
 
     class Watching(OdometrySlam):
@@ -166,7 +168,8 @@ def test_blas_threads_are_capped_during_a_run_and_restored(seq, tmp_path):
     assert blas_threads() == before
     seen.clear()
     run_slam(seq, tmp_path / "b0", cfg.with_(blas_threads=None), progress=False, max_frames=4, slam_factory=Watching)
-    assert all(t == before for t in seen)
+    assert seen and all(t == before for t in seen)
+    outer.restore_original_limits()
     with pytest.raises(InputError, match="blas_threads"):
         SlamConfig(blas_threads=0)
 

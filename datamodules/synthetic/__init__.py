@@ -28,6 +28,7 @@ _EXPORTS = {
     "build_scene": "generate",
     "generate_sequence": "generate",
     "render_frames": "generate",
+    "read_event_labels": "generate",
     "make_tiny_sequence": "fixture",
     "tiny_params": "fixture",
     "make_contact_sheet": "contact_sheet",

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import cv2
@@ -10,14 +9,7 @@ import numpy as np
 
 from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
-
-
-def _labels(root: Path) -> dict[int, str]:
-    f = root / "frames.csv"
-    if not f.is_file():
-        return {}
-    with f.open() as fh:
-        return {int(r["index"]): r.get("event", "") for r in csv.DictReader(fh)}
+from datamodules.synthetic.generate import read_event_labels
 
 
 def _depth_colour(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -37,7 +29,7 @@ def make_contact_sheet(seq_dir: str | Path, out: str | Path, count: int = 12, co
     if count < 1 or cols < 1 or tile < 16:
         raise InputError("contact sheet: count and cols must be >= 1 and tile >= 16")
     idx = np.unique(np.linspace(0, len(seq) - 1, min(count, len(seq))).round().astype(int))
-    labels = _labels(Path(seq_dir))
+    labels = read_event_labels(seq_dir)
     show_depth = depth and seq.has_depth
     depths = [seq.read_depth(i) for i in idx] if show_depth else []
     if depths:
@@ -47,7 +39,7 @@ def make_contact_sheet(seq_dir: str | Path, out: str | Path, count: int = 12, co
     cells = []
     for k, i in enumerate(idx):
         rgb = cv2.resize(seq.read_rgb(i), (tile, h), interpolation=cv2.INTER_AREA)
-        text = f"{seq.frame_names[i]} {labels.get(int(i), '')}".strip()
+        text = f"{seq.frame_names[i]} {labels[i] if i < len(labels) else ''}".strip()
         cv2.putText(rgb, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
         cell = rgb
         if depths:

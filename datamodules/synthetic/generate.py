@@ -19,6 +19,7 @@ replaced with ``overwrite=True``. Parameters are validated before anything is wr
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import shutil
@@ -42,7 +43,8 @@ from datamodules.synthetic.render import Renderer, make_scene
 from datamodules.synthetic.texture import TextureAtlas, build_atlas
 
 FORMAT_VERSION = 1
-__all__ = ["LAYOUTS", "SimScene", "build_scene", "check_output", "generate_sequence", "render_frames"]
+__all__ = ["LAYOUTS", "SimScene", "build_scene", "check_output", "generate_sequence", "read_event_labels",
+           "render_frames"]
 
 
 @dataclass
@@ -207,6 +209,17 @@ def _write_frames_csv(scene: SimScene, path: Path) -> None:
     for i, (s, label, d) in enumerate(zip(scene.path.controls.s, scene.path.labels, scene.path.wall_distance)):
         lines.append(f"{i},{i / fps:.6f},{s:.6f},{label},{d * 1000:.3f}")
     path.write_text("\n".join(lines) + "\n")
+
+
+def read_event_labels(root: str | Path) -> list[str]:
+    """Per-frame event labels of a generated sequence (frames.csv ``event`` column, in frame
+    order; '' = a plain frame); an empty list when the folder has no frames.csv."""
+    path = Path(root) / "frames.csv"
+    if not path.is_file():
+        return []
+    with path.open(newline="") as fh:
+        rows = sorted(csv.DictReader(fh), key=lambda r: int(r["index"]))
+    return [r.get("event") or "" for r in rows]
 
 
 def _move_into_place(tmp: Path, out: Path) -> None:
