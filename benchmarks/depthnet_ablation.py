@@ -217,7 +217,7 @@ def main() -> None:
         + (f", every variant starting from the weights of {a.init} (optimiser not resumed)" if a.init else "")
         + (f", model overrides for every variant: {', '.join(a.model_overrides)}" if extra else "")
         + (f", full-dc-warmup: weight of L_dc ramped from 0 over {warmup} steps" if "full-dc-warmup" in variants else "")
-        + ". Data: simulator, {a.train_seqs} training sequences and {a.test_seqs} held-out test sequences of "
+        + f". Data: simulator, {a.train_seqs} training sequences and {a.test_seqs} held-out test sequences of "
         f"{a.frames} frames (presets seq1.., seeds 100+k, path.coverage {a.coverage}; ground-truth motion between "
         f"consecutive frames, median of the sequences' medians: rotation {motion['rot_p50']:.2f} deg, "
         f"translation {motion['t_mm_p50']:.2f} mm, {100 * motion['t_rel_p50']:.1f} % of the median depth). Metrics on the test sequences only, per-image median scaling. "

@@ -28,6 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from c3f_slam.io import Sequence, write_tum  # noqa: E402
 from c3f_slam.pipeline import PAPER_RULES, SlamConfig, run_slam  # noqa: E402
+from c3f_slam.pipeline.evaluation import evaluate_run  # noqa: E402
 from c3f_slam.pipeline.slam import FragmentSlam  # noqa: E402
 from datamodules.synthetic.fixture import make_tiny_sequence  # noqa: E402
 
@@ -71,6 +72,8 @@ def main() -> None:
     ap.add_argument("--keyframes-in-ram", action="store_true",
                     help="keep the stored keyframes' features in RAM (SlamConfig.keyframe_cache=False) instead of "
                          "the run's keyframe cache file")
+    ap.add_argument("--reuse-keyframes", action=argparse.BooleanOptionalAction, default=None,
+                    help="SlamConfig.reuse_keyframes (revisits hang off mapped keyframes); default: the config's")
     ap.add_argument("--out", type=Path, default=Path("/tmp/slam_scale"))
     ap.add_argument("--report", type=Path, default=ROOT / "benchmarks" / "results" / "slam_scale.md")
     args = ap.parse_args()
@@ -91,29 +94,30 @@ def main() -> None:
             self._cpu = time.process_time()
             self._n = 0
             self._stages = dict.fromkeys(STAGES, 0.0)
-            self._kf = self._pairs = self._opts = self._win = 0
+            self._kf = self._frag = self._pairs = self._opts = self._win = 0
 
         def _tick(self) -> None:
             self._n += 1
             if self._n % args.every == 0:
                 now, cpu = time.perf_counter(), time.process_time()
                 sec = {st: self.t.seconds.get(st, 0.0) for st in STAGES}
-                new_kf = len(self.keyframes) - self._kf
+                new_frag = self.n_fragments - self._frag
                 samples.append(dict(
                     frames=self._n, ms=1000 * (now - self._t) / args.every, cpu_ms=1000 * (cpu - self._cpu) / args.every,
                     rss=rss_mb(), kf=len(self.keyframes),
                     kf_mb=self.keyframe_memory_bytes() / 2**20, kf_disk_mb=self.keyframes.disk_bytes / 2**20,
                     edges=self.graph.n_edges, edge_mb=self.graph.edge_nbytes() / 2**20,
                     stage_ms={st: 1000 * (sec[st] - self._stages[st]) / args.every for st in STAGES},
-                    pairs=(self.n_candidates_matched - self._pairs) / max(new_kf, 1),
+                    pairs=(self.n_candidates_matched - self._pairs) / max(new_frag, 1),
                     opts=self.n_optimizations - self._opts, win=self.n_windowed_optimizations - self._win,
                 ))
-                self._t, self._cpu, self._stages, self._kf = now, cpu, sec, len(self.keyframes)
+                self._t, self._cpu, self._stages, self._kf, self._frag = now, cpu, sec, len(self.keyframes), \
+                    self.n_fragments
                 self._pairs, self._opts, self._win = self.n_candidates_matched, self.n_optimizations, \
                     self.n_windowed_optimizations
                 r = samples[-1]
                 print(f"{r['frames']} frames: {r['ms']:.1f} ms/frame (CPU {r['cpu_ms']:.1f}), RSS {r['rss']:.0f} MB, {r['kf']} keyframes, "
-                      f"{r['pairs']:.1f} pairs/kf, {r['opts']} opt ({r['win']} windowed), "
+                      f"{r['pairs']:.1f} pairs/fragment, {r['opts']} opt ({r['win']} windowed), "
                       + " ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()), flush=True)
 
         def add(self, feat, depth):
@@ -136,6 +140,8 @@ def main() -> None:
         over["keyframe_cache"] = False
     if args.paper_rules:
         over.update(PAPER_RULES)
+    if args.reuse_keyframes is not None:
+        over["reuse_keyframes"] = args.reuse_keyframes
     cfg = SlamConfig.preset_config("colon", **over)
     t = time.perf_counter()
     error = ""
@@ -144,6 +150,12 @@ def main() -> None:
     except Exception as exc:
         error, s = str(exc), {}
     wall = time.perf_counter() - t
+    ev = {}
+    if s:
+        try:
+            ev = evaluate_run(args.out / "run", long_seq)
+        except Exception as exc:  # report, do not lose the table
+            ev = {"error": str(exc)}
     rows = [
         f"| {r['frames']} | {r['ms']:.1f} | {r['cpu_ms']:.1f} | " + " | ".join(f"{r['stage_ms'][k]:.1f}" for k in
                                                          ("keypoints", "matching", "posegraph"))
@@ -152,9 +164,11 @@ def main() -> None:
     cmd = (f"python benchmarks/slam_scale.py --frames {args.frames} --base-frames {args.base_frames} "
            f"--size {args.size} --every {args.every} --min-correspondences {args.min_correspondences}"
            + (" --mesh" if args.mesh else "") + (" --paper-rules" if args.paper_rules else "")
-           + (" --keyframes-in-ram" if args.keyframes_in_ram else ""))
+           + (" --keyframes-in-ram" if args.keyframes_in_ram else "")
+           + ("" if args.reuse_keyframes is None else
+              " --reuse-keyframes" if args.reuse_keyframes else " --no-reuse-keyframes"))
     keys = ("max_keyframe_candidates", "max_loop_edges_per_keyframe", "recent_keyframe_candidates", "spatial_keyframe_candidates", "spatial_radius",
-            "optimize_growth", "optimize_small_map", "max_optimize_nodes", "final_optimize_nodes")
+            "optimize_growth", "optimize_small_map", "max_optimize_nodes", "final_optimize_nodes", "reuse_keyframes")
     text = "\n".join([
         "# SLAM scaling over a long RGB-D stream", "", f"Command: `{cmd}`", "",
         f"- Stream: a {args.base_frames}-frame simulator sequence ({args.size} px, 15 cm colon) played forward "
@@ -163,10 +177,14 @@ def main() -> None:
         "- Settings: " + ", ".join(f"{k}={getattr(cfg, k)}" for k in keys) + ".",
         f"- Wall time {wall:.0f} s (final optimisation {final.get('seconds', float('nan')):.1f} s, "
         f"{final.get('optimizations', 0)} runs); registered share {s.get('registered_share', float('nan')):.3f}; "
-        f"keyframes {s.get('keyframes')}; fragments {s.get('fragments')}; loop edges {s.get('loop_edges')}; "
+        f"ATE (SE(3), registered frames) {100 * ev.get('ate_se3', {}).get('rmse_m', float('nan')):.2f} cm, "
+        f"(Sim(3)) {100 * ev.get('ate_sim3', {}).get('rmse_m', float('nan')):.2f} cm"
+        + (f" [evaluation: {ev['error']}]" if "error" in ev else "") + "; "
+        f"keyframes {s.get('keyframes')}; fragments {s.get('fragments')} "
+        f"(attached to earlier keyframes: {s.get('attached_fragments', 0)}); loop edges {s.get('loop_edges')}; "
         f"pruned {s.get('pruned_edges')}; global optimisations {s.get('global_optimizations')} "
         f"({s.get('windowed_optimizations')} windowed, at most {s.get('max_optimized_nodes')} nodes); "
-        f"keyframe pairs matched per keyframe {s.get('keyframe_candidates_per_keyframe', float('nan')):.1f}; "
+        f"keyframe pairs matched per new fragment {s.get('keyframe_candidates_per_fragment', float('nan')):.1f}; "
         f"keyframe cache on disk {s.get('keyframe_disk_bytes', 0) / 2**20:.1f} MB at the end (removed after the run); "
         f"accepted keyframe matches by source {s.get('keyframe_matches_by_source')} "
         f"(of them discarded by the loop-edge cap: {s.get('keyframe_matches_capped')}); "
@@ -176,10 +194,11 @@ def main() -> None:
         "pose-graph stages), resident memory of the process, keyframes so far, RAM held by the stored keyframe features "
         "(incl. global descriptors; with the keyframe cache: per-keyframe records and an LRU of 64 keyframes), "
         "their bytes in the keyframe cache file (OUT/.keyframe_cache), global graph edges and the memory of their arrays (at capacity), "
-        "keyframe pairs matched per new keyframe, global "
+        "keyframe pairs matched per new fragment (each new fragment's first frame is matched against the "
+        "keyframe candidates, then becomes a keyframe or, with reuse_keyframes, hangs off one), global "
         "optimisations (of them windowed).", "",
         "| frames | ms/frame | CPU ms/frame | keypoints | matching | posegraph | RSS MB | keyframes "
-        "| keyframe RAM MB | keyframe disk MB | edges | edge MB | pairs/kf | optimisations |",
+        "| keyframe RAM MB | keyframe disk MB | edges | edge MB | pairs/fragment | optimisations |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows, ""])
     args.report.parent.mkdir(parents=True, exist_ok=True)

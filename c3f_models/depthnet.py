@@ -260,6 +260,9 @@ class DepthNet(L.LightningModule):
                 for name in METRIC_NAMES:
                     self.log(f"{stage}/{name}", metrics[name], on_epoch=True, batch_size=metrics["n_images"],
                              sync_dist=True)
+                # metres per unit of prediction (mean over batches of the batch median)
+                self.log(f"{stage}/gt_to_pred_scale", metrics["scale"], on_epoch=True,
+                         batch_size=metrics["n_images"], sync_dist=True)
         if stage == "val" and batch_idx == 0:
             self._log_images(batch, pred, terms)
         return metrics

@@ -65,6 +65,9 @@ def depth_metrics(
     ``gt_cv`` are the spatial coefficients of variation (std / mean over the valid pixels,
     before scaling) of the prediction and the ground truth, averaged over images: a
     ``pred_cv`` near 0 means a flat prediction (a collapsed network), whatever its scale.
+    ``scale`` is the median over images of median(gt) / median(pred) (before scaling): the
+    factor that brings a scale-ambiguous (self-supervised) prediction to metres, e.g. for the
+    SLAM runtime's ``--depth-scale``.
 
     Args:
         pred, gt: depth maps in metres, (H, W), (B, H, W) or (B, 1, H, W); gt 0 = no depth.
@@ -76,19 +79,21 @@ def depth_metrics(
     m = np.ones_like(g, dtype=bool) if mask is None else _as_images(_as_numpy(mask)).astype(bool)
     if m.shape != g.shape:
         raise ValueError(f"mask shape {m.shape} differs from gt {g.shape}")
-    rows, cvs = [], []
+    rows, cvs, scales = [], [], []
     for pi, gi, mi in zip(p, g, m):
         valid = mi & np.isfinite(gi) & (gi > min_depth) & (gi < max_depth) & np.isfinite(pi) & (pi > 0)
         if not valid.any():
             continue
         pv, gv = pi[valid], gi[valid]
         cvs.append((float(np.std(pv) / np.mean(pv)), float(np.std(gv) / np.mean(gv))))
+        scales.append(float(np.median(gv) / np.median(pv)))
         if median_scaling:
-            pv = pv * (np.median(gv) / np.median(pv))
+            pv = pv * scales[-1]
         pv = np.clip(pv, min_depth, max_depth)
         rows.append(image_depth_metrics(pv, gv))
     out = {k: float(np.mean([r[k] for r in rows])) if rows else float("nan") for k in METRIC_NAMES}
     out["pred_cv"] = float(np.mean([c[0] for c in cvs])) if cvs else float("nan")
     out["gt_cv"] = float(np.mean([c[1] for c in cvs])) if cvs else float("nan")
+    out["scale"] = float(np.median(scales)) if scales else float("nan")
     out["n_images"] = len(rows)
     return out

@@ -39,6 +39,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints)")
     r.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video)")
     r.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model (default 2)")
+    r.add_argument("--depth-scale", type=float, default=1.0,
+                   help="multiply the --depth-model depth by this factor (self-supervised depth is known up to "
+                        "a scale, the thresholds are in metres; benchmarks/depth_motion.py measures it on a "
+                        "sequence with true depth; default 1)")
     r.add_argument("--preset", default="colon", choices=("colon", "room"), help="scene scale of the thresholds")
     r.add_argument("--baseline", choices=("odometry",), help="frame-to-frame odometry only (no fragments/loops)")
     r.add_argument("--max-frames", type=int, help="process at most N frames")
@@ -51,10 +55,13 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--max-keyframe-candidates", type=int,
                    help="match a new keyframe against at most N earlier keyframes (recent, nearby, by appearance; "
                         "default 24); 0 = all keyframes and whole-component optimisation after every loop "
-                        "(the paper's rules, quadratic on long sequences)")
+                        "(the paper's rules, quadratic on long sequences; also no --reuse-keyframes)")
     r.add_argument("--max-loop-edges-per-keyframe", type=int,
                    help="keep at most N keyframe-match (loop) edges per new keyframe: the most recent, then the "
                         "strongest (default 8); 0 = all (the paper; also implied by --max-keyframe-candidates 0)")
+    r.add_argument("--reuse-keyframes", action=argparse.BooleanOptionalAction, default=None,
+                   help="hang a fragment that revisits a mapped place off that place's keyframe instead of adding a "
+                        "keyframe (memory stays flat on long revisiting streams; SlamConfig.reuse_keyframes)")
     r.add_argument("--blas-threads", type=int,
                    help="BLAS threads NumPy may use during the run (default 1: the runtime's matrices are small); "
                         "0 = the BLAS library's own setting")
@@ -94,6 +101,8 @@ def _run(args: argparse.Namespace) -> int:
         if args.max_loop_edges_per_keyframe < 0:
             raise InputError(f"--max-loop-edges-per-keyframe must be >= 0, got {args.max_loop_edges_per_keyframe}")
         over["max_loop_edges_per_keyframe"] = args.max_loop_edges_per_keyframe or None
+    if args.reuse_keyframes is not None:
+        over["reuse_keyframes"] = args.reuse_keyframes
     if args.blas_threads is not None:
         if args.blas_threads < 0:
             raise InputError(f"--blas-threads must be >= 0, got {args.blas_threads}")
@@ -101,7 +110,7 @@ def _run(args: argparse.Namespace) -> int:
     cfg = SlamConfig.preset_config(args.preset, mode=args.baseline or "full", fuse=not args.no_mesh, **over)
     s = run_slam(args.sequence, args.out, cfg, args.descriptors, args.depth_source, args.depth_model,
                  args.feature_model, args.max_frames, args.stride, progress=not args.quiet,
-                 camera=args.camera, threads=args.threads)
+                 camera=args.camera, threads=args.threads, depth_scale=args.depth_scale)
     fps = s["timings"]["total"]["frames_per_second"]
     print(f"{s['frames']} frames, {s['registered_frames']} registered ({100 * s['registered_share']:.1f} %), "
           f"{s.get('fragments', 0)} fragments, {s.get('loop_edges', 0)} loop edges, "

@@ -90,3 +90,13 @@ def test_coefficient_of_variation_flags_a_flat_prediction():
     assert m["gt_cv"] == pytest.approx(np.std(GT) / np.mean(GT), rel=1e-9)
     # scale-free: any multiple of the ground truth has the ground truth's CV
     assert depth_metrics(GT * 5.0, GT)["pred_cv"] == pytest.approx(m["gt_cv"], rel=1e-9)
+
+
+def test_scale_is_the_median_gt_to_prediction_ratio():
+    rng = np.random.default_rng(3)
+    gt = rng.uniform(0.01, 0.1, (3, 8, 8))
+    pred = gt / np.array([4.0, 5.0, 7.0])[:, None, None]  # per-image scale 4, 5 and 7
+    m = depth_metrics(pred, gt)
+    assert m["scale"] == pytest.approx(5.0, rel=1e-9)
+    assert m["abs_rel"] == pytest.approx(0.0, abs=1e-12)  # median scaling undoes it
+    assert np.isnan(depth_metrics(np.zeros((4, 4)), np.zeros((4, 4)))["scale"])

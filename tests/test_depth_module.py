@@ -161,6 +161,7 @@ def test_tensorboard_images_metrics_and_init_weights(plane_dataset, tmp_path):
 
     tested = tr.test(model, datamodule=dm, verbose=False)[0]
     assert math.isfinite(tested["test/abs_rel"]) and "test/loss" in tested
+    assert tested["test/gt_to_pred_scale"] > 0  # metres per unit of prediction (SLAM --depth-scale)
 
     # init_weights: loaded when fitting starts, not when the module is made
     fresh = DepthNet(**TINY, init_weights=str(ckpt))

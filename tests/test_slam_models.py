@@ -243,6 +243,25 @@ def test_predicted_frames_cache_round_trip(tmp_path):
     assert not (tmp_path / "out" / CACHE_DIR).exists()
 
 
+def test_model_depth_scale_multiplies_both_grids(tmp_path):
+    model = DepthModel(fx.depth_model(tmp_path / "d.onnx", SIZE, CROP))
+    frame = StreamFrame(3, 0.1, _ramp_frame(), None, "ok", 100.0)
+    plain, scaled = ModelDepth(model, CAM).predict(frame), ModelDepth(model, CAM, scale=2.5).predict(frame)
+    assert plain.network.max() > 0
+    np.testing.assert_allclose(scaled.network, 2.5 * plain.network, rtol=1e-6)
+    np.testing.assert_allclose(scaled.frame, 2.5 * plain.frame, rtol=1e-5, atol=1e-7)
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="--depth-scale must be a positive number"):
+            ModelDepth(model, CAM, scale=bad)
+
+
+def test_depth_scale_needs_model_depth(tiny_sequence, tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["run", str(tiny_sequence), "--depth-source", "files", "--depth-scale", "2", "--out", str(out),
+                 "--quiet"]) == 2
+    assert "--depth-scale applies to model depth (--depth-model) only" in _cli_error(capsys)
+
+
 @pytest.fixture(scope="module")
 def models(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("models")
@@ -276,9 +295,10 @@ def test_slam_model_depth_without_depth_folder(tiny_sequence, models, tmp_path):
     shutil.copytree(tiny_sequence, seq, ignore=shutil.ignore_patterns("depth"))
     out = tmp_path / "run"
     assert main(["run", str(seq), "--depth-model", str(models["depth"]), "--out", str(out),
-                 "--min-correspondences", "15", "--quiet"]) == 0
+                 "--min-correspondences", "15", "--depth-scale", "1.5", "--quiet"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "ok" and s["depth_source"] == "model" and s["descriptors"] == "sift"
+    assert s["depth_scale"] == 1.5
     assert s["frames"] == 8 and s["registered_frames"] >= 1 and (out / "trajectory.txt").is_file()
     assert not (out / CACHE_DIR).exists()
 

@@ -275,7 +275,7 @@ def test_bounded_candidates_windows_and_relocalisation():
     assert np.array_equal(reg, idx != 70)  # all but the skipped frame
     truth = np.array([world.poses[world.place[i]] for i in slam.log.index if i != 70])
     np.testing.assert_allclose(P[reg][:, :3, 3], truth[:, :3, 3], atol=1e-5)
-    assert slam.stats()["keyframe_candidates_per_keyframe"] <= 6
+    assert slam.stats()["keyframe_candidates_per_fragment"] <= 6
 
 
 # ---------------------------------------------------------------------- fusion bookkeeping

@@ -20,9 +20,10 @@ PRESETS = ("colon", "room")
 MODES = ("full", "odometry")
 #: SlamConfig overrides that restore the paper's literal rules at any map size: every new
 #: keyframe matched against all keyframes, all its accepted matches kept, the whole
-#: component optimised after every loop or merge (quadratic on long sequences)
+#: component optimised after every loop or merge (quadratic on long sequences), every
+#: fragment's first frame a keyframe (memory grows with every revisit)
 PAPER_RULES = dict(max_keyframe_candidates=None, max_loop_edges_per_keyframe=None, optimize_growth=None,
-                   max_optimize_nodes=None, final_optimize_nodes=None)
+                   max_optimize_nodes=None, final_optimize_nodes=None, reuse_keyframes=False)
 
 
 @dataclass(frozen=True)
@@ -81,6 +82,19 @@ class SlamConfig:
       is optimised whole when it has at most ``final_optimize_nodes`` keyframes (None:
       always), else by one sweep of overlapping ``max_optimize_nodes`` windows in keyframe
       order.
+    - Revisits: ``reuse_keyframes`` (deviation from the paper, which makes every fragment's
+      first frame a keyframe): a new fragment whose first frame could continue the fragment
+      of an earlier keyframe by the fragment rules (at least
+      ``min_consecutive_correspondences`` correspondences with it and frustum overlap
+      >= ``min_overlap``) hangs off that keyframe instead: no new node, no stored features,
+      and only the edges that add information (a merge of components, the loop closure
+      of a fragment that made a new keyframe). When the frame also has an odometry link
+      into that keyframe's component, the two must agree on its pose (camera centres within
+      ``reuse_max_offset`` metres, orientations within ``reuse_max_angle_deg``); otherwise it
+      becomes a keyframe with uncertain edges as in the paper, so that a wrong keyframe
+      match can still be pruned by the pose-graph optimisation. A stream that keeps
+      revisiting mapped places then stops adding keyframes and edges, so memory stays
+      flat; new places still add them. ``PAPER_RULES`` turns it off.
     - Keyframe storage: ``keyframe_cache`` (default True): :func:`c3f_slam.pipeline.run.run_slam`
       keeps the stored keyframes' descriptors and 3D points in a file under
       ``OUT/.keyframe_cache`` (removed at the end of the run, also on errors) and only a
@@ -122,6 +136,9 @@ class SlamConfig:
     max_optimize_nodes: int | None = 100
     window_boundary_edges: int | None = 8
     final_optimize_nodes: int | None = 600
+    reuse_keyframes: bool = True
+    reuse_max_offset: float = 0.005
+    reuse_max_angle_deg: float = 10.0
     keyframe_cache: bool = True
     blas_threads: int | None = 1
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
@@ -155,6 +172,9 @@ class SlamConfig:
             raise InputError("optimize_growth must be >= 0 (or None: after every keyframe)")
         if self.window_boundary_edges is not None and self.window_boundary_edges < 0:
             raise InputError("window_boundary_edges must be >= 0 (or None: all)")
+        if self.reuse_max_offset < 0 or not 0 <= self.reuse_max_angle_deg <= 180:
+            raise InputError("reuse_max_offset must be >= 0 (metres) and reuse_max_angle_deg in [0, 180], got "
+                             f"{self.reuse_max_offset}, {self.reuse_max_angle_deg}")
         if self.blas_threads is not None and self.blas_threads < 1:
             raise InputError(f"blas_threads must be >= 1 (or None: the BLAS library's default), got {self.blas_threads}")
         for name in ("max_optimize_nodes", "final_optimize_nodes"):
@@ -176,7 +196,8 @@ class SlamConfig:
     @classmethod
     def preset_config(cls, name: str = "colon", **overrides) -> "SlamConfig":
         """Defaults for ``colon`` (mm scale) or ``room`` (cm scale; fusion settles after 1 m,
-        spatial keyframe candidates within 1 m instead of 2 cm)."""
+        spatial keyframe candidates within 1 m instead of 2 cm, keyframe reuse
+        within 25 cm of the odometry instead of 5 mm)."""
         if name not in PRESETS:
             raise InputError(f"--preset must be one of {PRESETS}, got {name!r}")
         base = dict(
@@ -186,6 +207,7 @@ class SlamConfig:
             tsdf=TSDF_PRESETS[name],
             eps_cf_d=0.05 if name == "colon" else 1.0,
             spatial_radius=0.02 if name == "colon" else 1.0,
+            reuse_max_offset=0.005 if name == "colon" else 0.25,
         )
         known = {f.name for f in fields(cls)}
         bad = sorted(set(overrides) - known)

@@ -3,6 +3,11 @@
 A fragment is a run of consecutive frames registered relative to its first frame, the
 keyframe (node 0, identity). Poses here are keyframe-from-frame (camera-to-keyframe)
 4x4 matrices in metres; edges follow :mod:`c3f_slam.posegraph` (p_i = T_ij p_j).
+
+In the global graph a fragment hangs off one node: normally its own keyframe (``node`` = a
+new global node, ``base`` None); a fragment *attached* to an earlier keyframe (a revisit,
+``SlamConfig.reuse_keyframes``) hangs off that keyframe's node, ``base`` = T_node,first
+(node-from-first-frame), and adds no node.
 """
 
 from __future__ import annotations
@@ -42,8 +47,13 @@ def new_fragment_reason(
 class Fragment:
     """The active fragment: its frames' features (dropped when closed) and local pose graph."""
 
-    def __init__(self, fid: int, keyframe: FrameFeatures, keyframe_depth: np.ndarray, reason: str) -> None:
+    def __init__(self, fid: int, keyframe: FrameFeatures, keyframe_depth: np.ndarray, reason: str,
+                 node: int | None = None, base: np.ndarray | None = None) -> None:
+        """``node``: the global node it hangs off (default ``fid``); ``base``: T_node,first
+        (None = identity: the fragment's first frame is that node's keyframe)."""
         self.id = fid
+        self.node = fid if node is None else int(node)
+        self.base = None if base is None else np.asarray(base, dtype=np.float64)
         self.keyframe = keyframe.index
         self.reason = reason
         self.frames: list[int] = [keyframe.index]
@@ -68,6 +78,11 @@ class Fragment:
     @property
     def last_pose(self) -> np.ndarray:
         return self.pose(len(self.frames) - 1)
+
+    def node_pose(self, local: int) -> np.ndarray:
+        """Node-from-frame pose of the ``local``-th frame (``base`` @ :meth:`pose`)."""
+        P = self.pose(local)
+        return P if self.base is None else self.base @ P
 
     def add_frame(
         self, feat: FrameFeatures, link: PairMatch, extra: list[tuple[int, PairMatch]] | None = None

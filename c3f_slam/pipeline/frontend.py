@@ -123,21 +123,30 @@ class DepthPrediction:
 class ModelDepth:
     """Depth from a DepthNet ONNX export (metres, the frame's pixel grid).
 
+    ``scale`` multiplies the network's depth (network and frame grids alike). A
+    self-supervised DepthNet knows depth only up to a scale, and the runtime's thresholds are
+    in metres: ``benchmarks/depth_motion.py`` measures the factor on a sequence with true
+    depth (e.g. the simulator sequences the network was trained on); 1 uses the output as is.
     The prediction of the most recent frame is memoised (by frame index), so that the run
     loop can also store its network-grid depth for fusion without running the net twice.
     """
 
     name = "model"
 
-    def __init__(self, model: DepthModel, camera: PinholeCamera) -> None:
+    def __init__(self, model: DepthModel, camera: PinholeCamera, scale: float = 1.0) -> None:
+        if not (np.isfinite(scale) and scale > 0):
+            raise InputError(f"--depth-scale must be a positive number, got {scale}")
         self.model = model
         self.camera = camera
+        self.scale = float(scale)
         self.view = model.view(camera)  # InputError now when the model's crop does not fit
         self._last: DepthPrediction | None = None
 
     def predict(self, frame: StreamFrame) -> DepthPrediction:
         if self._last is None or self._last.index != frame.index:
             net, view = self.model.predict_network(frame.rgb, self.camera)
+            if self.scale != 1.0:
+                net = net * np.float32(self.scale)
             full = view.network_to_frame(net, self.model.upsample)
             self._last = DepthPrediction(frame.index, net, full, view)
         return self._last

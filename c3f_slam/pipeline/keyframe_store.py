@@ -214,6 +214,13 @@ class KeyframeStore:
         return self._meta["timestamp"][: self._n].copy()
 
     @property
+    def frame_indices(self) -> np.ndarray:
+        """(N,) int64 frame indices of the stored keyframes, in id order (no file reads)."""
+        if self.folder is None:
+            return np.array([k.index for k in self._ram], np.int64)
+        return self._meta["index"][: self._n].copy()
+
+    @property
     def nbytes(self) -> int:
         """Bytes held in RAM: the arrays themselves (RAM mode), or the per-keyframe records
         (at capacity) and the LRU's arrays (disk mode)."""

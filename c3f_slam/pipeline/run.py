@@ -71,10 +71,12 @@ def resolve_sources(
 def make_providers(
     descriptors: str | None = "sift", depth_source: str | None = "files", depth_model: str | None = None,
     feature_model: str | None = None, camera: PinholeCamera | None = None, threads: int = 2,
+    depth_scale: float = 1.0,
 ) -> tuple[DescriptorProvider, DepthProvider]:
     """The descriptor and depth providers for the command-line choices (see
     :func:`resolve_sources`); model providers load their ONNX file (onnxruntime, ``threads``
-    intra-op threads) and are bound to ``camera``, the frames' intrinsics. InputError otherwise."""
+    intra-op threads) and are bound to ``camera``, the frames' intrinsics; ``depth_scale``
+    multiplies model depth (:class:`ModelDepth`). InputError otherwise."""
     descriptors, depth_source = resolve_sources(descriptors, depth_source, depth_model, feature_model)
     if camera is None and (descriptors == "contrafeat" or depth_source == "model"):
         raise ValueError("model providers need the frames' camera")
@@ -83,7 +85,7 @@ def make_providers(
     if descriptors == "contrafeat":
         desc = ContraFeatDescriptors(DescriptorModel(feature_model, threads, "--feature-model"), camera)
     if depth_source == "model":
-        depth = ModelDepth(DepthModel(depth_model, threads, "--depth-model"), camera)
+        depth = ModelDepth(DepthModel(depth_model, threads, "--depth-model"), camera, depth_scale)
     return desc, depth
 
 
@@ -111,13 +113,15 @@ def run_slam(
     slam_factory=None,
     camera: str | Path | PinholeCamera | None = None,
     threads: int = 2,
+    depth_scale: float = 1.0,
 ) -> dict:
     """Run on ``sequence`` (folder, or video file with model depth) and write the outputs into
     ``out``; returns the summary.
 
     ``descriptors`` / ``depth_source`` None follow the models given (:func:`resolve_sources`);
     ``camera``: intrinsics of a video (default camera.json beside it); ``threads``:
-    onnxruntime intra-op threads. Raises InputError (after writing summary.json with the
+    onnxruntime intra-op threads; ``depth_scale``: factor on model depth (:class:`ModelDepth`;
+    only with model depth). Raises InputError (after writing summary.json with the
     error) on bad input, including a run in which no frame could be registered.
     ``slam_factory(cfg, K, metric, timings, keyframe_cache=folder or None)`` may replace the
     back-end (tests).
@@ -126,7 +130,8 @@ def run_slam(
     outputs = RunOutputs(out)
     summary: dict = {
         "sequence": str(sequence), "mode": cfg.mode, "descriptors": descriptors, "depth_source": depth_source,
-        "preset": cfg.preset, "stride": stride, "max_frames": max_frames, "status": "running",
+        "preset": cfg.preset, "stride": stride, "max_frames": max_frames, "depth_scale": depth_scale,
+        "status": "running",
         "config": cfg.as_dict(),
     }
     timings = Timings()
@@ -153,7 +158,10 @@ def run_slam(
         cam = stream.camera
         K = cam.K
         summary["camera"] = cam.to_dict()
-        desc, depth_src = make_providers(descriptors, depth_source, depth_model, feature_model, cam, threads)
+        if depth_scale != 1.0 and depth_source != "model":
+            raise InputError("--depth-scale applies to model depth (--depth-model) only")
+        desc, depth_src = make_providers(descriptors, depth_source, depth_model, feature_model, cam, threads,
+                                         depth_scale)
         summary["models"] = {
             name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe()}
             for name, p in (("descriptors", desc), ("depth", depth_src)) if hasattr(p, "model")
@@ -257,12 +265,11 @@ def _write(outputs: RunOutputs, slam, summary: dict, counts: dict, timings: Timi
             summary["registered_share_of_usable"] = n / usable if usable else 0.0
             summary.update(slam.stats())
             if isinstance(slam, FragmentSlam) and slam.graph.n_nodes:
-                main = slam.main_fragments()
+                pg = slam.graph
                 graph = KeyframeGraph.from_posegraph(
-                    slam.graph, [f.keyframe for f in slam.fragments],
-                    slam.keyframes.timestamps.tolist(),
-                    lone={f for f in range(len(slam.fragments)) if f not in main},
-                    fragments=list(range(len(slam.fragments))),
+                    pg, slam.keyframes.frame_indices.tolist(), slam.keyframes.timestamps.tolist(),
+                    lone={k for k in range(pg.n_nodes) if not pg.in_main(k)},
+                    fragments=slam.node_fragment.tolist(),
                 )
                 outputs.write_graph(graph)
     except Exception as exc:  # pragma: no cover - keep the original error visible

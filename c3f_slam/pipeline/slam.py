@@ -7,13 +7,17 @@ main component of the global graph (the largest one, ties to the oldest); lone f
 are kept and join when one of their keyframes matches the map later.
 
 Memory: per frame a fragment id, a local index and a timestamp (and, once its fragment is
-closed, a 4x4 relative pose); features only for the active fragment and, compactly
+closed, the node it hangs off and its 4x4 pose relative to it, in the frame log's arrays;
+closed fragments keep no object); features only for the active fragment and, compactly
 (capped keypoints, uint8/float16 descriptors, float32 points, no pixel keypoints), for every
 keyframe (in RAM, or on disk with a 34-byte record and a small LRU in RAM when a cache
 folder is given: :class:`c3f_slam.pipeline.keyframe_store.KeyframeStore`), plus one global
 appearance descriptor and a bounded number of graph edges per keyframe (its odometry edge
 and at most ``max_loop_edges_per_keyframe`` keyframe matches, :func:`cap_keyframe_edges`),
-kept in the pose graph's arrays (~0.3 KB per edge).
+kept in the pose graph's arrays (~0.3 KB per edge). With ``reuse_keyframes`` a fragment that
+revisits a mapped place hangs off that place's keyframe (:meth:`FragmentSlam._host`) and
+adds no node, stored features or edges, so on a stream that only revisits mapped places the
+memory stays flat apart from the frame log (~170 bytes per frame).
 
 Time per frame does not grow with the map (see :class:`SlamConfig` for the switches back to
 the paper's literal rules): a new keyframe is matched against a bounded candidate set
@@ -36,10 +40,11 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_slam.evaluate import motion_magnitudes
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import invert_pose
 from c3f_slam.pipeline.config import SlamConfig
-from c3f_slam.pipeline.fragments import FIRST, Fragment, new_fragment_reason
+from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, match_frames
 from c3f_slam.pipeline.keyframe_store import KeyframeStore
 from c3f_slam.pipeline.retrieval import Candidates, KeyframeRetrieval, global_descriptor
@@ -109,19 +114,39 @@ class Timings:
 
 
 class FrameLog:
-    """Per processed frame: timestamp, fragment id (-1 = not placed) and local index (compact)."""
+    """Per processed frame: timestamp, fragment id (-1 = not placed), local index and, once
+    its fragment is closed (:meth:`settle`), the global node the frame hangs off (-1 before)
+    and its node-from-frame pose (4x4 float64, row-major). Compact arrays, no objects."""
+
+    _UNSET = array("d", bytes(8 * 16))
 
     def __init__(self) -> None:
         self.index = array("q")
         self.stamp = array("d")
         self.fragment = array("q")
         self.local = array("q")
+        self.node = array("q")
+        self.rel = array("d")
 
     def append(self, index: int, stamp: float, fragment: int = -1, local: int = -1) -> None:
         self.index.append(index)
         self.stamp.append(stamp)
         self.fragment.append(fragment)
         self.local.append(local)
+        self.node.append(-1)
+        self.rel.extend(self._UNSET)
+
+    def settle(self, row0: int, node: int, poses: np.ndarray) -> None:
+        """Rows ``row0 ..`` (a closed fragment's frames, in order) hang off ``node`` with
+        node-from-frame ``poses`` (n, 4, 4)."""
+        n = len(poses)
+        for r in range(row0, row0 + n):
+            self.node[r] = node
+        self.rel[16 * row0:16 * (row0 + n)] = array("d", np.ascontiguousarray(poses, np.float64).tobytes())
+
+    def node_pose(self, row: int) -> np.ndarray:
+        """Node-from-frame pose of a settled row."""
+        return np.array(self.rel[16 * row:16 * row + 16], dtype=np.float64).reshape(4, 4)
 
     def __len__(self) -> int:
         return len(self.index)
@@ -141,15 +166,21 @@ class FragmentSlam:
         self.metric = metric
         self.t = timings or Timings()
         self.log = FrameLog()
-        self.fragments: list[Fragment] = []  # fragment id == global node id
+        self.n_fragments = 0
+        self.frag_node = array("q")  # fragment id -> the global node it hangs off
+        self.node_fragment = array("q")  # global node (keyframe) id -> the fragment that made it
         self.keyframes = KeyframeStore(keyframe_cache)
         self.graph = PoseGraph()
         self.retrieval = KeyframeRetrieval(cfg.candidates)
         self.active: Fragment | None = None
+        self._active_row = -1  # log row of the active fragment's first frame
         self.prev: FrameFeatures | None = None  # last placed frame (in the active fragment)
         self.gap = True  # the previous streamed frame was skipped / unusable
         self.n_relocalised = 0
         self.n_lone_created = 0
+        self.n_attached = 0  # fragments attached to an earlier keyframe (reuse_keyframes)
+        self.n_intra_edges = 0
+        self.n_intra_pruned = 0
         self.n_optimizations = 0
         self.n_windowed_optimizations = 0
         self.max_optimized_nodes = 0
@@ -217,45 +248,66 @@ class FragmentSlam:
         spatial ones around its pose estimate through the odometry link, in the component of
         its predecessor."""
         T_est, accept = None, None
-        if link is not None and prev_frag is not None and self.graph.n_nodes > prev_frag.id:
-            T_est = self.graph.pose(prev_frag.id) @ prev_frag.last_pose @ link.T_ij
-            root = self.graph.find(prev_frag.id)
+        if link is not None and prev_frag is not None:
+            T_est = self.graph.pose(prev_frag.node) @ prev_frag.node_pose(len(prev_frag) - 1) @ link.T_ij
+            root = self.graph.find(prev_frag.node)
             accept = lambda k: self.graph.find(k) == root  # noqa: E731
         return self.retrieval.candidates(g, self.graph.pose_array(), T_est, accept)
+
+    def _close_active(self) -> None:
+        """Close the active fragment (intra-fragment optimisation) and move its frames' poses
+        into the frame log; the fragment's features and graph are freed."""
+        frag = self.active
+        if frag is None or frag.rel_poses is not None:
+            return
+        t0 = time.perf_counter()
+        frag.close(self.cfg.posegraph)
+        self.t.add("posegraph", t0)
+        self.n_intra_edges += frag.n_edges
+        self.n_intra_pruned += frag.pruned
+        assert frag.rel_poses is not None
+        poses = frag.rel_poses if frag.base is None else frag.base @ frag.rel_poses
+        self.log.settle(self._active_row, frag.node, poses)
 
     def _open_fragment(self, feat: FrameFeatures, depth: np.ndarray, link: PairMatch | None, reason: str) -> int:
         self.reasons[reason] += 1
         prev_frag = self.active
-        if prev_frag is not None:
-            t0 = time.perf_counter()
-            prev_frag.close(self.cfg.posegraph)
-            self.t.add("posegraph", t0)
-        fid = len(self.fragments)
-        frag = Fragment(fid, feat, depth, reason)
-        self.fragments.append(frag)
-        self.active = frag
+        self._close_active()
+        fid = self.n_fragments
+        self.n_fragments += 1
+        self._active_row = len(self.log)
         self.log.append(feat.index, feat.timestamp, fid, 0)
         kf = feat.subset(self.cfg.keyframe_keypoints)
 
-        # edges of the new keyframe: odometry to the previous fragment, matches to the candidates
+        # edges of the new keyframe: odometry to the previous fragment's node, matches to the candidates
         t0 = time.perf_counter()
         edges: list[KeyframeEdge] = []
         if link is not None and prev_frag is not None:
-            T = prev_frag.last_pose @ link.T_ij  # previous keyframe <- new keyframe
-            edges.append((prev_frag.id, PairMatch(T, link.points_j, link.n), "odometry"))
+            T = prev_frag.node_pose(len(prev_frag) - 1) @ link.T_ij  # previous node <- new keyframe
+            edges.append((prev_frag.node, PairMatch(T, link.points_j, link.n), "odometry"))
         same_as_link = link is not None and prev_frag is not None and self.prev is not None \
-            and prev_frag.keyframe == self.prev.index
+            and prev_frag.base is None and prev_frag.keyframe == self.prev.index
         g = global_descriptor(kf.descriptors)
         cands = self._candidates(g, link, prev_frag)
         for k in cands.ids:
-            if same_as_link and prev_frag is not None and k == prev_frag.id:  # the link is this pair
+            if same_as_link and prev_frag is not None and k == prev_frag.node:  # the link is this pair
                 continue
             self.n_candidates_matched += 1
             m, _ = self.match(self.keyframes[k], kf)
             if m is not None:
-                kind = "keyframe" if prev_frag is not None and k == prev_frag.id else "loop"
+                kind = "keyframe" if prev_frag is not None and k == prev_frag.node else "loop"
                 edges.append((k, m, kind))
                 self.candidate_sources[cands.sources.get(k, "all")] += 1
+        host = None
+        if self.cfg.reuse_keyframes:
+            # after an overlap break, not the keyframe the frame just failed the test against
+            # (that test also checks occlusions)
+            skip = prev_frag.node if reason == OVERLAP and prev_frag is not None and prev_frag.base is None else -1
+            host = self._host([e for e in edges if e[0] != skip], depth, edges[0] if link is not None and edges
+                              and edges[0][2] == "odometry" else None)
+        if host is not None:
+            self.t.add("matching", t0)
+            return self._attach(fid, feat, depth, reason, edges, host, prev_frag)
         edges, dropped = cap_keyframe_edges(edges, self.cfg.max_loop_edges_per_keyframe, self.graph.find)
         self.n_edges_capped += dropped
         self.keyframes.append(kf)
@@ -263,8 +315,13 @@ class FragmentSlam:
         t0 = self.t.add("matching", t0)
 
         node = self.graph.add_node(np.eye(4))
-        assert node == fid
-        merged = self._place(node, edges)
+        assert node == len(self.keyframes) - 1
+        self.node_fragment.append(fid)
+        self.frag_node.append(node)
+        self.active = Fragment(fid, feat, depth, reason, node=node)
+        T_wn, merged = self._place(edges)
+        if T_wn is not None:
+            self.graph.set_pose(node, T_wn)
         loops = False
         for k, m, kind in edges:
             uncertain = kind != "odometry"
@@ -274,20 +331,94 @@ class FragmentSlam:
             self.n_lone_created += 1
         elif link is None and prev_frag is not None:
             self.n_relocalised += 1
-        if self.cfg.optimize_every_keyframe:
-            self._pending |= loops or merged > 0
-            if self._pending and self.optimization_due(node):
-                self.optimize_global(node)
+        self._maybe_optimize(node, loops or merged > 0)
         self.t.add("posegraph", t0)
         return fid
 
-    def _place(self, node: int, edges: list[KeyframeEdge]) -> int:
-        """Initial pose of a new keyframe, and rigid moves that bring the other components it
-        connects into the frame of the oldest one (so that optimisation starts consistent).
-        Touches only the nodes of the components it merges. Returns the number of components
-        merged into the anchor."""
+    def _maybe_optimize(self, node: int, trigger: bool) -> None:
+        if self.cfg.optimize_every_keyframe:
+            self._pending |= trigger
+            if self._pending and self.optimization_due(node):
+                self.optimize_global(node)
+
+    def _host(self, edges: list[KeyframeEdge], depth: np.ndarray, odometry: KeyframeEdge | None) -> int | None:
+        """The earlier keyframe a new fragment should hang off instead of adding a keyframe
+        (``SlamConfig.reuse_keyframes``), or None. Of the matched keyframes (not the odometry
+        link), those the frame could continue a fragment of by the fragment rules (at least
+        ``min_consecutive_correspondences`` correspondences, frustum overlap of the frame
+        with the keyframe >= ``min_overlap``; no occlusion test, the keyframe's depth is not
+        kept) and whose match agrees with the ``odometry`` edge when that reaches the same
+        component (camera centres within ``reuse_max_offset`` metres, orientations within
+        ``reuse_max_angle_deg``: a wrong keyframe match, or a loop closure that corrects
+        more drift than that, makes a keyframe with pose-graph edges instead, where the
+        optimisation can weigh and prune it); the one with the largest overlap (ties: more
+        correspondences)."""
+        g, cfg = self.graph, self.cfg
+        T_odo = None
+        if odometry is not None:
+            k_odo, m_odo, _ = odometry
+            T_odo, root_odo = g.pose(k_odo) @ m_odo.T_ij, g.find(k_odo)
+        best, best_key = None, None
+        for k, m, kind in edges:
+            if kind == "odometry" or m.n < cfg.min_consecutive_correspondences:
+                continue
+            if T_odo is not None and g.find(k) == root_odo:
+                offset, angle = motion_magnitudes(invert_pose(T_odo) @ g.pose(k) @ m.T_ij)
+                if offset[0] > cfg.reuse_max_offset or angle[0] > cfg.reuse_max_angle_deg:
+                    continue
+            ov = frustum_overlap(depth, self.K, m.T_ij, np.eye(4), stride=cfg.overlap_stride)
+            if ov >= cfg.min_overlap and (best_key is None or (ov, m.n) > best_key):
+                best, best_key = k, (ov, m.n)
+        return best
+
+    def _attach(self, fid: int, feat: FrameFeatures, depth: np.ndarray, reason: str,
+                edges: list[KeyframeEdge], host: int, prev_frag: Fragment | None) -> int:
+        """Open fragment ``fid`` on keyframe ``host`` (a revisit): no new node, no stored
+        features. Of the new frame's ``edges`` (k, T_k,new) only those that add information
+        the graph cannot have yet become host-k edges: the strongest match into each other
+        component (merges; the odometry link counts as a match), and the odometry link when
+        the previous fragment made a new keyframe (its loop closure). So a stream that only
+        revisits mapped places adds no nodes and no edges."""
+        t0 = time.perf_counter()
+        g = self.graph
+        m_host = next(m for k, m, kind in edges if k == host and kind != "odometry")
+        root = g.find(host)
+        best: dict[int, KeyframeEdge] = {}  # other component -> its strongest edge
+        keep: list[KeyframeEdge] = [(host, m_host, "loop")]
+        for k, m, kind in edges:
+            c = g.find(k)
+            if c == root:
+                if kind == "odometry" and k != host and prev_frag is not None and prev_frag.base is None:
+                    keep.append((k, m, "loop"))
+                continue
+            b = best.get(c)
+            if b is None or m.n > b[1].n:
+                best[c] = (k, m, kind)
+        keep += [(k, m, "loop") for k, m, _ in best.values()]
+        _, merged = self._place(keep)
+        loops = False
+        for k, m, _ in keep[1:]:
+            T_hk = m_host.T_ij @ invert_pose(m.T_ij)
+            pts_k = m.points_j @ m.T_ij[:3, :3].T + m.T_ij[:3, 3]  # the match's points in frame k
+            g.add_edge(host, k, T_hk, points_j=pts_k, uncertain=True, kind="loop")
+            loops = True
+        self.n_attached += 1
+        if not any(kind == "odometry" for _, _, kind in edges) and prev_frag is not None:
+            self.n_relocalised += 1
+        self.frag_node.append(host)
+        self.active = Fragment(fid, feat, depth, reason, node=host, base=m_host.T_ij)
+        self._maybe_optimize(host, loops or merged > 0)
+        self.t.add("posegraph", t0)
+        return fid
+
+    def _place(self, edges: list[KeyframeEdge]) -> tuple[np.ndarray | None, int]:
+        """World pose of a new frame linked by ``edges`` (k, T_k,new) to earlier keyframes
+        (None without edges), and rigid moves that bring the other components it connects
+        into the frame of the oldest one (so that optimisation starts consistent). Touches
+        only the nodes of the components it merges. Returns (T_w,new, number of components
+        merged into the anchor)."""
         if not edges:
-            return 0
+            return None, 0
         g = self.graph
         by_comp: dict[int, KeyframeEdge] = {}  # component root -> best edge
         for k, m, kind in edges:
@@ -298,13 +429,12 @@ class FragmentSlam:
         anchor = min(by_comp, key=g.component_oldest)
         k, m, _ = by_comp[anchor]
         T_wn = g.pose(k) @ m.T_ij
-        g.set_pose(node, T_wn)
         for c, (k, m, _) in by_comp.items():
             if c == anchor:
                 continue
             G = T_wn @ invert_pose(m.T_ij) @ invert_pose(g.pose(k))
             g.transform_nodes(g.component_nodes(k), G)
-        return len(by_comp) - 1
+        return T_wn, len(by_comp) - 1
 
     # ------------------------------------------------------------------ global optimisation
     def optimization_due(self, node: int) -> bool:
@@ -362,22 +492,29 @@ class FragmentSlam:
 
     # ------------------------------------------------------------------ queries
     def main_fragments(self) -> set[int]:
-        """Fragments of the main component (a new set, O(its size))."""
-        return set(self.graph.main_component())
+        """Fragments whose node is in the main component (a new set, O(fragments))."""
+        in_main = self.graph.in_main
+        return {f for f, node in enumerate(self.frag_node) if in_main(node)}
 
     def in_main(self, fid: int) -> bool:
-        """Fragment ``fid`` is registered (in the main component); O(1)."""
-        return self.graph.in_main(fid)
+        """Fragment ``fid`` is registered (its node is in the main component); O(1)."""
+        return self.graph.in_main(self.frag_node[fid])
 
     def is_lone(self, fid: int) -> bool:
-        return not self.graph.in_main(fid)
+        return not self.in_main(fid)
 
     def pose_of_log(self, row: int) -> np.ndarray | None:
         """World pose of the frame in log row ``row`` (None when unregistered)."""
-        fid = self.log.fragment[row]
-        if fid < 0 or not self.graph.in_main(fid):
+        if self.log.fragment[row] < 0:
             return None
-        return self.graph.pose(fid) @ self.fragments[fid].pose(self.log.local[row])
+        node = self.log.node[row]
+        if node >= 0:  # its fragment is closed
+            return self.graph.pose(node) @ self.log.node_pose(row) if self.graph.in_main(node) else None
+        act = self.active  # a frame of the active fragment
+        assert act is not None and act.id == self.log.fragment[row]
+        if not self.graph.in_main(act.node):
+            return None
+        return self.graph.pose(act.node) @ act.node_pose(self.log.local[row])
 
     def current_pose(self) -> np.ndarray | None:
         """World pose of the last placed frame (None when lone or none)."""
@@ -387,9 +524,8 @@ class FragmentSlam:
         """Close the active fragment and optimise the main component one last time: whole
         up to ``final_optimize_nodes`` keyframes, else one sweep of overlapping
         ``max_optimize_nodes`` windows in keyframe order."""
+        self._close_active()
         t0 = time.perf_counter()
-        if self.active is not None and self.active.rel_poses is None:
-            self.active.close(self.cfg.posegraph)
         g = self.graph
         if g.edges:
             oldest = g.component_oldest(g.main_root)
@@ -430,10 +566,12 @@ class FragmentSlam:
         pruned = self.graph.n_pruned()
         kinds: dict[str, int] = defaultdict(int, self.graph.kind_counts())
         n_kf = len(self.keyframes)
+        act = self.active if self.active is not None and self.active.rel_poses is None else None
         return {
-            "fragments": len(self.fragments),
+            "fragments": self.n_fragments,
             "keyframes": n_kf,
-            "lone_fragments": len(self.fragments) - len(self.graph.main_component()),
+            "attached_fragments": self.n_attached,
+            "lone_fragments": self.n_fragments - len(self.main_fragments()),
             "lone_created": self.n_lone_created,
             "relocalised_keyframes": self.n_relocalised,
             "global_edges": self.graph.n_edges,
@@ -441,12 +579,12 @@ class FragmentSlam:
             "keyframe_edges": kinds["keyframe"],
             "loop_edges": kinds["loop"],
             "pruned_edges": pruned,
-            "pruned_edges_intra": sum(f.pruned for f in self.fragments),
-            "intra_edges": sum(f.n_edges for f in self.fragments),
+            "pruned_edges_intra": self.n_intra_pruned,
+            "intra_edges": self.n_intra_edges + (act.n_edges if act is not None else 0),
             "global_optimizations": self.n_optimizations,
             "windowed_optimizations": self.n_windowed_optimizations,
             "max_optimized_nodes": self.max_optimized_nodes,
-            "keyframe_candidates_per_keyframe": self.n_candidates_matched / n_kf if n_kf else 0.0,
+            "keyframe_candidates_per_fragment": self.n_candidates_matched / self.n_fragments if self.n_fragments else 0.0,
             "keyframe_matches_capped": self.n_edges_capped,
             "keyframe_matches_by_source": dict(self.candidate_sources),
             "new_fragment_reasons": dict(self.reasons),
