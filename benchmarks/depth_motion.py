@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -80,14 +81,15 @@ def carry(z_t: np.ndarray, z_s: np.ndarray, K: np.ndarray, T_st: np.ndarray):
     return uv_t[keep], uv_s[keep], zs[keep]
 
 
-def analyse(seq: Sequence, model: DepthModel, starts: list[int], gaps: list[int]) -> dict:
-    cam = seq.camera
-    K = cam.K
+def analyse(seq: Sequence, predict: Callable[[int], np.ndarray], starts: list[int], gaps: list[int]) -> dict:
+    """The measures of the module docstring for pairs (t, t + gap), t in ``starts``;
+    ``predict(i)``: the predicted depth (H, W) of frame i (metres, or the network's units)."""
+    K = seq.camera.K
     cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def frame(i: int) -> tuple[np.ndarray, np.ndarray]:
         if i not in cache:
-            cache[i] = (seq.read_depth(i).astype(np.float64), model.predict(seq.read_rgb(i), cam).astype(np.float64))
+            cache[i] = (seq.read_depth(i).astype(np.float64), np.asarray(predict(i), np.float64))
         return cache[i]
 
     def scale(i: int) -> float:
@@ -157,7 +159,8 @@ def main() -> None:
     starts = np.linspace(0, len(seq) - 1 - max(args.gaps), args.pairs).round().astype(int).tolist()
     rows = []
     for path in args.depth_model:
-        res = analyse(seq, DepthModel(path, args.threads, "--depth-model"), starts, args.gaps)
+        model = DepthModel(path, args.threads, "--depth-model")
+        res = analyse(seq, lambda i: model.predict(seq.read_rgb(i), seq.camera), starts, args.gaps)  # noqa: B023
         print(path, res, flush=True)
         for gap, r in res["gaps"].items():
             rows.append(
@@ -179,7 +182,8 @@ def main() -> None:
         "median cosine between t_est and t_true; the same Kabsch on the true depth (control); median change of "
         "the prediction's per-frame scale median(P/z) between the two frames, |log(s_{t+gap}/s_t)| (%); "
         "that scale's median and spread (CV) over all frames read.", "",
-        "| depth model | gap | pairs (points) | true |t| mm | true |Δlog z| % | slope | corr | |t| ratio | cos | "
+        "| depth model | gap | pairs (points) | true translation mm | true depth change % | slope | corr | "
+        "translation ratio | cos | "
         "GT-depth control ratio / cos | scale change % | scale median / CV |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows, ""])

@@ -42,3 +42,27 @@ def test_tracking_breaks_reports_a_black_frame(tmp_path):
     text = report.read_text()
     assert "Broken pairs (no accepted match): 2;" in text, text
     assert "| 10 | - | 0 |" in text and "| 11 | - |" in text and "too few keypoints" in text
+
+
+def test_depth_motion_measures_a_known_scale(tmp_path):
+    """benchmarks/depth_motion.py on a "network" that predicts a quarter of the true depth:
+    scale 0.25, depth changes that follow the true ones, translations a quarter of the true
+    ones in the right direction; the true-depth control recovers the motion."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import depth_motion
+    finally:
+        sys.path.pop(0)
+    from c3f_slam.io import Sequence
+    from datamodules.synthetic.fixture import make_tiny_sequence
+
+    seq = Sequence(make_tiny_sequence(tmp_path / "seq", frames=16, size=64, seed=2))
+    res = depth_motion.analyse(seq, lambda i: 0.25 * seq.read_depth(i), [0, 4, 8], [1, 3])
+    assert res["scale_median"] == pytest.approx(0.25) and res["scale_cv"] == pytest.approx(0.0, abs=1e-9)
+    for gap in (1, 3):
+        r = res["gaps"][gap]
+        assert r["pairs"] == 3 and r["points"] > 100
+        assert 0.9 < r["slope"] < 1.1 and r["corr"] > 0.9
+        assert r["ratio"] == pytest.approx(0.25, rel=0.1) and r["cos"] > 0.99
+        assert r["ratio_gt"] == pytest.approx(1.0, rel=0.05) and r["cos_gt"] > 0.99
+        assert r["scale_jump"] == pytest.approx(0.0, abs=1e-9)
