@@ -96,7 +96,7 @@ METHODS = {
 
 
 def run_one(seq: Path, out: Path, method: str, min_corr: int, mesh: bool, depth_model: str | None,
-            feature_model: str | None, depth_scale: float = 1.0) -> dict:
+            feature_model: str | None, depth_scale: float | None = None) -> dict:
     mode, descriptors, depth_source = METHODS[method]
     cfg = SlamConfig.preset_config("colon", mode=mode, min_consecutive_correspondences=min_corr, fuse=mesh)
     t = time.perf_counter()
@@ -104,7 +104,7 @@ def run_one(seq: Path, out: Path, method: str, min_corr: int, mesh: bool, depth_
         s = run_slam(seq, out, cfg, descriptors=descriptors, depth_source=depth_source, progress=False,
                      depth_model=depth_model if depth_source == "model" else None,
                      feature_model=feature_model if descriptors == "contrafeat" else None,
-                     depth_scale=depth_scale if depth_source == "model" else 1.0)
+                     depth_scale=depth_scale if depth_source == "model" else None)
     except Exception as exc:  # report, keep going
         return {"error": str(exc)}
     wall = time.perf_counter() - t
@@ -125,9 +125,9 @@ def main() -> None:
     ap.add_argument("--mesh", action="store_true", help="also fuse the mesh in the full run")
     ap.add_argument("--methods", nargs="+", default=["full", "odometry"], choices=list(METHODS))
     ap.add_argument("--depth-model", help="DepthNet ONNX export (methods *-predicted, c3fusion)")
-    ap.add_argument("--depth-scale", type=float, default=1.0,
-                    help="factor on the --depth-model depth (run --depth-scale; benchmarks/depth_motion.py measures "
-                         "it on a sequence with true depth)")
+    ap.add_argument("--depth-scale", type=float,
+                    help="factor on the --depth-model depth (run --depth-scale; default: the model's recorded "
+                         "metric_scale, else 1)")
     ap.add_argument("--feature-model", help="ContraFeat ONNX export (methods full-contrafeat, c3fusion)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="simulator override for the generated sequences (repeatable), e.g. path.closeups=0")
@@ -188,7 +188,7 @@ def main() -> None:
         f"centreline), {args.frames} frames at {args.size}x{args.size} px, seed {args.seed}; median ground-truth "
         f"motion per frame: {'; '.join(motion)} (the paper: 4,500 frames, ~0.3 mm per frame). Methods: "
         f"{', '.join(args.methods)} (see the script's docstring); depth model: {args.depth_model or '-'}"
-        f"{f' (depth x {args.depth_scale:g})' if args.depth_model and args.depth_scale != 1.0 else ''}; "
+        f"{f' (depth x {args.depth_scale:g})' if args.depth_model and args.depth_scale is not None else ''}; "
         f"feature model: {args.feature_model or '-'}."
         + (f" Simulator overrides: {' '.join(args.overrides)}." if args.overrides else ""),
         f"- Fragments: new fragment below {args.min_correspondences} filtered consecutive correspondences "

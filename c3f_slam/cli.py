@@ -39,10 +39,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints)")
     r.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video)")
     r.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model (default 2)")
-    r.add_argument("--depth-scale", type=float, default=1.0,
+    r.add_argument("--depth-scale", type=float,
                    help="multiply the --depth-model depth by this factor (self-supervised depth is known up to "
-                        "a scale, the thresholds are in metres; benchmarks/depth_motion.py measures it on a "
-                        "sequence with true depth; default 1)")
+                        "a scale, the thresholds are in metres); default: the factor the exporter measured on the "
+                        "training data (metadata depth.metric_scale), else 1")
     r.add_argument("--preset", default="colon", choices=("colon", "room"), help="scene scale of the thresholds")
     r.add_argument("--baseline", choices=("odometry",), help="frame-to-frame odometry only (no fragments/loops)")
     r.add_argument("--max-frames", type=int, help="process at most N frames")

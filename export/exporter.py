@@ -25,6 +25,7 @@ from c3f_models.depthnet import DepthNet, load_weights, read_checkpoint_weights
 from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write_text
 from c3f_slam.models.metadata import ModelMetadata, Preprocessing
+from export.calibration import metric_scale
 from export.frames import frames_from_source, parity_source
 from export.graphs import DepthGraph, DescriptorGraph, GraphSpec, PoseGraph
 from export.onnx_io import OPSET, OPSET_DEFORM, has_deform_conv, to_onnx, write_onnx
@@ -88,6 +89,16 @@ def preprocessing_of(datamodule, source) -> Preprocessing:
         cam = source.camera
         size = crop or (cam.width, cam.height)
     return Preprocessing(size=(int(size[0]), int(size[1])), crop=crop, specular_inpaint=bool(hp.get("specular", True)))
+
+
+def _metric_scale(depth_graph, datamodule, pre: Preprocessing) -> dict | None:
+    """:func:`export.calibration.metric_scale` on the data module's training sequences (None
+    without a sequence data module or without true depth)."""
+    if datamodule is None or not hasattr(datamodule, "split") or not hasattr(datamodule, "open_sequence"):
+        return None
+    paths = datamodule.split().get("train") or []
+    return metric_scale(depth_graph, [datamodule.open_sequence(p) for p in paths], pre,
+                        names=[p.name for p in paths])
 
 
 def _jsonable(obj) -> dict:
@@ -160,7 +171,12 @@ def export_model(
             net = model.depth_net
             depth = {"min_depth": net.min_depth, "max_depth": net.max_depth,
                      "conversion": "depth = 1 / (1/max_depth + (1/min_depth - 1/max_depth) * sigmoid_disparity), in graph",
-                     "scale": "training scale (monocular depth: metres up to the scale the self-supervision fixed)"}
+                     "scale": "training scale (monocular depth: metres up to the scale the self-supervision fixed; "
+                              "metric_scale, when present, is the factor to metres measured on the training data)"}
+            cal = _metric_scale(spec.module, datamodule, pre)
+            if cal is not None:
+                depth.update(metric_scale=cal["metric_scale"], metric_scale_spread=cal["spread"],
+                             metric_scale_frames=cal["frames"], metric_scale_source=cal["source"])
         meta = ModelMetadata(
             kind=spec.kind, inputs=inputs, outputs=outputs, preprocessing=pre, dynamic_batch=True,
             dynamic_size=dynamic_size, descriptor_dim=spec.output_channels if spec.kind == "descriptors" else None,

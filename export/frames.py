@@ -13,6 +13,11 @@ from c3f_slam.models.metadata import Preprocessing
 from c3f_slam.preprocess import prepare_network_input
 
 
+def evenly_spaced(n: int, count: int) -> np.ndarray:
+    """Indices of ``min(count, n)`` evenly spaced frames of an ``n``-frame sequence (sorted, unique)."""
+    return np.unique(np.linspace(0, n - 1, num=min(count, n)).round().astype(int))
+
+
 def frames_from_source(source, pre: Preprocessing, count: int = 4) -> torch.Tensor:
     """(count, 3, h, w) float32 RGB in [0, 1]: ``count`` evenly spaced frames of a sequence
     (anything with ``camera``, ``len`` and ``read_rgb``), through
@@ -20,7 +25,7 @@ def frames_from_source(source, pre: Preprocessing, count: int = 4) -> torch.Tens
     n = len(source)
     if n == 0:
         raise InputError(f"{getattr(source, 'name', source)}: the sequence has no frames")
-    picks = np.unique(np.linspace(0, n - 1, num=min(count, n)).round().astype(int))
+    picks = evenly_spaced(n, count)
     out = []
     for i in picks:
         rgb, _, _ = prepare_network_input(source.read_rgb(int(i)), source.camera, pre.crop, pre.size, pre.specular_inpaint,

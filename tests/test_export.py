@@ -218,3 +218,34 @@ def test_runtime_loader_reads_the_export(depth_export, sim_dataset):
         np.testing.assert_allclose(T, net.pose_net(_frame(seq_dir, 2), _frame(seq_dir, 3))[0].numpy(), atol=TOL)
     with pytest.raises(InputError, match="is a pose model, expected a depth model"):
         DepthModel(out / "posenet.onnx")
+
+
+def test_export_records_the_metric_scale_of_the_training_data(depth_export):
+    """depth.metric_scale = median over training frames of median(true) / median(predicted),
+    recomputed here through the runtime (onnxruntime, its own pre-processing) on the training
+    sequences of the recorded data settings; the SLAM runtime uses it by default."""
+    import cv2
+
+    from c3f_slam.models import DepthModel
+    from c3f_slam.pipeline.frontend import ModelDepth
+    from c3f_slam.preprocess import center_crop_resize
+    from datamodules.sequence import C3FSequenceDataModule
+
+    _, out = depth_export
+    meta = _metadata(out / "depthnet.onnx")
+    assert meta.depth["metric_scale"] > 0 and meta.depth["metric_scale_frames"] > 0
+    assert "training sequences" in meta.depth["metric_scale_source"]
+    dm = C3FSequenceDataModule(**meta.training_config["data"]["init_args"])
+    model = DepthModel(out / "depthnet.onnx", threads=1)
+    ratios = []
+    for path in dm.split()["train"]:
+        seq = Sequence(path)
+        for i in np.unique(np.linspace(0, len(seq) - 1, num=min(8, len(seq))).round().astype(int)):
+            pred, view = model.predict_network(seq.read_rgb(int(i)), seq.camera)
+            gt, _ = center_crop_resize(seq.read_depth(int(i)), seq.camera, None, view.size, cv2.INTER_NEAREST)
+            ok = (gt > 0) & (pred > 0)
+            ratios.append(np.median(gt[ok]) / np.median(pred[ok]))
+    assert len(ratios) == meta.depth["metric_scale_frames"]
+    assert meta.depth["metric_scale"] == pytest.approx(float(np.median(ratios)), rel=1e-3)
+    assert model.metric_scale == meta.depth["metric_scale"]
+    assert ModelDepth(model, Sequence(dm.split()["train"][0]).camera).scale_source == "model metadata"

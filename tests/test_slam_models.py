@@ -253,6 +253,24 @@ def test_model_depth_scale_multiplies_both_grids(tmp_path):
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(InputError, match="--depth-scale must be a positive number"):
             ModelDepth(model, CAM, scale=bad)
+    assert (ModelDepth(model, CAM).scale, ModelDepth(model, CAM).scale_source) == (1.0, "none")
+
+
+def test_model_depth_scale_defaults_to_the_recorded_metric_scale(tmp_path):
+    meta = fx.metadata("depth", SIZE, CROP)
+    meta.depth["metric_scale"] = 4.0
+    model = DepthModel(fx.write(tmp_path / "d.onnx", fx.depth_graph(SIZE), meta))
+    assert model.metric_scale == 4.0
+    frame = StreamFrame(3, 0.1, _ramp_frame(), None, "ok", 100.0)
+    provider = ModelDepth(model, CAM)
+    assert (provider.scale, provider.scale_source) == (4.0, "model metadata")
+    np.testing.assert_allclose(provider.predict(frame).network, 4.0 * model.predict_network(frame.rgb, CAM)[0],
+                               rtol=1e-6)
+    given = ModelDepth(model, CAM, scale=1.0)  # the option wins, also when it is 1
+    assert (given.scale, given.scale_source) == (1.0, "option")
+    for bad in ("x", -2.0, None):
+        meta.depth["metric_scale"] = bad
+        assert DepthModel(fx.write(tmp_path / "b.onnx", fx.depth_graph(SIZE), meta)).metric_scale is None
 
 
 def test_depth_scale_needs_model_depth(tiny_sequence, tmp_path, capsys):
@@ -298,7 +316,7 @@ def test_slam_model_depth_without_depth_folder(tiny_sequence, models, tmp_path):
                  "--min-correspondences", "15", "--depth-scale", "1.5", "--quiet"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "ok" and s["depth_source"] == "model" and s["descriptors"] == "sift"
-    assert s["depth_scale"] == 1.5
+    assert s["depth_scale"] == {"factor": 1.5, "source": "option"}
     assert s["frames"] == 8 and s["registered_frames"] >= 1 and (out / "trajectory.txt").is_file()
     assert not (out / CACHE_DIR).exists()
 
@@ -324,6 +342,11 @@ def test_inspect(models, tmp_path, capsys):
     for text in ("kind:            depth", "input size:      32x32", "depth [m]: (batch, 1, height, width)",
                  "centre crop:   56x56", "depth range:     0.01 .. 0.06", "sha256", "parity"):
         assert text in out, text
+    assert "metric scale" not in out
+    meta = fx.metadata("depth", SIZE, CROP)
+    meta.depth.update(metric_scale=5.9, metric_scale_frames=32, metric_scale_spread=0.12)
+    assert main(["inspect", str(fx.write(tmp_path / "scaled.onnx", fx.depth_graph(SIZE), meta))]) == 0
+    assert "metric scale:    x 5.9 to metres (training data, 32 frames, spread 0.12)" in capsys.readouterr().out
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"not onnx")
     assert main(["inspect", str(bad)]) == 2

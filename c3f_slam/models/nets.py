@@ -109,6 +109,18 @@ class DepthModel(FrameModel):
         d = self.metadata.depth or {}
         return (float(d["min_depth"]), float(d["max_depth"])) if "min_depth" in d and "max_depth" in d else None
 
+    @property
+    def metric_scale(self) -> float | None:
+        """Factor from the network's depth to metres measured on the training data at export
+        (``depth.metric_scale``; self-supervised depth is known only up to a scale), when
+        recorded and positive."""
+        v = (self.metadata.depth or {}).get("metric_scale")
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            return None
+        return v if np.isfinite(v) and v > 0 else None
+
     def predict_batch(self, images: np.ndarray) -> np.ndarray:
         """(B, 3, h, w) float32 network inputs -> (B, h, w) float32 depth, metres (non-finite -> 0)."""
         depth = self.onnx.run({"image": images})["depth"][:, 0]

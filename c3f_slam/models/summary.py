@@ -69,6 +69,10 @@ def format_metadata(meta: ModelMetadata, source: str = "model") -> str:
         d = meta.depth
         lines.append(f"  depth range:     {_num(d.get('min_depth'))} .. {_num(d.get('max_depth'))} m"
                      f"{'; ' + _short(d['conversion']) if d.get('conversion') else ''}")
+        if d.get("metric_scale") is not None:
+            lines.append(f"  metric scale:    x {_num(d.get('metric_scale'))} to metres (training data, "
+                         f"{d.get('metric_scale_frames', '?')} frames, spread {_num(d.get('metric_scale_spread'))}); "
+                         "applied by c3f_slam run unless --depth-scale")
     if meta.descriptor_dim is not None:
         lines.append(f"  descriptor dim:  {meta.descriptor_dim} (unit norm per pixel)")
     cfg = _flatten(meta.training_config) if meta.training_config else []

@@ -125,20 +125,27 @@ class ModelDepth:
 
     ``scale`` multiplies the network's depth (network and frame grids alike). A
     self-supervised DepthNet knows depth only up to a scale, and the runtime's thresholds are
-    in metres: ``benchmarks/depth_motion.py`` measures the factor on a sequence with true
-    depth (e.g. the simulator sequences the network was trained on); 1 uses the output as is.
+    in metres. None (default) takes the factor the exporter measured on the training data
+    (``DepthModel.metric_scale``), else 1; ``scale_source`` says which ("option", "model
+    metadata", "none"). ``benchmarks/depth_motion.py`` measures the factor on any sequence
+    with true depth.
     The prediction of the most recent frame is memoised (by frame index), so that the run
     loop can also store its network-grid depth for fusion without running the net twice.
     """
 
     name = "model"
 
-    def __init__(self, model: DepthModel, camera: PinholeCamera, scale: float = 1.0) -> None:
-        if not (np.isfinite(scale) and scale > 0):
+    def __init__(self, model: DepthModel, camera: PinholeCamera, scale: float | None = None) -> None:
+        if scale is not None and not (np.isfinite(scale) and scale > 0):
             raise InputError(f"--depth-scale must be a positive number, got {scale}")
         self.model = model
         self.camera = camera
-        self.scale = float(scale)
+        if scale is not None:
+            self.scale, self.scale_source = float(scale), "option"
+        elif model.metric_scale is not None:
+            self.scale, self.scale_source = model.metric_scale, "model metadata"
+        else:
+            self.scale, self.scale_source = 1.0, "none"
         self.view = model.view(camera)  # InputError now when the model's crop does not fit
         self._last: DepthPrediction | None = None
 

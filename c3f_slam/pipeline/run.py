@@ -71,7 +71,7 @@ def resolve_sources(
 def make_providers(
     descriptors: str | None = "sift", depth_source: str | None = "files", depth_model: str | None = None,
     feature_model: str | None = None, camera: PinholeCamera | None = None, threads: int = 2,
-    depth_scale: float = 1.0,
+    depth_scale: float | None = None,
 ) -> tuple[DescriptorProvider, DepthProvider]:
     """The descriptor and depth providers for the command-line choices (see
     :func:`resolve_sources`); model providers load their ONNX file (onnxruntime, ``threads``
@@ -113,7 +113,7 @@ def run_slam(
     slam_factory=None,
     camera: str | Path | PinholeCamera | None = None,
     threads: int = 2,
-    depth_scale: float = 1.0,
+    depth_scale: float | None = None,
 ) -> dict:
     """Run on ``sequence`` (folder, or video file with model depth) and write the outputs into
     ``out``; returns the summary.
@@ -121,7 +121,7 @@ def run_slam(
     ``descriptors`` / ``depth_source`` None follow the models given (:func:`resolve_sources`);
     ``camera``: intrinsics of a video (default camera.json beside it); ``threads``:
     onnxruntime intra-op threads; ``depth_scale``: factor on model depth (:class:`ModelDepth`;
-    only with model depth). Raises InputError (after writing summary.json with the
+    only with model depth; None: the model's recorded ``metric_scale``, else 1). Raises InputError (after writing summary.json with the
     error) on bad input, including a run in which no frame could be registered.
     ``slam_factory(cfg, K, metric, timings, keyframe_cache=folder or None)`` may replace the
     back-end (tests).
@@ -130,8 +130,7 @@ def run_slam(
     outputs = RunOutputs(out)
     summary: dict = {
         "sequence": str(sequence), "mode": cfg.mode, "descriptors": descriptors, "depth_source": depth_source,
-        "preset": cfg.preset, "stride": stride, "max_frames": max_frames, "depth_scale": depth_scale,
-        "status": "running",
+        "preset": cfg.preset, "stride": stride, "max_frames": max_frames, "status": "running",
         "config": cfg.as_dict(),
     }
     timings = Timings()
@@ -158,10 +157,12 @@ def run_slam(
         cam = stream.camera
         K = cam.K
         summary["camera"] = cam.to_dict()
-        if depth_scale != 1.0 and depth_source != "model":
+        if depth_scale is not None and depth_source != "model":
             raise InputError("--depth-scale applies to model depth (--depth-model) only")
         desc, depth_src = make_providers(descriptors, depth_source, depth_model, feature_model, cam, threads,
                                          depth_scale)
+        if isinstance(depth_src, ModelDepth):
+            summary["depth_scale"] = {"factor": depth_src.scale, "source": depth_src.scale_source}
         summary["models"] = {
             name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe()}
             for name, p in (("descriptors", desc), ("depth", depth_src)) if hasattr(p, "model")
