@@ -15,7 +15,8 @@ there: the true depth agrees within 5 %), and for each such surface point it com
 - the Kabsch fit of the predicted 3D points (all carried pixels, i.e. perfect matches):
   ``|t| ratio`` = |t_est| / |t_true| (median over pairs) and ``cos`` between t_est and t_true
   (median); the same fit on the true depth is the control (ratio 1, cos 1);
-- the per-frame scale of the prediction, s_t = median(P_t / z_t): its spread over the
+- the per-frame scale of the prediction, s_t = median(P_t) / median(z_t) (the inverse of
+  :func:`c3f_models.metrics.median_scale`, the exporter's metric scale): its spread over the
   sequence (CV) and its median change between the frames of a pair, |log(s_{t+gap} / s_t)|,
   next to the true median |d_true|. A scale that jumps by more than the true depth change
   swamps the motion.
@@ -37,48 +38,29 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from c3f_slam.geometry import backproject_pixels, invert_pose, project, transform_points  # noqa: E402
+from c3f_models.metrics import median_scale  # noqa: E402
+from c3f_slam.geometry import backproject_pixels, relative_pose  # noqa: E402
 from c3f_slam.io import Sequence  # noqa: E402
+from c3f_slam.matching.ground_truth import project_keypoints  # noqa: E402
 from c3f_slam.matching.kabsch import kabsch  # noqa: E402
+from c3f_slam.matching.points import sample_depth  # noqa: E402
 from c3f_slam.models import DepthModel  # noqa: E402
 
 STRIDE = 4  # pixel grid of frame t
 VISIBLE_TOL = 0.05  # true depth agreement in frame t + gap (relative)
 
 
-def bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """``img`` sampled at sub-pixel (u, v) (N, 2) inside the image; NaN where a neighbour is
-    invalid (<= 0 or not finite)."""
-    H, W = img.shape
-    u = np.clip(uv[:, 0], 0, W - 1.000001)
-    v = np.clip(uv[:, 1], 0, H - 1.000001)
-    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
-    a, b = u - u0, v - v0
-    q = np.stack([img[v0, u0], img[v0, u0 + 1], img[v0 + 1, u0], img[v0 + 1, u0 + 1]], 1)
-    w = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], 1)
-    out = (q * w).sum(1)
-    out[~(np.isfinite(q) & (q > 0)).all(1)] = np.nan
-    return out
-
-
-def carry(z_t: np.ndarray, z_s: np.ndarray, K: np.ndarray, T_st: np.ndarray):
-    """Grid pixels of frame t (true depth ``z_t``) carried into frame s by ``T_st`` (s <- t):
-    (pixels (u, v) in t, sub-pixel (u, v) in s, true z in s) of the points visible in s (the
-    true depth of frame s there, bilinear, agrees within ``VISIBLE_TOL``)."""
+def carry(z_t: np.ndarray, z_s: np.ndarray, K: np.ndarray, T_wt: np.ndarray, T_ws: np.ndarray):
+    """Pixels of a ``STRIDE`` grid of frame t (true depth ``z_t``) carried into frame s with the
+    true poses (:func:`c3f_slam.matching.ground_truth.project_keypoints`): (pixels (u, v) in t,
+    sub-pixel (u, v) in s, true z in s) of those visible in s (frame s's true depth there
+    agrees within ``VISIBLE_TOL``)."""
     H, W = z_t.shape
     rows, cols = np.mgrid[0:H:STRIDE, 0:W:STRIDE]
-    rows, cols = rows.ravel(), cols.ravel()
-    z = z_t[rows, cols]
-    ok = np.isfinite(z) & (z > 0)
-    rows, cols, z = rows[ok], cols[ok], z[ok]
-    uv_t = np.stack([cols, rows], 1).astype(np.float64)
-    uv_s, zs = project(transform_points(T_st, backproject_pixels(uv_t, z, K)), K)
-    uv_s = np.nan_to_num(uv_s, nan=-1.0)
-    inside = (zs > 0) & (uv_s[:, 0] >= 0) & (uv_s[:, 0] <= W - 1) & (uv_s[:, 1] >= 0) & (uv_s[:, 1] <= H - 1)
-    keep = np.zeros(len(zs), bool)
-    zi = bilinear(z_s, uv_s[inside])
-    keep[np.flatnonzero(inside)] = np.isfinite(zi) & (np.abs(zi - zs[inside]) <= VISIBLE_TOL * zi)
-    return uv_t[keep], uv_s[keep], zs[keep]
+    uv_t = np.stack([cols.ravel(), rows.ravel()], 1).astype(np.float64)
+    proj = project_keypoints(uv_t, z_t, z_s, K, T_wt, T_ws, depth_tolerance=VISIBLE_TOL)
+    v = proj.visible
+    return uv_t[v], proj.uv[v], proj.depth[v]
 
 
 def analyse(seq: Sequence, predict: Callable[[int], np.ndarray], starts: list[int], gaps: list[int]) -> dict:
@@ -93,9 +75,9 @@ def analyse(seq: Sequence, predict: Callable[[int], np.ndarray], starts: list[in
         return cache[i]
 
     def scale(i: int) -> float:
+        """Predicted per true depth of frame i (the inverse of the metric scale)."""
         z, p = frame(i)
-        ok = np.isfinite(z) & (z > 0) & (p > 0)
-        return float(np.median(p[ok] / z[ok]))
+        return 1.0 / median_scale(p, z)
 
     out: dict = {}
     for gap in gaps:
@@ -105,11 +87,11 @@ def analyse(seq: Sequence, predict: Callable[[int], np.ndarray], starts: list[in
             if s >= len(seq):
                 continue
             (z_t, p_t), (z_s, p_s) = frame(t), frame(s)
-            T_st = invert_pose(seq.poses[s]) @ seq.poses[t]
-            uv_t, uv_s, zs = carry(z_t, z_s, K, T_st)
+            T_st = relative_pose(seq.poses[s], seq.poses[t])  # s <- t
+            uv_t, uv_s, zs = carry(z_t, z_s, K, seq.poses[t], seq.poses[s])
             r0, c0 = uv_t[:, 1].astype(int), uv_t[:, 0].astype(int)
-            pt, ps = p_t[r0, c0], bilinear(p_s, uv_s)
-            ok = (pt > 0) & np.isfinite(ps)
+            pt, ps = p_t[r0, c0], sample_depth(p_s, uv_s)
+            ok = (pt > 0) & (ps > 0)
             uv_t, uv_s, zs, pt, ps, r0, c0 = uv_t[ok], uv_s[ok], zs[ok], pt[ok], ps[ok], r0[ok], c0[ok]
             if len(zs) < 20:
                 continue
@@ -180,7 +162,7 @@ def main() -> None:
         "change of the same surface points (1 and 1: the prediction follows the motion; slope 0: it ignores it); "
         "Kabsch on the predicted 3D points of all carried pixels (perfect matches): median |t_est| / |t_true| and "
         "median cosine between t_est and t_true; the same Kabsch on the true depth (control); median change of "
-        "the prediction's per-frame scale median(P/z) between the two frames, |log(s_{t+gap}/s_t)| (%); "
+        "the prediction's per-frame scale median(P) / median(z) between the two frames, |log(s_{t+gap}/s_t)| (%); "
         "that scale's median and spread (CV) over all frames read.", "",
         "| depth model | gap | pairs (points) | true translation mm | true depth change % | slope | corr | "
         "translation ratio | cos | "

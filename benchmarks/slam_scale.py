@@ -94,7 +94,7 @@ def main() -> None:
             self._cpu = time.process_time()
             self._n = 0
             self._stages = dict.fromkeys(STAGES, 0.0)
-            self._kf = self._frag = self._pairs = self._opts = self._win = 0
+            self._frag = self._pairs = self._opts = self._win = 0
 
         def _tick(self) -> None:
             self._n += 1
@@ -111,8 +111,7 @@ def main() -> None:
                     pairs=(self.n_candidates_matched - self._pairs) / max(new_frag, 1),
                     opts=self.n_optimizations - self._opts, win=self.n_windowed_optimizations - self._win,
                 ))
-                self._t, self._cpu, self._stages, self._kf, self._frag = now, cpu, sec, len(self.keyframes), \
-                    self.n_fragments
+                self._t, self._cpu, self._stages, self._frag = now, cpu, sec, self.n_fragments
                 self._pairs, self._opts, self._win = self.n_candidates_matched, self.n_optimizations, \
                     self.n_windowed_optimizations
                 r = samples[-1]

@@ -47,6 +47,18 @@ def image_depth_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     }
 
 
+def median_scale(pred: Any, gt: Any, min_pixels: int = 1) -> float:
+    """median(gt) / median(pred) over the pixels where both are finite and positive: the
+    factor that brings a scale-ambiguous (self-supervised) prediction to the ground truth's
+    units (per-image median scaling; the exporter's ``depth.metric_scale``). NaN with fewer
+    than ``min_pixels`` such pixels."""
+    p, g = _as_numpy(pred).ravel(), _as_numpy(gt).ravel()
+    ok = np.isfinite(p) & np.isfinite(g) & (p > 0) & (g > 0)
+    if ok.sum() < max(min_pixels, 1):
+        return float("nan")
+    return float(np.median(g[ok]) / np.median(p[ok]))
+
+
 def depth_metrics(
     pred: Any,
     gt: Any,
@@ -86,7 +98,7 @@ def depth_metrics(
             continue
         pv, gv = pi[valid], gi[valid]
         cvs.append((float(np.std(pv) / np.mean(pv)), float(np.std(gv) / np.mean(gv))))
-        scales.append(float(np.median(gv) / np.median(pv)))
+        scales.append(median_scale(pv, gv))
         if median_scaling:
             pv = pv * scales[-1]
         pv = np.clip(pv, min_depth, max_depth)

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from c3f_models.metrics import median_scale
 from c3f_slam.models.metadata import Preprocessing
 from c3f_slam.preprocess import center_crop_resize
 
@@ -47,9 +48,9 @@ def metric_scale(
             pred = depth_graph(images)[:, 0].numpy()
         for p, i in zip(pred, picks):  # frames_from_source reads the same evenly spaced frames
             gt, _ = center_crop_resize(seq.read_depth(int(i)), seq.camera, pre.crop, pre.size, cv2.INTER_NEAREST)
-            ok = np.isfinite(gt) & (gt > 0) & np.isfinite(p) & (p > 0)
-            if ok.sum() >= 10:
-                ratios.append(float(np.median(gt[ok]) / np.median(p[ok])))
+            r = median_scale(p, gt, min_pixels=10)
+            if np.isfinite(r):
+                ratios.append(r)
         used.append(str(names[k]) if names is not None else getattr(seq, "name", str(k)))
     if not ratios:
         return None

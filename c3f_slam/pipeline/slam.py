@@ -42,7 +42,7 @@ import numpy as np
 
 from c3f_slam.evaluate import motion_magnitudes
 from c3f_slam.frustum import frustum_overlap
-from c3f_slam.geometry import invert_pose
+from c3f_slam.geometry import invert_pose, transform_points
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, match_frames
@@ -140,8 +140,7 @@ class FrameLog:
         """Rows ``row0 ..`` (a closed fragment's frames, in order) hang off ``node`` with
         node-from-frame ``poses`` (n, 4, 4)."""
         n = len(poses)
-        for r in range(row0, row0 + n):
-            self.node[r] = node
+        self.node[row0:row0 + n] = array("q", [node]) * n
         self.rel[16 * row0:16 * (row0 + n)] = array("d", np.ascontiguousarray(poses, np.float64).tobytes())
 
     def node_pose(self, row: int) -> np.ndarray:
@@ -303,8 +302,8 @@ class FragmentSlam:
             # after an overlap break, not the keyframe the frame just failed the test against
             # (that test also checks occlusions)
             skip = prev_frag.node if reason == OVERLAP and prev_frag is not None and prev_frag.base is None else -1
-            host = self._host([e for e in edges if e[0] != skip], depth, edges[0] if link is not None and edges
-                              and edges[0][2] == "odometry" else None)
+            odometry = edges[0] if edges and edges[0][2] == "odometry" else None
+            host = self._host([e for e in edges if e[0] != skip], depth, odometry)
         if host is not None:
             self.t.add("matching", t0)
             return self._attach(fid, feat, depth, reason, edges, host, prev_frag)
@@ -399,7 +398,7 @@ class FragmentSlam:
         loops = False
         for k, m, _ in keep[1:]:
             T_hk = m_host.T_ij @ invert_pose(m.T_ij)
-            pts_k = m.points_j @ m.T_ij[:3, :3].T + m.T_ij[:3, 3]  # the match's points in frame k
+            pts_k = transform_points(m.T_ij, m.points_j)  # the match's points in frame k
             g.add_edge(host, k, T_hk, points_j=pts_k, uncertain=True, kind="loop")
             loops = True
         self.n_attached += 1
