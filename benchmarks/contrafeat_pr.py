@@ -130,6 +130,13 @@ def main() -> None:
     ap.add_argument("--eval-stride", type=int, default=3, help="evaluate every n-th pair of each gap")
     ap.add_argument("--eval-batches", type=int, default=None, help="cap on evaluation batches per sequence")
     ap.add_argument("--lr", type=float, default=SMALL_MODEL["lr"], help="AdamW learning rate")
+    ap.add_argument("--dense-points", type=int, default=0,
+                    help="dense ground-truth correspondences per training pair added to the InfoNCE "
+                         "(model.dense_points; 0 = keypoint matches only, the paper's loss)")
+    ap.add_argument("--dense-spacing", type=int, default=4, help="grid cell of the dense samples, pixels")
+    ap.add_argument("--pretrained", type=Path, default=None,
+                    help="model.pretrained_path: a torchvision ResNet18 state dict or a DepthNet checkpoint "
+                         "(ResNet18, no DCN) whose depth encoder starts the backbone")
     ap.add_argument("--threads", type=int, default=1,
                     help="torch CPU threads (1 is fastest on a shared 2-core machine)")
     ap.add_argument("--seed", type=int, default=0)
@@ -156,7 +163,9 @@ def main() -> None:
               for split, names in (("train", train_seqs), ("test", test_seqs))}
     print(f"data ready in {t_data:.0f} s: train {train_seqs}, test {test_seqs}", flush=True)
 
-    model = ContraFeat(**{**SMALL_MODEL, "lr": args.lr})
+    model = ContraFeat(**{**SMALL_MODEL, "lr": args.lr, "dense_points": args.dense_points,
+                          "dense_spacing": args.dense_spacing,
+                          "pretrained_path": str(args.pretrained) if args.pretrained else None})
     t0 = time.time()
     untrained = evaluate(model, data / "test", test_seqs, args)
     t_eval = time.time() - t0
@@ -206,10 +215,15 @@ def main() -> None:
         f"- Median motion per frame (translation / rotation): training {motion['train']}, test {motion['test']} "
         f"(path.coverage {args.coverage:g}; the paper's sequences move ~0.3 mm per frame).",
         "- Model: `configs/contrafeat/small.yaml` (ResNet18 + FPN 64 ch, 128-d full-resolution descriptors), "
-        f"from scratch (no ImageNet weights), AdamW lr {args.lr:g}, {args.threads} torch thread(s), "
+        + ("from scratch (no ImageNet weights)" if args.pretrained is None else
+           f"backbone started from `{args.pretrained}` (no ImageNet weights)")
+        + f", AdamW lr {args.lr:g}, {args.threads} torch thread(s), "
         "InfoNCE tau = 0.01 (symmetric), "
         f"<= {SMALL_MODEL['max_keypoints']} SIFT keypoints per frame (contrast threshold "
-        f"{SMALL_MODEL['sift_contrast_threshold']}).",
+        f"{SMALL_MODEL['sift_contrast_threshold']}); "
+        + ("training loss on the keypoint matches only (the paper's)." if args.dense_points == 0 else
+           f"training loss on the keypoint matches plus up to {args.dense_points} dense ground-truth "
+           f"correspondences per pair (jittered {args.dense_spacing}-px grid; `model.dense_points`)."),
         f"- Training: {steps} steps of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
         f"{t_train / 60:.1f} min on CPU (limits: {args.steps} steps or {minutes:g} min). Training loss "
         f"{head:.3f} (first 10 % of steps) -> {tail:.3f} (last 10 %).",
@@ -238,7 +252,8 @@ def main() -> None:
         "",
         "## Notes",
         "",
-        f"- This is a CPU-budget run ({steps} steps from scratch at {args.size}x{args.size}); the paper trains for many "
+        f"- This is a CPU-budget run ({steps} steps {'from scratch' if args.pretrained is None else 'after the given init'} "
+        f"at {args.size}x{args.size}); the paper trains for many "
         "epochs on GPU at full resolution. Compare the CDF rows with the untrained control to see what the "
         "training budget bought, not with the paper's numbers.",
         "- kpf precision below 100 % with weak descriptors most likely comes from the tube's symmetry: wrong matches that "

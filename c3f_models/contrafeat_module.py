@@ -5,7 +5,11 @@ Batches are frame pairs (:class:`c3f_models.contrafeat.data.ContraFeatDataModule
 frame). Per step: SIFT keypoints on CPU (uint8 images, capped per frame, away from specular
 highlights), ground-truth matches from depth + poses
 (:func:`c3f_slam.matching.ground_truth_matches`), descriptors sampled from the network's
-full-resolution map, InfoNCE with tau = 0.01 over the matches of each pair.
+full-resolution map, InfoNCE with tau = 0.01 over the matches of each pair. With
+``dense_points > 0`` (off by default, i.e. the paper's loss), training pairs also carry dense
+ground-truth correspondences (pixels on a jittered grid moved with the true depth and poses);
+they join the pair's matches in the same InfoNCE, as positives and as negatives of every other
+match. Validation and test losses always use the keypoint matches only.
 
 Validation / test: ``{stage}/loss`` (the same InfoNCE) and the precision / recall of
 mutual-nearest-neighbour matches for SIFT descriptors (``sift``) and ContraFeat descriptors
@@ -26,7 +30,14 @@ from lightning.pytorch.loggers import TensorBoardLogger
 
 from c3f_models.contrafeat.loss import TAU, batch_info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
-from c3f_models.contrafeat.pairs import GroundTruthSettings, KeypointSettings, PairData, batch_frames, make_pairs
+from c3f_models.contrafeat.pairs import (
+    DenseSettings,
+    GroundTruthSettings,
+    KeypointSettings,
+    PairData,
+    batch_frames,
+    make_pairs,
+)
 from c3f_slam.errors import InputError
 from c3f_slam.matching import MatchCounts, MatchFilterConfig
 from c3f_slam.matching.evaluation import match_and_evaluate
@@ -41,7 +52,8 @@ class ContraFeat(L.LightningModule):
     Args:
         backbone_layers, descriptor_dim, fpn_channels, stem_channels, head_channels, pretrained_path:
             the network (:class:`c3f_models.contrafeat.network.ContraFeatNet`); the paper's
-            is ResNet18, c = 128; ``pretrained_path`` is a local torchvision ResNet state dict.
+            is ResNet18, c = 128; ``pretrained_path`` is a local torchvision ResNet state dict
+            (ImageNet) or a DepthNet checkpoint without DCN (its depth encoder).
         lr, weight_decay: AdamW (betas 0.9, 0.999).
         lr_milestones: epochs at which the learning rate is halved (empty = constant).
         tau: InfoNCE temperature (paper: 0.01).
@@ -53,6 +65,9 @@ class ContraFeat(L.LightningModule):
         pixel_radius: ground-truth and correctness radius, pixels.
         depth_tolerance: relative depth agreement for visibility (occlusion test).
         cdf_ratio, sift_ratio: optional ratio tests of the mutual-NN matching (evaluation).
+        dense_points: dense ground-truth correspondences sampled per training pair and added
+            to its InfoNCE (0 = keypoint matches only, the paper's loss).
+        dense_spacing: grid cell of the dense samples, pixels (samples >= spacing / 2 apart).
         filter_preset: ``colon`` or ``room`` keypoint-filter thresholds
             (:class:`c3f_slam.matching.MatchFilterConfig`); ``filter_overrides`` changes fields.
         num_visualisations: validation batches that log a match image (TensorBoard only).
@@ -79,6 +94,8 @@ class ContraFeat(L.LightningModule):
         depth_tolerance: float = 0.05,
         cdf_ratio: float | None = None,
         sift_ratio: float | None = None,
+        dense_points: int = 0,
+        dense_spacing: int = 4,
         filter_preset: str = "colon",
         filter_overrides: dict | None = None,
         num_visualisations: int = 4,
@@ -91,6 +108,9 @@ class ContraFeat(L.LightningModule):
             raise InputError(f"model.max_keypoints must be >= 2, got {max_keypoints}")
         if pixel_radius <= 0 or depth_tolerance <= 0:
             raise InputError("model.pixel_radius and model.depth_tolerance must be positive")
+        if dense_points < 0 or dense_spacing < 1:
+            raise InputError(f"model.dense_points must be >= 0 and model.dense_spacing >= 1, got {dense_points}, "
+                             f"{dense_spacing}")
         try:
             self.filter_cfg = MatchFilterConfig.preset(filter_preset, **(filter_overrides or {}))
         except TypeError as exc:
@@ -100,6 +120,7 @@ class ContraFeat(L.LightningModule):
         )
         self.kp_settings = KeypointSettings(max_keypoints, sift_contrast_threshold, keypoint_border, mask_specular)
         self.gt_settings = GroundTruthSettings(pixel_radius, depth_tolerance)
+        self.dense_settings = DenseSettings(dense_points, dense_spacing, keypoint_border)
         self._counts: dict[str, MatchCounts] = {}
         self._visuals: list[np.ndarray] = []
 
@@ -128,32 +149,45 @@ class ContraFeat(L.LightningModule):
     def _matched_descriptors(
         self, maps: torch.Tensor, pairs: list[PairData]
     ) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Descriptors of each pair's matches (keypoint matches, then its dense correspondences if any)."""
         out = []
         for p in pairs:
-            xy_a = torch.as_tensor(p.kp_i.xy[p.gt[:, 0]], dtype=torch.float32, device=maps.device)
-            xy_b = torch.as_tensor(p.kp_j.xy[p.gt[:, 1]], dtype=torch.float32, device=maps.device)
+            xy_a, xy_b = p.kp_i.xy[p.gt[:, 0]], p.kp_j.xy[p.gt[:, 1]]
+            if p.dense is not None:
+                xy_a, xy_b = np.concatenate([xy_a, p.dense[0]]), np.concatenate([xy_b, p.dense[1]])
+            xy_a = torch.as_tensor(xy_a, dtype=torch.float32, device=maps.device)
+            xy_b = torch.as_tensor(xy_b, dtype=torch.float32, device=maps.device)
             out.append((sample_descriptors(maps[p.b, p.i], xy_a), sample_descriptors(maps[p.b, p.j], xy_b)))
         return out
 
-    def _loss(self, batch: dict, sift_descriptors: bool) -> tuple[torch.Tensor, torch.Tensor, list[PairData], dict]:
+    def _loss(
+        self, batch: dict, sift_descriptors: bool, dense: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor, list[PairData], dict]:
         maps = self._descriptor_maps(batch)
         frames = batch_frames(batch)
-        pairs = make_pairs(frames, self.kp_settings, self.gt_settings, sift_descriptors)
-        loss, n = batch_info_nce(self._matched_descriptors(maps, pairs), self.hparams.tau, self.hparams.symmetric_loss)
+        use_dense = dense and self.dense_settings.points > 0
+        rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, ()))) if use_dense else None  # follows the seed
+        pairs = make_pairs(frames, self.kp_settings, self.gt_settings, sift_descriptors,
+                           self.dense_settings if use_dense else None, rng)
+        loss, _ = batch_info_nce(self._matched_descriptors(maps, pairs), self.hparams.tau, self.hparams.symmetric_loss)
         if loss is None:  # no pair with two matches: a zero loss keeps every process in step
             loss = maps.sum() * 0.0
         stats = {
-            "matches": n / max(len(pairs), 1),
+            # keypoint matches per pair (pairs with fewer than two carry no loss and count as 0)
+            "matches": sum(len(p.gt) for p in pairs if len(p.gt) >= 2) / max(len(pairs), 1),
+            "dense": float(np.mean([len(p.dense[0]) for p in pairs if p.dense is not None] or [0.0])),
             "keypoints": float(np.mean([len(p.kp_i) for p in pairs])) if pairs else 0.0,
         }
         return loss, maps, pairs, {"frames": frames, **stats}
 
     # ------------------------------------------------------------------ training
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        loss, _, _, stats = self._loss(batch, sift_descriptors=False)
+        loss, _, _, stats = self._loss(batch, sift_descriptors=False, dense=True)
         bs = batch["image"].shape[0]
         self.log("train/loss", loss, prog_bar=True, batch_size=bs)
         self.log("train/matches", stats["matches"], batch_size=bs)
+        if self.dense_settings.points > 0:
+            self.log("train/dense_matches", stats["dense"], batch_size=bs)
         self.log("train/keypoints", stats["keypoints"], batch_size=bs)
         return loss
 

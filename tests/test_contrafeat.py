@@ -88,6 +88,25 @@ def test_pretrained_weights_local_file(tmp_path):
     torch.testing.assert_close(net.layer3[0].conv1.weight, ref.layer3[0].conv1.weight)
 
 
+@pytest.mark.parametrize("dcn", [False, True])
+def test_pretrained_from_depthnet_checkpoint(tmp_path, dcn):
+    """A DepthNet checkpoint's depth encoder starts ContraFeat (a DCN encoder does not fit)."""
+    from c3f_models.depthnet import DepthNet
+
+    depth = DepthNet(encoder_layers=18, dcn=dcn, pose_encoder_layers=18)
+    ckpt = tmp_path / "depthnet.ckpt"
+    torch.save({"state_dict": depth.state_dict(), "global_step": 3}, ckpt)
+    if dcn:
+        with pytest.raises(InputError, match="unexpected keys"):
+            ContraFeatNet(pretrained_path=ckpt, **TINY)
+        return
+    net = ContraFeatNet(pretrained_path=ckpt, **TINY)
+    enc = depth.depth_net.encoder
+    torch.testing.assert_close(net.layer4[1].conv2.weight, enc.layer4[1].conv2.weight)
+    torch.testing.assert_close(net.bn1.running_var, enc.bn1.running_var)
+    torch.testing.assert_close(net.conv1.weight, enc.conv1.weight)
+
+
 def test_gap_pairs(plane_dataset):
     seqs = [Sequence(p) for p in sorted(plane_dataset.iterdir())]
     train = GapPairDataset(seqs, [1, 2, 4, 8], random_gap=True, specular=False)
@@ -158,3 +177,72 @@ def test_configs_parse(name, monkeypatch):
     cli = main(["--config", str(ROOT / f"configs/contrafeat/{name}.yaml"), "--trainer.logger", "false"], run=False)
     assert isinstance(cli.model, ContraFeat) and isinstance(cli.datamodule, ContraFeatDataModule)
     assert cli.model.hparams.descriptor_dim == 128 and cli.model.hparams.tau == 0.01
+
+
+def _plane_frames(tx: float = 0.0, depth_j_scale: float = 1.0):
+    """Two 40x48 frames of a fronto-parallel plane at 0.05 m; camera j moved by tx (metres) along x."""
+    from c3f_models.contrafeat.pairs import Frame
+
+    h, w, z = 40, 48, 0.05
+    K = np.array([[40.0, 0, 23.5], [0, 40.0, 19.5], [0, 0, 1]])
+    pose_j = np.eye(4)
+    pose_j[0, 3] = tx
+    img = np.zeros((h, w, 3), np.uint8)
+    fi = Frame(img, np.full((h, w), z, np.float32), K, np.eye(4))
+    fj = Frame(img, np.full((h, w), z * depth_j_scale, np.float32), K, pose_j)
+    return fi, fj
+
+
+def test_dense_correspondences_follow_the_true_motion():
+    from c3f_models.contrafeat.pairs import DenseSettings, GroundTruthSettings, dense_correspondences
+
+    settings, gt = DenseSettings(points=60, spacing=4, border=2), GroundTruthSettings()
+    rng = np.random.default_rng(0)
+    fi, fj = _plane_frames()
+    xy, uv = dense_correspondences(fi, fj, settings, gt, rng)
+    assert len(xy) == 60 and np.allclose(xy, uv)  # identity pose: every pixel maps to itself
+    gaps = np.linalg.norm(xy[:, None] - xy[None], axis=2) + 1e3 * np.eye(len(xy))
+    assert gaps.min() >= 2.0  # at least spacing / 2 apart
+    assert xy.min() >= 2 and xy[:, 0].max() <= 47 - 2 and xy[:, 1].max() <= 39 - 2
+    # camera moved +5 mm along x at 50 mm depth: the scene shifts by -fx * tx / z = -4 px
+    fi, fj = _plane_frames(tx=0.005)
+    xy, uv = dense_correspondences(fi, fj, DenseSettings(points=500), gt, rng)
+    assert len(xy) > 50
+    np.testing.assert_allclose(uv - xy, np.tile([-4.0, 0.0], (len(xy), 1)), atol=1e-9)
+    assert uv[:, 0].min() >= 2  # samples leaving the view (or the border) are dropped
+    # j sees another surface there (depth disagrees by 30 %): occluded, no correspondence
+    fi, fj = _plane_frames(depth_j_scale=0.7)
+    assert len(dense_correspondences(fi, fj, settings, gt, rng)[0]) == 0
+    # highlights: none sampled on i's, none landing on j's
+    fi, fj = _plane_frames()
+    fi.specular = np.zeros((40, 48), bool)
+    fi.specular[:, :24] = True
+    fj.specular = np.zeros((40, 48), bool)
+    fj.specular[:20] = True
+    xy, uv = dense_correspondences(fi, fj, DenseSettings(points=500), gt, rng)
+    assert len(xy) > 0 and (xy[:, 0] >= 24).all() and (np.rint(uv[:, 1]) >= 20).all()
+    xy_all, _ = dense_correspondences(fi, fj, DenseSettings(points=500), gt, rng, mask_specular=False)
+    assert len(xy_all) > 2 * len(xy)
+
+
+def test_module_dense_points_join_the_training_loss(plane_dataset):
+    dm = ContraFeatDataModule(str(plane_dataset), gaps=[1, 2], size=(48, 48), batch_size=2)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    plain, dense = _module(), _module(dense_points=64)
+    dense.load_state_dict(plain.state_dict())
+    torch.manual_seed(1)
+    loss_kp, _, pairs_kp, _ = plain._loss(batch, sift_descriptors=False, dense=True)
+    loss_d, _, pairs_d, stats = dense._loss(batch, sift_descriptors=False, dense=True)
+    assert all(p.dense is None for p in pairs_kp) and all(p.dense is not None for p in pairs_d)
+    assert 20 < stats["dense"] <= 64 and [len(p.gt) for p in pairs_kp] == [len(p.gt) for p in pairs_d]
+    assert not torch.isclose(loss_kp, loss_d)  # more positives and negatives: another loss
+    # evaluation losses never use them: the same as the paper's loss
+    loss_eval, _, pairs_eval, _ = dense._loss(batch, sift_descriptors=False)
+    assert all(p.dense is None for p in pairs_eval) and torch.isclose(loss_eval, loss_kp)
+    loss_d.backward()
+    assert dense.net.head[0].weight.grad.abs().sum() > 0
+    with pytest.raises(InputError, match="dense_points"):
+        _module(dense_points=-1)
+    with pytest.raises(InputError, match="dense_spacing"):
+        _module(dense_spacing=0)

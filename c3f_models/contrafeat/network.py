@@ -9,7 +9,8 @@ Descriptors are read at keypoints with :func:`sample_descriptors` (bilinear, pix
 integer coordinates: ``grid_sample(..., align_corners=True)``).
 
 Pretrained ImageNet weights are never downloaded: ``pretrained_path`` is a local file holding
-a torchvision ResNet ``state_dict`` (``torch.save(resnet18(weights=...).state_dict(), path)``).
+a torchvision ResNet ``state_dict`` (``torch.save(resnet18(weights=...).state_dict(), path)``),
+or a DepthNet checkpoint whose depth encoder is the same ResNet without DCN.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ class ContraFeatNet(nn.Module):
         fpn_channels: channels of the FPN levels.
         stem_channels: channels of the full-resolution stem that restores pixel detail.
         head_channels: hidden channels of the full-resolution 1x1 head (default: descriptor_dim).
-        pretrained_path: local torchvision ResNet state dict, or None (from scratch).
+        pretrained_path: local torchvision ResNet state dict, a DepthNet checkpoint (its depth
+            encoder, same depth, no DCN), or None (from scratch).
     """
 
     def __init__(

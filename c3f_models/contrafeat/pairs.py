@@ -3,6 +3,11 @@
 The batch layout is :mod:`datamodules.base`'s; frame 0 of each sample is paired with each
 later frame. SIFT runs on CPU on the uint8 version of the (inpainted) image, away from the
 specular highlights; the ground truth comes from :func:`c3f_slam.matching.ground_truth_matches`.
+
+Optionally (``DenseSettings.points > 0``, training only) a pair also carries dense
+correspondences: pixels of frame i on a jittered grid, moved into frame j with the true depth
+and poses (:func:`c3f_slam.matching.ground_truth.project_keypoints`), kept where visible. They
+are not keypoints; they add supervision (and negatives) to the InfoNCE of the pair.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import numpy as np
 import torch
 
 from c3f_slam.matching import Keypoints, Projection, detect_sift, ground_truth_matches
+from c3f_slam.matching.ground_truth import project_keypoints
 
 
 @dataclass
@@ -37,6 +43,7 @@ class PairData:
     kp_j: Keypoints
     gt: np.ndarray
     projection: Projection
+    dense: tuple[np.ndarray, np.ndarray] | None = None  # (D, 2) pixels in i, (D, 2) their positions in j
 
 
 @dataclass(frozen=True)
@@ -55,6 +62,58 @@ class GroundTruthSettings:
 
     pixel_radius: float = 2.0
     depth_tolerance: float = 0.05
+
+
+@dataclass(frozen=True)
+class DenseSettings:
+    """Dense correspondences added to the training loss (0 points = off, the paper's loss).
+
+    Attributes:
+        points: pixels sampled per pair in frame i (before the visibility test).
+        spacing: grid cell, pixels; one pixel per cell, jittered within the first half of the
+            cell, so two samples are at least ``spacing / 2`` pixels apart (close pixels would be
+            near-identical negatives).
+        border: keep samples (in i and in j) this many pixels from the border.
+    """
+
+    points: int = 0
+    spacing: int = 4
+    border: int = 2
+
+
+def dense_correspondences(
+    fi: Frame, fj: Frame, settings: DenseSettings, gt_settings: GroundTruthSettings,
+    rng: np.random.Generator, mask_specular: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(D, 2) pixels of frame i and (D, 2) their true positions in frame j (float64, D <= points).
+
+    Samples lie on a jittered grid over i where i has depth (and, with ``mask_specular``, no
+    highlight); they are projected into j with the true depth and poses and kept when
+    visible there (inside, depth agrees within ``gt_settings.depth_tolerance``), at least
+    ``border`` pixels inside, and not on a highlight of j.
+    """
+    h, w = fi.depth.shape
+    s, half = max(int(settings.spacing), 1), max(int(settings.spacing) // 2, 1)
+    gy, gx = np.mgrid[0:h:s, 0:w:s]
+    xy = np.stack([gx.ravel(), gy.ravel()], axis=1) + rng.integers(0, half, size=(gx.size, 2))
+    b = settings.border
+    xy = xy[(xy[:, 0] >= b) & (xy[:, 0] < w - b) & (xy[:, 1] >= b) & (xy[:, 1] < h - b)]
+    ok = fi.depth[xy[:, 1], xy[:, 0]] > 0
+    if mask_specular and fi.specular is not None:
+        ok &= ~fi.specular[xy[:, 1], xy[:, 0]]
+    xy = xy[ok]
+    if len(xy) > settings.points:
+        xy = xy[rng.choice(len(xy), settings.points, replace=False)]
+    xy = xy.astype(np.float64)
+    proj = project_keypoints(xy, fi.depth, fj.depth, fi.K, fi.pose, fj.pose, gt_settings.depth_tolerance)
+    uv = proj.uv
+    keep = proj.visible.copy()
+    with np.errstate(invalid="ignore"):
+        keep &= (uv[:, 0] >= b) & (uv[:, 0] <= w - 1 - b) & (uv[:, 1] >= b) & (uv[:, 1] <= h - 1 - b)
+    if mask_specular and fj.specular is not None and keep.any():
+        px = np.rint(uv[keep]).astype(np.int64)
+        keep[np.flatnonzero(keep)[fj.specular[px[:, 1], px[:, 0]]]] = False
+    return xy[keep], uv[keep]
 
 
 def batch_frames(batch: dict) -> list[list[Frame]]:
@@ -83,9 +142,16 @@ def frame_keypoints(frame: Frame, settings: KeypointSettings, descriptors: bool 
 
 def make_pairs(
     frames: list[list[Frame]], kp_settings: KeypointSettings, gt_settings: GroundTruthSettings,
-    sift_descriptors: bool = False,
+    sift_descriptors: bool = False, dense: DenseSettings | None = None, rng: np.random.Generator | None = None,
 ) -> list[PairData]:
-    """Pairs (frame 0, frame k) of every sample with keypoints and ground-truth matches."""
+    """Pairs (frame 0, frame k) of every sample with keypoints and ground-truth matches.
+
+    With ``dense`` (``points > 0``) each pair also gets :func:`dense_correspondences` drawn
+    with ``rng``.
+    """
+    use_dense = dense is not None and dense.points > 0
+    if use_dense and rng is None:
+        rng = np.random.default_rng()
     out = []
     for b, sample in enumerate(frames):
         kps = [frame_keypoints(f, kp_settings, sift_descriptors) for f in sample]
@@ -97,5 +163,8 @@ def make_pairs(
                 pixel_radius=gt_settings.pixel_radius, depth_tolerance=gt_settings.depth_tolerance,
                 return_projection=True,
             )
-            out.append(PairData(b, 0, j, kps[0], kps[j], gt, proj))
+            extra = (
+                dense_correspondences(fi, fj, dense, gt_settings, rng, kp_settings.mask_specular) if use_dense else None
+            )
+            out.append(PairData(b, 0, j, kps[0], kps[j], gt, proj, extra))
     return out

@@ -2,6 +2,9 @@
 
 Nothing is downloaded: ImageNet weights come only from a local file holding a torchvision
 ResNet ``state_dict`` (``torch.save(torchvision.models.resnet18(weights=...).state_dict(), path)``).
+A DepthNet checkpoint (``.ckpt`` of :class:`c3f_models.depthnet.DepthNet`) is accepted too: its
+depth encoder (keys ``depth_net.encoder.*``) is the ResNet that gets loaded, e.g. to start
+ContraFeat from an encoder trained self-supervised on colon video.
 Inputs are RGB in [0, 1]; the encoder applies the ImageNet normalisation itself.
 """
 
@@ -43,15 +46,29 @@ def read_state_dict(path: str | Path, option: str) -> dict[str, torch.Tensor]:
     return dict(state)
 
 
+DEPTH_ENCODER_PREFIX = "depth_net.encoder."  # DepthNet's depth encoder inside its LightningModule state
+
+
+def encoder_weights(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The ResNet part of a state dict: a torchvision state dict as is, or a DepthNet checkpoint's depth encoder."""
+    if "conv1.weight" not in state and DEPTH_ENCODER_PREFIX + "conv1.weight" in state:
+        n = len(DEPTH_ENCODER_PREFIX)
+        return {k[n:]: v for k, v in state.items() if k.startswith(DEPTH_ENCODER_PREFIX)}
+    return state
+
+
 def load_pretrained(resnet: models.ResNet, path: str | Path, num_input_images: int = 1,
                     option: str = "pretrained_path") -> None:
-    """Load a torchvision ResNet state dict into ``resnet`` (before any DCN swap).
+    """Load a torchvision ResNet state dict (or a DepthNet checkpoint's depth encoder) into ``resnet``.
+
+    Called before any DCN swap; a DepthNet encoder with DCN does not fit a plain ResNet (an
+    InputError lists the unexpected keys).
 
     For a multi-frame input (PoseNet) the first conv's RGB filters are repeated for every
     frame and divided by the number of frames (Monodepth2). The classifier (``fc.*``) is
     ignored. Missing, unexpected or mis-shaped keys raise an InputError naming the file.
     """
-    state = read_state_dict(path, option)
+    state = encoder_weights(read_state_dict(path, option))
     state = {k: v for k, v in state.items() if not k.startswith("fc.")}
     if num_input_images > 1 and "conv1.weight" in state and state["conv1.weight"].shape[1] == 3:
         w = state["conv1.weight"]
