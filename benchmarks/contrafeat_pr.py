@@ -43,6 +43,7 @@ SMALL_MODEL = dict(  # configs/contrafeat/small.yaml
     backbone_layers=18, descriptor_dim=128, fpn_channels=64, stem_channels=16, head_channels=64,
     lr=1e-3, weight_decay=1e-4, tau=0.01, max_keypoints=256, sift_contrast_threshold=0.005,
     keypoint_border=2, pixel_radius=2.0, depth_tolerance=0.05, filter_preset="colon", num_visualisations=0,
+    dense_points=512, dense_spacing=4,
 )
 
 
@@ -130,10 +131,11 @@ def main() -> None:
     ap.add_argument("--eval-stride", type=int, default=3, help="evaluate every n-th pair of each gap")
     ap.add_argument("--eval-batches", type=int, default=None, help="cap on evaluation batches per sequence")
     ap.add_argument("--lr", type=float, default=SMALL_MODEL["lr"], help="AdamW learning rate")
-    ap.add_argument("--dense-points", type=int, default=0,
+    ap.add_argument("--dense-points", type=int, default=SMALL_MODEL["dense_points"],
                     help="dense ground-truth correspondences per training pair added to the InfoNCE "
-                         "(model.dense_points; 0 = keypoint matches only, the paper's loss)")
-    ap.add_argument("--dense-spacing", type=int, default=4, help="grid cell of the dense samples, pixels")
+                         "(model.dense_points, as in small.yaml; 0 = keypoint matches only, the paper's loss)")
+    ap.add_argument("--dense-spacing", type=int, default=SMALL_MODEL["dense_spacing"],
+                    help="grid cell of the dense samples, pixels")
     ap.add_argument("--pretrained", type=Path, default=None,
                     help="model.pretrained_path: a torchvision ResNet18 state dict or a DepthNet checkpoint "
                          "(ResNet18, no DCN) whose depth encoder starts the backbone")

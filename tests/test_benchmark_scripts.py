@@ -66,3 +66,32 @@ def test_depth_motion_measures_a_known_scale(tmp_path):
         assert r["ratio"] == pytest.approx(0.25, rel=0.1) and r["cos"] > 0.99
         assert r["ratio_gt"] == pytest.approx(1.0, rel=0.05) and r["cos_gt"] > 0.99
         assert r["scale_jump"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp_path):
+    """benchmarks/contrafeat_match_image.py on a plane sequence with two (untrained) checkpoints:
+    one 2x-scaled side-by-side row per checkpoint, and a line of counts for each."""
+    import cv2
+    import torch
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from contrafeat_pr import SMALL_MODEL
+    finally:
+        sys.path.pop(0)
+    from c3f_models.contrafeat_module import ContraFeat
+
+    ckpts = []
+    for k in range(2):
+        torch.manual_seed(k)
+        ckpts.append(tmp_path / f"m{k}.ckpt")
+        torch.save({"state_dict": ContraFeat(**SMALL_MODEL).state_dict(), "global_step": 0}, ckpts[-1])
+    out = tmp_path / "img" / "matches.png"
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "contrafeat_match_image.py"), "--data",
+                        str(plane_dataset), "--seq", "plane0", "--gap", "1", "--size", "48", "--pair", "0",
+                        "--checkpoint", str(ckpts[0]), "--checkpoint", str(ckpts[1]), "--out", str(out)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    img = cv2.imread(str(out))
+    assert img.shape[:2] == (2 * 2 * 48, 2 * 2 * 48)  # two rows of two 48-px frames, scaled 2x
+    assert r.stdout.count("correct of") == 2 and not list(out.parent.glob("*.tmp.png"))
