@@ -52,6 +52,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="new fragment below this many consecutive correspondences (paper: 100)")
     r.add_argument("--min-overlap", type=float, help="new fragment below this frustum overlap (paper: 0.85)")
     r.add_argument("--max-keypoints", type=int, help="SIFT keypoints per frame (default 1000)")
+    r.add_argument("--ratio", type=float,
+                   help="ratio test on top of mutual nearest neighbours (best / second-best L2 distance, of unit "
+                        "vectors for ContraFeat; default 0.9); 0 = off")
     r.add_argument("--max-keyframe-candidates", type=int,
                    help="match a new keyframe against at most N earlier keyframes (recent, nearby, by appearance; "
                         "default 24); 0 = all keyframes and whole-component optimisation after every loop "
@@ -90,6 +93,10 @@ def _run(args: argparse.Namespace) -> int:
         over["min_overlap"] = args.min_overlap
     if args.max_keypoints is not None:
         over["max_keypoints"] = over["keyframe_keypoints"] = args.max_keypoints
+    if args.ratio is not None:
+        if not 0 <= args.ratio <= 1:
+            raise InputError(f"--ratio must be in [0, 1] (0 = off), got {args.ratio}")
+        over["ratio"] = args.ratio or None
     if args.max_keyframe_candidates is not None:
         if args.max_keyframe_candidates < 0:
             raise InputError(f"--max-keyframe-candidates must be >= 0, got {args.max_keyframe_candidates}")

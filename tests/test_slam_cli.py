@@ -80,14 +80,23 @@ def test_keyframe_candidates_option(seq, tmp_path, capsys):
     assert "--max-keyframe-candidates" in _error_line(capsys)
 
 
-def test_blas_threads_option(seq, tmp_path, capsys):
-    """--blas-threads N caps NumPy's BLAS threads during the run (default 1; 0 = the library's)."""
-    for args, expect in (([], 1), (["--blas-threads", "2"], 2), (["--blas-threads", "0"], None)):
-        out = tmp_path / f"b{len(args)}{args[-1] if args else ''}"
+@pytest.mark.parametrize(
+    "flag, key, cases, bad",
+    [
+        # --blas-threads N caps NumPy's BLAS threads during the run (default 1; 0 = the library's)
+        ("--blas-threads", "blas_threads", [(None, 1), ("2", 2), ("0", None)], "-1"),
+        # --ratio R: the matcher's ratio test (default 0.9; 0 = off; outside [0, 1] is an error)
+        ("--ratio", "ratio", [(None, 0.9), ("0.8", 0.8), ("0", None)], "1.5"),
+    ],
+)
+def test_option_reaches_config(seq, tmp_path, capsys, flag, key, cases, bad):
+    for value, expect in cases:
+        args = [] if value is None else [flag, value]
+        out = tmp_path / f"o{value}"
         assert main(["run", str(seq), "--out", str(out), "--max-frames", "3", "--no-mesh", "--quiet", *args]) == 0
-        assert json.loads((out / "summary.json").read_text())["config"]["blas_threads"] == expect
-    assert main(["run", str(seq), "--out", str(tmp_path / "bad"), "--blas-threads", "-1", "--quiet"]) == 2
-    assert "--blas-threads" in _error_line(capsys)
+        assert json.loads((out / "summary.json").read_text())["config"][key] == expect
+    assert main(["run", str(seq), "--out", str(tmp_path / "bad"), flag, bad, "--quiet"]) == 2
+    assert flag in _error_line(capsys)
 
 
 def test_missing_sequence(tmp_path, capsys):
