@@ -108,6 +108,26 @@ def table(results: dict[str, dict[str, float]]) -> list[str]:
     return lines
 
 
+def wrong_match_table(results: dict[str, dict[str, float]]) -> list[str]:
+    """Where the precision goes, averaged over the sequences (see c3f_slam.matching.evaluation).
+
+    A sequence without wrong matches has no shares; it is left out of those averages.
+    """
+    pct = lambda x: "n/a" if x is None or math.isnan(x) else f"{100 * x:.1f}"  # noqa: E731
+    lines = ["| | precision [%] | precision within 3 x radius [%] | near misses / wrong [%] | "
+             "near misses without counterpart / wrong [%] |", "|---|---|---|---|---|"]
+    def mean(values: list[float]) -> float:  # over the sequences where it is defined (a share needs a wrong match)
+        values = [v for v in values if not math.isnan(v)]
+        return sum(values) / len(values) if values else float("nan")
+
+    for m in METHODS:
+        avg = {k: mean([r[f"test/{m}_{k}"] for r in results.values()])
+               for k in ("precision", "near_precision", "near_miss_share", "no_counterpart_share")}
+        lines.append(f"| {LABELS[m]} | {pct(avg['precision'])} | {pct(avg['near_precision'])} | "
+                     f"{pct(avg['near_miss_share'])} | {pct(avg['no_counterpart_share'])} |")
+    return lines
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/c3f_contrafeat_pr"), help="sequences and logs")
@@ -139,6 +159,9 @@ def main() -> None:
     ap.add_argument("--pretrained", type=Path, default=None,
                     help="model.pretrained_path: a torchvision ResNet18 state dict or a DepthNet checkpoint "
                          "(ResNet18, no DCN) whose depth encoder starts the backbone")
+    ap.add_argument("--init-weights", type=Path, default=None,
+                    help="continue from a checkpoint this script saved (contrafeat_small.ckpt: all weights; "
+                         "a fresh optimiser); the untrained control then evaluates these weights")
     ap.add_argument("--threads", type=int, default=1,
                     help="torch CPU threads (1 is fastest on a shared 2-core machine)")
     ap.add_argument("--seed", type=int, default=0)
@@ -168,6 +191,15 @@ def main() -> None:
     model = ContraFeat(**{**SMALL_MODEL, "lr": args.lr, "dense_points": args.dense_points,
                           "dense_spacing": args.dense_spacing,
                           "pretrained_path": str(args.pretrained) if args.pretrained else None})
+    init_steps = 0
+    if args.init_weights is not None:
+        if not args.init_weights.is_file():
+            raise SystemExit(f"--init-weights: no such file: {args.init_weights}")
+        saved = torch.load(args.init_weights, map_location="cpu", weights_only=True)
+        if "state_dict" not in saved:
+            raise SystemExit(f"--init-weights: {args.init_weights} is not a checkpoint of this script (no state_dict)")
+        model.load_state_dict(saved["state_dict"])
+        init_steps = int(saved.get("global_step", 0))
     t0 = time.time()
     untrained = evaluate(model, data / "test", test_seqs, args)
     t_eval = time.time() - t0
@@ -185,7 +217,7 @@ def main() -> None:
     t0 = time.time()
     trainer.fit(model, dm)
     t_train = time.time() - t0
-    steps = trainer.global_step
+    steps = init_steps + trainer.global_step
     args.work.mkdir(parents=True, exist_ok=True)
     # the trained weights, loadable by `python -m c3f_models export` / export.export_model
     torch.save({"state_dict": model.state_dict(), "global_step": steps}, args.work / "contrafeat_small.ckpt")
@@ -217,7 +249,9 @@ def main() -> None:
         f"- Median motion per frame (translation / rotation): training {motion['train']}, test {motion['test']} "
         f"(path.coverage {args.coverage:g}; the paper's sequences move ~0.3 mm per frame).",
         "- Model: `configs/contrafeat/small.yaml` (ResNet18 + FPN 64 ch, 128-d full-resolution descriptors), "
-        + ("from scratch (no ImageNet weights)" if args.pretrained is None else
+        + (f"continued from `{args.init_weights}` ({init_steps} steps; fresh optimiser)"
+           if args.init_weights is not None else
+           "from scratch (no ImageNet weights)" if args.pretrained is None else
            f"backbone started from `{args.pretrained}` (no ImageNet weights)")
         + f", AdamW lr {args.lr:g}, {args.threads} torch thread(s), "
         "InfoNCE tau = 0.01 (symmetric), "
@@ -226,10 +260,10 @@ def main() -> None:
         + ("training loss on the keypoint matches only (the paper's)." if args.dense_points == 0 else
            f"training loss on the keypoint matches plus up to {args.dense_points} dense ground-truth "
            f"correspondences per pair (jittered {args.dense_spacing}-px grid; `model.dense_points`)."),
-        f"- Training: {steps} steps of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
+        f"- Training: {steps} steps ({steps - init_steps} in this run) of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
         f"{t_train / 60:.1f} min on CPU (limits: {args.steps} steps or {minutes:g} min). Training loss "
         f"{head:.3f} (first 10 % of steps) -> {tail:.3f} (last 10 %).",
-        f"- Evaluation: pairs at gaps {args.eval_gaps} (every {args.eval_stride}. pair of each gap), mutual nearest "
+        f"- Evaluation: pairs at gaps {args.eval_gaps} (one pair in {args.eval_stride} of each gap), mutual nearest "
         f"neighbours (SIFT L2, CDF cosine), no ratio test; ground truth and correctness radius "
         f"{SMALL_MODEL['pixel_radius']} px, occlusion tolerance {100 * SMALL_MODEL['depth_tolerance']:.0f} % of depth; "
         f"kpf = `MatchFilterConfig.colon()` on ground-truth depth (>= 10 matches, residual <= 1 mm, pairwise "
@@ -242,7 +276,15 @@ def main() -> None:
         "",
         *table(trained),
         "",
-        "## Untrained ContraFeat (same network at initialisation; control)",
+        "Where the precision goes (trained model; wrong matches split as in `c3f_slam.matching.evaluation`: "
+        f"a near miss lands within {3 * SMALL_MODEL['pixel_radius']:g} px of the true position; 'without "
+        f"counterpart' means frame j had no keypoint within {SMALL_MODEL['pixel_radius']:g} px of it, so no "
+        "correct match existed):",
+        "",
+        *wrong_match_table(trained),
+        "",
+        ("## Untrained ContraFeat (same network at initialisation; control)" if args.init_weights is None else
+         f"## Starting weights ({init_steps} steps; control)"),
         "",
         *table(untrained),
         "",
@@ -254,17 +296,23 @@ def main() -> None:
         "",
         "## Notes",
         "",
-        f"- This is a CPU-budget run ({steps} steps {'from scratch' if args.pretrained is None else 'after the given init'} "
+        f"- This is a CPU-budget run ({steps} steps "
+        f"{'from scratch' if args.pretrained is None and args.init_weights is None else 'after the given init'} "
         f"at {args.size}x{args.size}); the paper trains for many "
         "epochs on GPU at full resolution. Compare the CDF rows with the untrained control to see what the "
         "training budget bought, not with the paper's numbers.",
-        "- kpf precision below 100 % with weak descriptors most likely comes from the tube's symmetry: wrong matches that "
-        "are rotated about the lumen axis (or slid along it) fit one rigid motion, so the keypoint filter "
-        "cannot reject them (in an earlier run, the accepted wrong sets inspected by hand were 18-40 px off yet fit one motion within 1 mm). SIFT+kpf meets this less often because SIFT's wrong matches are less structured.",
+        "- Precision of CDF+kpf below 100 %: read the table above. Near misses (the right place, a keypoint "
+        "2-6 px off) pass the kpf when their metric error is below its 1 mm residual (1.5 px at 3 cm depth "
+        "for a 128x128 frame with fx 45 px); gross errors are what "
+        "geometry can reject. Weak (untrained or briefly trained) descriptors also make gross errors that fit "
+        "one rigid motion of the tube (rotated about or slid along its axis), 18-40 px off, which the kpf "
+        "accepts as well (seen by hand in an early run).",
         "",
     ]
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(lines))
+    tmp = args.out.with_suffix(".tmp")
+    tmp.write_text("\n".join(lines))
+    tmp.replace(args.out)
     print("\n".join(lines))
 
 

@@ -16,7 +16,11 @@ mutual-nearest-neighbour matches for SIFT descriptors (``sift``) and ContraFeat 
 (``cdf``), each without and with the keypoint filter (``*_kpf_*``, 3D points from the
 ground-truth depth): ``test/cdf_recall``, ``test/cdf_precision``, ``test/cdf_kpf_recall``,
 ``test/cdf_kpf_precision``, ``test/sift_recall``, ... Counts are summed over all pairs (and
-processes) before dividing. With a TensorBoard logger, validation also writes a few match
+processes) before dividing. Where the precision goes: ``{m}_near_precision`` (a wrong match
+within 3 x ``pixel_radius`` of the true position counts as right), ``{m}_near_miss_share``
+(near misses / wrong matches) and ``{m}_no_counterpart_share`` (near misses where j had no
+keypoint within ``pixel_radius`` at all / wrong matches); see
+:mod:`c3f_slam.matching.evaluation`. With a TensorBoard logger, validation also writes a few match
 images (CDF matches; green = correct, red = wrong).
 """
 
@@ -246,6 +250,12 @@ class ContraFeat(L.LightningModule):
             c = MatchCounts.from_array(row)
             self.log(f"{stage}/{m}_recall", c.recall, sync_dist=False)
             self.log(f"{stage}/{m}_precision", c.precision, sync_dist=False)
+            # where precision goes (c3f_slam.matching.evaluation): near misses vs gross errors
+            wrong = c.found - c.correct
+            self.log(f"{stage}/{m}_near_precision", c.near_precision, sync_dist=False)
+            self.log(f"{stage}/{m}_near_miss_share", c.near_misses / wrong if wrong else float("nan"), sync_dist=False)
+            self.log(f"{stage}/{m}_no_counterpart_share",
+                     c.near_misses_without_counterpart / wrong if wrong else float("nan"), sync_dist=False)
             if m.endswith("_kpf"):
                 self.log(f"{stage}/{m}_accept_rate", c.accepted_pairs / max(c.pairs, 1), sync_dist=False)
         self._counts = {}

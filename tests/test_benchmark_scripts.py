@@ -95,3 +95,39 @@ def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp
     img = cv2.imread(str(out))
     assert img.shape[:2] == (2 * 2 * 48, 2 * 2 * 48)  # two rows of two 48-px frames, scaled 2x
     assert r.stdout.count("correct of") == 2 and not list(out.parent.glob("*.tmp.png"))
+
+
+def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp_path):
+    """benchmarks/contrafeat_eval.py: one section per (checkpoint, kpf residual) with the paper's
+    table and the wrong-match split; the kpf threshold changes only the +kpf columns."""
+    import torch
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import contrafeat_eval
+        from contrafeat_pr import SMALL_MODEL
+    finally:
+        sys.path.pop(0)
+    from c3f_models.contrafeat_module import ContraFeat
+
+    torch.manual_seed(0)
+    ckpt = tmp_path / "m.ckpt"
+    torch.save({"state_dict": ContraFeat(**SMALL_MODEL).state_dict(), "global_step": 7}, ckpt)
+    out = tmp_path / "r" / "eval.md"
+    contrafeat_eval.main(["--data", str(plane_dataset), "--seqs", "plane0", "plane1", "--checkpoint", str(ckpt),
+                          "--max-residual-mm", "1.0", "0.05", "--size", "48", "--eval-gaps", "1",
+                          "--eval-stride", "1", "--threads", "1", "--out", str(out)])
+    text = out.read_text()
+    assert text.count("(7 steps), kpf residual") == 2 and not list(out.parent.glob("*.tmp"))
+    averages = [ln for ln in text.splitlines() if ln.startswith("| **average**")]
+    assert len(averages) == 2
+    cells = [[c.strip(" *") for c in ln.split("|")[2:6]] for ln in averages]  # SIFT, SIFT+kpf, CDF, CDF+kpf
+    assert cells[0][0] == cells[1][0] and cells[0][2] == cells[1][2]  # no kpf: the threshold plays no part
+    assert all("/" in c for c in cells[0])
+    assert text.count("| SIFT+kpf |") == 2  # the wrong-match split, once per section
+
+    bad = tmp_path / "bad.ckpt"
+    torch.save({"weights": 1}, bad)
+    with pytest.raises(SystemExit, match="bad.ckpt holds no state_dict"):
+        contrafeat_eval.main(["--data", str(plane_dataset), "--checkpoint", str(bad), "--out", str(out)])
+    assert out.read_text() == text  # the earlier report is intact

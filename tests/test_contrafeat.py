@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import sys
 from pathlib import Path
 
@@ -143,6 +145,11 @@ def test_module_fit_and_test_in_process(plane_dataset, tmp_path):
     for name in METHODS:
         assert 0 <= out[f"test/{name}_recall"] <= 1 and 0 <= out[f"test/{name}_precision"] <= 1
     assert out["test/sift_precision"] > 0.5  # small motion over a textured plane
+    for name in METHODS:  # near misses only add to the precision; nan where nothing was found
+        near, prec = out[f"test/{name}_near_precision"], out[f"test/{name}_precision"]
+        assert math.isnan(near) or prec <= near <= 1
+        share, lonely = out[f"test/{name}_near_miss_share"], out[f"test/{name}_no_counterpart_share"]
+        assert math.isnan(share) or 0 <= lonely <= share <= 1
     model.eval()
     desc = model.describe(torch.rand(3, 48, 48), np.array([[3.0, 4.0], [20.5, 30.25]]))
     assert desc.shape == (2, 128) and torch.allclose(desc.norm(dim=1), torch.ones(2))

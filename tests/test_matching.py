@@ -18,7 +18,7 @@ from c3f_slam.matching import (
     project_keypoints,
     sample_depth,
 )
-from c3f_slam.matching.evaluation import MatchCounts, evaluate_matches, match_and_evaluate
+from c3f_slam.matching.evaluation import MatchCounts, evaluate_matches, match_and_evaluate, near_misses
 from c3f_slam.matching.filters import spanned_area
 from c3f_slam.matching.visual import draw_matches
 from tests.scenes import plane_texture, render_plane
@@ -325,3 +325,28 @@ def test_draw_matches():
     img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), np.array([False]), scale=2)
     assert img.shape == (40, 120, 3) and img.dtype == np.uint8
     assert (img[..., 0] > 200).any() and not (img[..., 1] > 200).any()  # red only
+
+
+def test_near_misses_split_wrong_matches():
+    T_wi, T_wj = np.eye(4), _pose([0.0, 0.03, 0.0], [0.002, 0.0, 0.0])
+    _, d_i = _render(T_wi)
+    _, d_j = _render(T_wj)
+    kp_i = np.array([[30.0, 30.0], [50.0, 40.0], [60.0, 50.0], [40.0, 55.0]])
+    proj_j = _analytic_projection(kp_i, T_wi, T_wj)
+    # j: 0 re-detected exactly; 1 only 3 px away (no counterpart within 2 px); 2 exactly,
+    # plus a keypoint 4 px from it; 3 far from everything
+    kp_j = np.array([proj_j[0], proj_j[1] + [3.0, 0.0], proj_j[2], proj_j[2] + [0.0, 4.0], [5.0, 5.0]])
+    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, return_projection=True)
+    assert sorted(gt[:, 0].tolist()) == [0, 2]
+    found = np.array([[0, 0], [1, 1], [2, 3], [3, 4]])
+    c, correct = evaluate_matches(found, kp_j, gt, proj)
+    assert correct.tolist() == [True, False, False, False]
+    near, lonely = near_misses(found, kp_j, proj, correct)
+    assert near.tolist() == [False, True, True, False]  # 3 px and 4 px off are near; match 3 is gross
+    assert lonely.tolist() == [False, True, False, False]  # 2's counterpart existed, 1's did not
+    assert (c.near_misses, c.near_misses_without_counterpart, c.gross_errors) == (2, 1, 1)
+    assert np.isclose(c.near_precision, 3 / 4) and np.isclose(c.precision, 1 / 4)
+    # a tighter near radius makes the 4 px miss gross
+    near, _ = near_misses(found, kp_j, proj, correct, near_radius=3.5)
+    assert near.tolist() == [False, True, False, False]
+    assert MatchCounts.from_array(c.to_array()) == c

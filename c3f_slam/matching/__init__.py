@@ -20,7 +20,7 @@ arrays are (M, 2) int64 index pairs (index into frame i's keypoints, index into 
 """
 
 from c3f_slam.matching.descriptors import mutual_nearest_neighbours, sample_descriptor_map
-from c3f_slam.matching.evaluation import MatchCounts, classify_matches, evaluate_matches
+from c3f_slam.matching.evaluation import MatchCounts, classify_matches, evaluate_matches, near_misses
 from c3f_slam.matching.filters import FilterResult, MatchFilterConfig, filter_matches
 from c3f_slam.matching.ground_truth import Projection, ground_truth_matches, project_keypoints
 from c3f_slam.matching.kabsch import kabsch
@@ -41,6 +41,7 @@ __all__ = [
     "kabsch",
     "lift_keypoints",
     "mutual_nearest_neighbours",
+    "near_misses",
     "project_keypoints",
     "sample_depth",
     "sample_descriptor_map",
