@@ -1,7 +1,8 @@
 """Match images of ContraFeat checkpoints on one held-out frame pair, stacked top to bottom.
 
 Each row shows frame i (left) and frame j (right) with the mutual-nearest-neighbour CDF
-matches at SIFT keypoints: green = correct (ground truth within ``pixel_radius``), red = wrong.
+matches at SIFT keypoints: green = correct (ground truth within ``pixel_radius``), yellow = near
+miss (wrong, but within 3 x ``pixel_radius`` of the true position), red = other wrong.
 The checkpoints are those ``benchmarks/contrafeat_pr.py`` saves (small configuration).
 
     python benchmarks/contrafeat_match_image.py --data DIR/test --seq test_seq3 --gap 8 \
@@ -26,6 +27,7 @@ from contrafeat_pr import SMALL_MODEL  # noqa: E402
 from c3f_models.contrafeat.data import ContraFeatDataModule  # noqa: E402
 from c3f_models.contrafeat.pairs import batch_frames, make_pairs  # noqa: E402
 from c3f_models.contrafeat_module import ContraFeat  # noqa: E402
+from c3f_slam.matching.evaluation import near_misses  # noqa: E402
 from c3f_slam.matching.visual import draw_matches  # noqa: E402
 
 
@@ -56,9 +58,10 @@ def main() -> None:
         counts, details = model.evaluate_pairs(maps, frames, pairs)
         p, ev = details[args.pair]
         fi, fj = frames[p.b][p.i], frames[p.b][p.j]
-        rows.append(draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, ev.correct, scale=2))
+        near, _ = near_misses(ev.matches, p.kp_j.xy, p.projection, ev.correct, model.hparams.pixel_radius)
+        rows.append(draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, ev.correct, scale=2, near=near))
         print(f"{ckpt}: this pair {int(np.sum(ev.correct))} correct of {len(ev.matches)} matches "
-              f"({len(p.gt)} ground-truth); first batch CDF recall/precision "
+              f"({int(np.sum(near))} of the wrong ones near misses; {len(p.gt)} ground-truth); first batch CDF recall/precision "
               f"{100 * counts['cdf'].recall:.1f}/{100 * counts['cdf'].precision:.1f} %, "
               f"SIFT {100 * counts['sift'].recall:.1f}/{100 * counts['sift'].precision:.1f} %")
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -21,7 +21,7 @@ within 3 x ``pixel_radius`` of the true position counts as right), ``{m}_near_mi
 (near misses / wrong matches) and ``{m}_no_counterpart_share`` (near misses where j had no
 keypoint within ``pixel_radius`` at all / wrong matches); see
 :mod:`c3f_slam.matching.evaluation`. With a TensorBoard logger, validation also writes a few match
-images (CDF matches; green = correct, red = wrong).
+images (CDF matches; green = correct, yellow = near miss, red = other wrong).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from c3f_models.contrafeat.pairs import (
 )
 from c3f_slam.errors import InputError
 from c3f_slam.matching import MatchCounts, MatchFilterConfig
-from c3f_slam.matching.evaluation import match_and_evaluate
+from c3f_slam.matching.evaluation import match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches
 
 METHODS = ("sift", "sift_kpf", "cdf", "cdf_kpf")
@@ -237,7 +237,9 @@ class ContraFeat(L.LightningModule):
             fi, fj = stats["frames"][p.b][p.i], stats["frames"][p.b][p.j]
             scale = max(1, 256 // fi.image.shape[0])
             self._visuals.append(
-                draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, ev.correct, scale=scale)
+                draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, ev.correct, scale=scale,
+                             near=near_misses(ev.matches, p.kp_j.xy, p.projection, ev.correct,
+                                              self.hparams.pixel_radius)[0])
             )
 
     def _eval_epoch_end(self, stage: str) -> None:

@@ -325,6 +325,10 @@ def test_draw_matches():
     img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), np.array([False]), scale=2)
     assert img.shape == (40, 120, 3) and img.dtype == np.uint8
     assert (img[..., 0] > 200).any() and not (img[..., 1] > 200).any()  # red only
+    img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), np.array([False]), scale=2, near=np.array([True]))
+    assert ((img[..., 0] > 200) & (img[..., 1] > 200) & (img[..., 2] < 100)).any()  # yellow
+    img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), np.array([True]), scale=2, near=np.array([True]))
+    assert (img[..., 1] > 200).any() and not (img[..., 0] > 100).any()  # a correct match stays green
 
 
 def test_near_misses_split_wrong_matches():
