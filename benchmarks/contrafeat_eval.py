@@ -23,26 +23,17 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import torch  # noqa: E402
-from contrafeat_pr import SMALL_MODEL, evaluate, table, wrong_match_table  # noqa: E402
+from contrafeat_pr import SMALL_MODEL, evaluate, load_weights, table, wrong_match_table  # noqa: E402
 
 from c3f_models.contrafeat_module import ContraFeat  # noqa: E402
 
 
 def load(ckpt: Path, residual_m: float) -> tuple[ContraFeat, int]:
     """The small-configuration model with the checkpoint's weights and the given kpf residual."""
-    if not ckpt.is_file():
-        raise SystemExit(f"--checkpoint: no such file: {ckpt}")
-    saved = torch.load(ckpt, map_location="cpu", weights_only=True)
-    if "state_dict" not in saved:
-        raise SystemExit(f"--checkpoint: {ckpt} holds no state_dict (not a ContraFeat checkpoint)")
     model = ContraFeat(**{**SMALL_MODEL, "filter_overrides": {"max_residual": residual_m,
                                                                "pairwise_tolerance": 2 * residual_m}})
-    try:
-        model.load_state_dict(saved["state_dict"])
-    except RuntimeError as e:
-        raise SystemExit(f"--checkpoint: {ckpt} does not fit the small ContraFeat configuration: "
-                         f"{str(e).splitlines()[0]}") from None
-    return model.eval(), int(saved.get("global_step", -1))
+    steps = load_weights(model, ckpt)
+    return model.eval(), steps
 
 
 def main(argv: list[str] | None = None) -> None:

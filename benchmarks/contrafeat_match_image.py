@@ -22,7 +22,7 @@ sys.path.insert(0, str(ROOT))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from contrafeat_pr import SMALL_MODEL  # noqa: E402
+from contrafeat_pr import SMALL_MODEL, load_weights  # noqa: E402
 
 from c3f_models.contrafeat.data import ContraFeatDataModule  # noqa: E402
 from c3f_models.contrafeat.pairs import batch_frames, make_pairs  # noqa: E402
@@ -50,7 +50,7 @@ def main() -> None:
     rows = []
     for ckpt in args.checkpoint:
         model = ContraFeat(**SMALL_MODEL)
-        model.load_state_dict(torch.load(ckpt, map_location="cpu", weights_only=True)["state_dict"])
+        load_weights(model, ckpt)
         model.eval()
         with torch.no_grad():
             maps = model._descriptor_maps(batch)

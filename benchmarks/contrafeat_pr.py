@@ -47,6 +47,25 @@ SMALL_MODEL = dict(  # configs/contrafeat/small.yaml
 )
 
 
+def load_weights(model: ContraFeat, ckpt: Path, option: str = "--checkpoint") -> int:
+    """Load a checkpoint this script saved into ``model``; returns its step count.
+
+    Exits with one line naming ``option`` and the file when it is missing, holds no
+    ``state_dict`` or does not fit the model.
+    """
+    if not ckpt.is_file():
+        raise SystemExit(f"{option}: no such file: {ckpt}")
+    saved = torch.load(ckpt, map_location="cpu", weights_only=True)
+    if not isinstance(saved, dict) or "state_dict" not in saved:
+        raise SystemExit(f"{option}: {ckpt} holds no state_dict (not a ContraFeat checkpoint)")
+    try:
+        model.load_state_dict(saved["state_dict"])
+    except RuntimeError as e:
+        raise SystemExit(f"{option}: {ckpt} does not fit the small ContraFeat configuration: "
+                         f"{str(e).splitlines()[0]}") from None
+    return int(saved.get("global_step", 0))
+
+
 def generate(preset: str, seed: int, frames: int, size: int, out: Path, coverage: float) -> None:
     if (out / "rgb").is_dir() and (out / "poses.txt").is_file():
         return
@@ -191,15 +210,7 @@ def main() -> None:
     model = ContraFeat(**{**SMALL_MODEL, "lr": args.lr, "dense_points": args.dense_points,
                           "dense_spacing": args.dense_spacing,
                           "pretrained_path": str(args.pretrained) if args.pretrained else None})
-    init_steps = 0
-    if args.init_weights is not None:
-        if not args.init_weights.is_file():
-            raise SystemExit(f"--init-weights: no such file: {args.init_weights}")
-        saved = torch.load(args.init_weights, map_location="cpu", weights_only=True)
-        if "state_dict" not in saved:
-            raise SystemExit(f"--init-weights: {args.init_weights} is not a checkpoint of this script (no state_dict)")
-        model.load_state_dict(saved["state_dict"])
-        init_steps = int(saved.get("global_step", 0))
+    init_steps = 0 if args.init_weights is None else load_weights(model, args.init_weights, "--init-weights")
     t0 = time.time()
     untrained = evaluate(model, data / "test", test_seqs, args)
     t_eval = time.time() - t0

@@ -253,11 +253,8 @@ class ContraFeat(L.LightningModule):
             self.log(f"{stage}/{m}_recall", c.recall, sync_dist=False)
             self.log(f"{stage}/{m}_precision", c.precision, sync_dist=False)
             # where precision goes (c3f_slam.matching.evaluation): near misses vs gross errors
-            wrong = c.found - c.correct
-            self.log(f"{stage}/{m}_near_precision", c.near_precision, sync_dist=False)
-            self.log(f"{stage}/{m}_near_miss_share", c.near_misses / wrong if wrong else float("nan"), sync_dist=False)
-            self.log(f"{stage}/{m}_no_counterpart_share",
-                     c.near_misses_without_counterpart / wrong if wrong else float("nan"), sync_dist=False)
+            for name in ("near_precision", "near_miss_share", "no_counterpart_share"):
+                self.log(f"{stage}/{m}_{name}", getattr(c, name), sync_dist=False)
             if m.endswith("_kpf"):
                 self.log(f"{stage}/{m}_accept_rate", c.accepted_pairs / max(c.pairs, 1), sync_dist=False)
         self._counts = {}

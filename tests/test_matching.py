@@ -350,6 +350,8 @@ def test_near_misses_split_wrong_matches():
     assert lonely.tolist() == [False, True, False, False]  # 2's counterpart existed, 1's did not
     assert (c.near_misses, c.near_misses_without_counterpart, c.gross_errors) == (2, 1, 1)
     assert np.isclose(c.near_precision, 3 / 4) and np.isclose(c.precision, 1 / 4)
+    assert np.isclose(c.near_miss_share, 2 / 3) and np.isclose(c.no_counterpart_share, 1 / 3)
+    assert np.isnan(MatchCounts().near_miss_share)
     # a tighter near radius makes the 4 px miss gross
     near, _ = near_misses(found, kp_j, proj, correct, near_radius=3.5)
     assert near.tolist() == [False, True, False, False]

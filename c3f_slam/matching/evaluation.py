@@ -60,6 +60,18 @@ class MatchCounts:
         return self.found - self.correct - self.near_misses
 
     @property
+    def near_miss_share(self) -> float:
+        """Near misses / wrong matches (NaN without wrong matches)."""
+        wrong = self.found - self.correct
+        return self.near_misses / wrong if wrong else float("nan")
+
+    @property
+    def no_counterpart_share(self) -> float:
+        """Near misses without counterpart / wrong matches (NaN without wrong matches)."""
+        wrong = self.found - self.correct
+        return self.near_misses_without_counterpart / wrong if wrong else float("nan")
+
+    @property
     def near_precision(self) -> float:
         """(correct + near misses) / found: precision at the near radius (NaN when nothing was found)."""
         return (self.correct + self.near_misses) / self.found if self.found else float("nan")
