@@ -38,6 +38,7 @@ from torch.utils.data import DataLoader, Dataset
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
 from c3f_slam.preprocess import center_crop_resize, prepare_network_input
+from datamodules.formats import SequenceFormat, find_sequences
 
 
 class FrameSource(Protocol):
@@ -168,9 +169,9 @@ def split_names(
 class SequenceDataModule(L.LightningDataModule):
     """Base data module over a folder of sequences, split by whole sequence.
 
-    Subclasses say how to find and open their sequences (:meth:`find_sequences`,
-    :meth:`open_sequence`); everything else (tuples, pre-processing, splits, loaders) is
-    shared. The splits are either given by name (``train``/``val``/``test``) or made from
+    Subclasses say which layout their sequences have (:meth:`sequence_format`, one of
+    :mod:`datamodules.formats`); everything else (finding sequences, tuples, pre-processing,
+    splits, loaders) is shared. The splits are either given by name (``train``/``val``/``test``) or made from
     the sorted names with ``val_fraction``/``test_fraction``.
 
     Args:
@@ -209,31 +210,52 @@ class SequenceDataModule(L.LightningDataModule):
         self.datasets: dict[str, FrameTupleDataset] = {}
 
     # ----------------------------------------------------------- for subclasses
+    def sequence_format(self) -> SequenceFormat:
+        """The layout of the sequences under ``data_dir`` (:mod:`datamodules.formats`)."""
+        raise NotImplementedError(f"{type(self).__name__} must implement sequence_format()")
+
+    def published_split(self) -> dict[str, list[str]] | None:
+        """The data set's own train/test lists (names), used when no split is configured."""
+        return None
+
     def find_sequences(self) -> list[Path]:
         """Paths of all sequences under ``data_dir``."""
-        raise NotImplementedError(f"{type(self).__name__} must implement find_sequences()")
+        return list(self._sequences().values())
 
     def open_sequence(self, path: Path) -> FrameSource:
         """Open one sequence for reading."""
-        raise NotImplementedError(f"{type(self).__name__} must implement open_sequence()")
+        return self.sequence_format().open(path)
+
+    def _sequences(self) -> dict[str, Path]:
+        if not self.data_dir.is_dir():
+            raise InputError(f"data.data_dir: folder not found: {self.data_dir}")
+        try:
+            return find_sequences(self.sequence_format(), self.data_dir)
+        except InputError as exc:
+            raise InputError(f"data.data_dir: {exc}") from None
 
     # ----------------------------------------------------------- splits
     def split(self) -> dict[str, list[Path]]:
-        """Sequence paths of each split (train/val/test)."""
-        if not self.data_dir.is_dir():
-            raise InputError(f"data.data_dir: folder not found: {self.data_dir}")
-        found = {p.name: p for p in self.find_sequences()}
-        if not found:
-            raise InputError(f"data.data_dir: no sequences found in {self.data_dir}")
+        """Sequence paths of each split (train/val/test): the configured names, else the data
+        set's published split (its train part shared out by ``val_fraction``), else the
+        fractions over the sorted names."""
+        found = self._sequences()
         hp = self.hparams
         given = {"train": hp.train, "val": hp.val, "test": hp.test}
+        if all(v is None for v in given.values()):
+            published = self.published_split()
+            if published:
+                known = {k: [n for n in names if n in found] for k, names in published.items()}
+                train, val, _ = split_names(known.get("train", []), hp.val_fraction, 0.0)
+                given = {"train": train, "val": val, "test": known.get("test", [])}
         if any(v is not None for v in given.values()):
             out = {}
             for k, names in given.items():
                 names = names or []
                 unknown = [n for n in names if n not in found]
                 if unknown:
-                    raise InputError(f"data.{k}: unknown sequence {unknown[0]!r} in {self.data_dir}")
+                    shown = ", ".join(list(found)[:5]) + (", ..." if len(found) > 5 else "")
+                    raise InputError(f"data.{k}: unknown sequence {unknown[0]!r} in {self.data_dir} (found: {shown})")
                 out[k] = [found[n] for n in names]
             return out
         tr, va, te = split_names(list(found), hp.val_fraction, hp.test_fraction)

@@ -45,3 +45,20 @@ def sim_dataset(tmp_path_factory) -> Path:
     for k in range(3):
         make_tiny_sequence(root / f"sim{k}", frames=6, size=48, seed=k)
     return root
+
+
+@pytest.fixture(scope="session")
+def published(tmp_path_factory):
+    """``published(layout) -> (sim_root, layout_root)``: a tiny simulated sequence written in
+    the project's layout and, beside it, in a published data set's layout (made once per
+    session). The camera matches what each data set's loader assumes by default."""
+    from tests.published_data import make_published
+
+    made: dict[str, tuple[Path, Path]] = {}
+
+    def get(layout: str) -> tuple[Path, Path]:
+        if layout not in made:
+            made[layout] = make_published(tmp_path_factory.mktemp(f"pub_{layout}") / "sim", layout)
+        return made[layout]
+
+    return get

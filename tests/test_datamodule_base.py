@@ -84,7 +84,7 @@ def test_datamodule_batches(plane_dataset):
     "make, match",
     [
         (lambda root: None, "folder not found"),
-        (lambda root: root.mkdir(), "no sequences found"),
+        (lambda root: root.mkdir(), "no project-layout sequences found"),
         (lambda root: plane_sequence(root / "short", frames=2), "2 frame"),
     ],
 )

@@ -1,4 +1,4 @@
-"""Frame pairs at several frame gaps for ContraFeat (a data module over the project's layout).
+"""Frame pairs at several frame gaps for ContraFeat (a data module over any layout with depth and poses).
 
 A sample is a pair (t, t + g * stride) in the batch layout of :mod:`datamodules.base` with
 F = 2 (``image`` (B, 2, 3, H, W), ``depth``, ``pose``, ...). Training draws the gap g for
@@ -15,8 +15,8 @@ import torch
 from torch.utils.data import Dataset
 
 from c3f_slam.errors import InputError
-from datamodules.base import FrameSource, FrameTupleDataset
-from datamodules.sequence import C3FSequenceDataModule
+from datamodules.base import FrameSource, FrameTupleDataset, SequenceDataModule
+from datamodules.formats import SequenceFormat, make_format
 
 
 class GapPairDataset(Dataset):
@@ -69,10 +69,14 @@ class GapPairDataset(Dataset):
         return sample
 
 
-class ContraFeatDataModule(C3FSequenceDataModule):
-    """Frame pairs at several gaps from sequences in the project's layout (needs depth and poses).
+class ContraFeatDataModule(SequenceDataModule):
+    """Frame pairs at several gaps from sequences with depth and poses.
 
     Args:
+        layout: the sequences' layout, a name of :mod:`datamodules.formats`: ``c3f`` (the
+            project's, default), ``uts``, ``simcol3d`` or ``c3vd``.
+        layout_options: options of that layout's reader, e.g. ``{fov: 110}`` (uts),
+            ``{calibration: FILE, pinhole_focal: 700}`` (c3vd).
         gaps: frame gaps drawn at random for training (paper: wide baselines), e.g. [1, 2, 4, 8].
         eval_gaps: gaps used (all of them) for validation and test (default: ``gaps``).
         eval_stride: keep every n-th pair of each gap for validation and test.
@@ -83,6 +87,8 @@ class ContraFeatDataModule(C3FSequenceDataModule):
     def __init__(
         self,
         data_dir: str,
+        layout: str = "c3f",
+        layout_options: dict | None = None,
         gaps: list[int] = [1, 2, 4, 8],  # noqa: B006 (jsonargparse needs a literal default)
         eval_gaps: list[int] | None = None,
         eval_stride: int = 1,
@@ -106,6 +112,17 @@ class ContraFeatDataModule(C3FSequenceDataModule):
             num_workers=num_workers, min_frames=min_frames,
         )
         self.save_hyperparameters()
+        self.sequence_format()  # an unknown layout or option fails here, before any data is read
+
+    def sequence_format(self) -> SequenceFormat:
+        hp = self.hparams
+        options = dict(hp.layout_options or {})
+        if hp.layout == "c3f":
+            options.setdefault("min_frames", hp.min_frames)
+        return make_format(hp.layout, option_prefix="data.", **options)
+
+    def published_split(self) -> dict[str, list[str]] | None:
+        return self.sequence_format().published_split(self.data_dir)
 
     def make_dataset(self, paths: list[Path], train: bool) -> GapPairDataset:
         hp = self.hparams

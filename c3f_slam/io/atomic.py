@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -46,3 +47,29 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` atomically."""
     with atomic_write(path) as tmp:
         tmp.write_text(text)
+
+
+def staging_dir(target: str | Path, tag: str = "partial") -> Path:
+    """A new hidden folder beside ``target`` (``.NAME.partial-XXXX``, ordinary permissions) to
+    build a whole folder in before :func:`move_into_place`."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.{tag}-", dir=target.parent))
+    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private; the result is an ordinary folder
+    return tmp
+
+
+def move_into_place(tmp: str | Path, target: str | Path) -> None:
+    """Rename the finished folder ``tmp`` to ``target``; an existing ``target`` is moved aside
+    first and deleted only once the new one is in place."""
+    tmp, target = Path(tmp), Path(target)
+    if target.exists():
+        if target.is_dir() and not any(target.iterdir()):
+            target.rmdir()
+        else:
+            trash = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+            os.replace(target, trash / "old")
+            os.replace(tmp, target)
+            shutil.rmtree(trash, ignore_errors=True)
+            return
+    os.replace(tmp, target)

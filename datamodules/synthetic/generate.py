@@ -21,9 +21,7 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import shutil
-import tempfile
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -35,6 +33,7 @@ import open3d as o3d
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.io import SequenceWriter
+from c3f_slam.io.atomic import move_into_place, staging_dir
 from datamodules.synthetic import noise
 from datamodules.synthetic.camera_path import CameraPath, plan_path
 from datamodules.synthetic.colon import Colon, build_colon
@@ -95,14 +94,16 @@ def _blur_poses(scene: SimScene, i: int) -> list[np.ndarray]:
     return [path.pose_at(i - a.motion_blur * j / k) for j in range(1, k)]
 
 
-def render_frames(scene: SimScene) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+def render_frames(scene: SimScene,
+                  renderer: Renderer | None = None) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """Yield (index, rgb uint8 (H, W, 3), depth float32 metres (H, W)) for every frame.
 
+    ``renderer``: another camera's renderer of the same scene (default ``scene.renderer``).
     The rays of frame i+1 are cast in a worker thread (Open3D releases the GIL) while
     frame i is shaded; the result does not depend on this overlap.
     """
     seed = scene.params.seed
-    r = scene.renderer
+    r = scene.renderer if renderer is None else renderer
     poses = scene.path.poses
     with ThreadPoolExecutor(max_workers=1) as pool:
         nxt = pool.submit(r.trace, poses[0]) if len(poses) else None
@@ -144,20 +145,16 @@ def generate_sequence(
     """Render ``params`` into the folder ``out``; returns its path.
 
     ``layout``: ``c3f`` (the project's own, SPEC §5.2) or, additionally written from the
-    same frames, ``uts`` / ``simcol`` / ``c3vd`` (see :mod:`datamodules.synthetic.layouts`).
+    same frames, ``uts`` / ``simcol3d`` / ``c3vd`` / ``colon10k`` (see :mod:`datamodules.synthetic.layouts`).
     """
     params.validate()
-    check_layout(layout)
+    layout = check_layout(layout)
     out = check_output(out, overwrite).resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; the result is an ordinary folder
+    tmp = staging_dir(out)
     try:
         scene = build_scene(params)
         _write_all(scene, tmp, layout, progress, on_frame)
-        _move_into_place(tmp, out)
+        move_into_place(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -220,15 +217,3 @@ def read_event_labels(root: str | Path) -> list[str]:
     with path.open(newline="") as fh:
         rows = sorted(csv.DictReader(fh), key=lambda r: int(r["index"]))
     return [r.get("event") or "" for r in rows]
-
-
-def _move_into_place(tmp: Path, out: Path) -> None:
-    if out.exists():
-        if any(out.iterdir()):
-            trash = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-            os.replace(out, trash / "old")
-            os.replace(tmp, out)
-            shutil.rmtree(trash, ignore_errors=True)
-            return
-        out.rmdir()
-    os.replace(tmp, out)

@@ -21,7 +21,8 @@ from typing import Any
 from c3f_slam.errors import InputError
 
 PATH_KINDS = ("A", "B", "random")
-LAYOUTS = ("c3f", "uts", "simcol", "c3vd")  # output layouts (c3f = the project's own, SPEC §5.2)
+LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, SPEC §5.2)
+LAYOUT_ALIASES = {"simcol": "simcol3d"}  # earlier name
 PATH_ALIASES = {"a": "A", "b": "B", "random": "random", "rp": "random"}
 
 
@@ -267,6 +268,8 @@ def check_output(out: str | Path, overwrite: bool) -> Path:
 
 
 def check_layout(layout: str) -> str:
+    """The layout's name (aliases resolved); InputError for an unknown one."""
+    layout = LAYOUT_ALIASES.get(layout, layout)
     if layout not in LAYOUTS:
         raise InputError(f"layout: unknown layout {layout!r} (choose from {', '.join(LAYOUTS)})")
     return layout

@@ -88,7 +88,11 @@ class Renderer:
     """Renders RGB + exact depth of a colon for camera-to-world poses."""
 
     def __init__(self, colon: Colon, atlas: TextureAtlas, camera: PinholeCamera, appearance: AppearanceParams,
-                 scene: o3d.t.geometry.RaycastingScene | None = None, nthreads: int | None = None) -> None:
+                 scene: o3d.t.geometry.RaycastingScene | None = None, nthreads: int | None = None,
+                 rays_cam: np.ndarray | None = None) -> None:
+        """``rays_cam``: (3, H*W) camera-frame ray directions scaled to z = 1 for a camera that
+        is not a pinhole (C3VD's fisheye); ``camera`` then only sets the frame size, vignetting
+        centre and the focal length used for texture filtering. Default: ``camera``'s rays."""
         self.colon, self.atlas, self.camera, self.a = colon, atlas, camera, appearance
         self.nthreads = nthreads if nthreads is not None else (os.cpu_count() or 1)
         self.scene = scene if scene is not None else make_scene(colon)
@@ -105,7 +109,10 @@ class Renderer:
         self.tri_attrs = np.ascontiguousarray(attrs[tri])  # (F, 3, 12): one gather per pixel
         h, w = camera.height, camera.width
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        self.dirs_cam = camera_rays(camera)  # (3, N), z = 1
+        # (3, N), z = 1
+        self.dirs_cam = camera_rays(camera) if rays_cam is None else np.ascontiguousarray(rays_cam, np.float32)
+        if self.dirs_cam.shape != (3, h * w):
+            raise ValueError(f"rays_cam must be (3, {h * w}), got {self.dirs_cam.shape}")
         norm = np.linalg.norm(self.dirs_cam.astype(np.float64), axis=0)
         self.ray_norm = norm.astype(np.float32)
         self.inv_norm = (1.0 / norm).astype(np.float32)  # = cosine of the angle to the optical axis
