@@ -10,6 +10,8 @@ The same code is the Monodepth2 baseline with ``use_extra_photometric``,
 
 from __future__ import annotations
 
+import re
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -24,28 +26,25 @@ from c3f_models.metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.errors import InputError
 
 
-def read_checkpoint_weights(
-    path: str | Path, option: str = "model.init_weights", weights_only: bool | None = None
-) -> dict[str, torch.Tensor]:
+def read_checkpoint_weights(path: str | Path, option: str = "model.init_weights") -> dict[str, torch.Tensor]:
     """Model weights from a Lightning checkpoint (``state_dict`` key) or a plain state dict file.
 
-    ``weights_only``: True = only the safe unpickler; None (default) = safe first, then a
-    full load (a checkpoint may pickle config objects in its hyper-parameters; it is the
-    user's own training output, read the way ``Trainer(ckpt_path=...)`` reads it).
+    Only the safe unpickler reads it (``torch.load(weights_only=True)``): tensors, numbers,
+    strings and containers. A file that needs more (pickled objects, possibly code) is refused
+    with an InputError; nothing in it runs.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{option}: file not found: {path}")
-    attempts = [True] if weights_only else ([False] if weights_only is False else [True, False])
-    ckpt, error = None, None
-    for safe in attempts:
-        try:
-            ckpt = torch.load(path, map_location="cpu", weights_only=safe)
-            break
-        except Exception as exc:
-            error = exc
-    if ckpt is None:
-        raise InputError(f"{option}: {path} is not a torch checkpoint ({type(error).__name__})") from None
+    if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
+        raise InputError(f"{option}: {path} is not a torch checkpoint")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        found = re.search(r"Unsupported global: GLOBAL (\S+)", str(exc))
+        what = f" (it pickles {found.group(1)})" if found else f" ({type(exc).__name__})"
+        raise InputError(f"{option}: {path} needs more than the safe loader (weights_only=True) reads{what}; "
+                         "refused, nothing in it ran") from None
     state = ckpt.get("state_dict", ckpt) if isinstance(ckpt, dict) else None
     if not isinstance(state, dict) or not state or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise InputError(f"{option}: {path} holds no model weights")

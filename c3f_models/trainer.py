@@ -40,9 +40,9 @@ class C3FTrainer(L.Trainer):
             tolerance: largest accepted |onnxruntime - PyTorch| of any output element; the
                 export fails above it.
             dynamic_size: height and width as dynamic axes (batch always is).
-            weights_only: how the checkpoint is unpickled, as for ``fit`` (so that a run's
-                saved ``config.yaml`` is accepted): True = safe loader only; None = safe
-                first, then a full load of your own checkpoint.
+            weights_only: accepted so that a run's saved ``config.yaml`` (which has it, for
+                ``fit``) works; the checkpoint is always read with the safe unpickler
+                (``weights_only=True``) and False is refused.
         """
         from export import export_model  # torch.onnx is imported only when exporting
 

@@ -51,10 +51,10 @@ def checkpoint_kind(state: dict[str, torch.Tensor]) -> str | None:
     return None
 
 
-def load_checkpoint(model: L.LightningModule, ckpt_path: str | Path, weights_only: bool | None = None) -> None:
-    """Load the weights of ``ckpt_path`` into ``model``; InputError when the checkpoint is of
-    another model kind or does not fit the configured architecture."""
-    state = read_checkpoint_weights(ckpt_path, option="--ckpt_path", weights_only=weights_only)
+def load_checkpoint(model: L.LightningModule, ckpt_path: str | Path) -> None:
+    """Load the weights of ``ckpt_path`` into ``model`` (safe unpickler only); InputError when
+    the checkpoint is of another model kind or does not fit the configured architecture."""
+    state = read_checkpoint_weights(ckpt_path, option="--ckpt_path")
     kind, want = checkpoint_kind(state), type(model).__name__
     if kind is not None and kind != want:
         raise InputError(f"--ckpt_path: {ckpt_path} is a {kind} checkpoint, but the config's model is {want}")
@@ -140,16 +140,19 @@ def export_model(
         num_frames: frames in the parity check.
         tolerance: largest accepted |onnxruntime - PyTorch| of any output element.
         dynamic_size: export height/width as dynamic axes.
-        weights_only: checkpoint unpickling (see :func:`c3f_models.depthnet.read_checkpoint_weights`).
+        weights_only: accepted for the run's saved ``config.yaml``; checkpoints are always read with
+            the safe unpickler (:func:`c3f_models.depthnet.read_checkpoint_weights`), and False is refused.
     """
     if ckpt_path is None:
         raise InputError("--ckpt_path: give the checkpoint to export")
+    if weights_only is False:
+        raise InputError("--weights_only false: refused; checkpoints are read with the safe loader only")
     ckpt_path = Path(ckpt_path)
     if num_frames < 1:
         raise InputError(f"--num_frames must be >= 1, got {num_frames}")
     specs = graph_specs(model)
     source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
-    load_checkpoint(model, ckpt_path, weights_only)
+    load_checkpoint(model, ckpt_path)
     pre = preprocessing_of(datamodule, source)
     images = frames_from_source(source, pre, num_frames)
     config = {"model": {"class_path": f"{type(model).__module__}.{type(model).__name__}",

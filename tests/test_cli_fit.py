@@ -35,11 +35,11 @@ def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch):
     assert (first / "config.yaml").is_file(), "config not saved next to the logs"
     ckpt = first / "checkpoints" / "last.ckpt"
     assert ckpt.is_file()
-    assert torch.load(ckpt, map_location="cpu", weights_only=False)["global_step"] == 2
+    assert torch.load(ckpt, map_location="cpu", weights_only=True)["global_step"] == 2
     assert _scalar_steps(first, "train/loss"), "no training loss logged"
 
     main(["fit", *common, "--trainer.max_steps", "4", "--ckpt_path", str(ckpt)])
     second = tmp_path / "tb" / "version_1"
     steps = _scalar_steps(second, "train/loss")
     assert steps and min(steps) >= 2, f"the second run did not resume at step 2: logged steps {steps}"
-    assert torch.load(second / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["global_step"] == 4
+    assert torch.load(second / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)["global_step"] == 4

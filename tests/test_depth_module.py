@@ -193,6 +193,34 @@ def test_init_weights_errors(tmp_path):
         DepthNet(**TINY, init_weights=str(other)).setup("fit")
 
 
+class _Payload:
+    """Unpickling this runs code: it touches a marker file."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+def test_a_checkpoint_cannot_run_code(tmp_path):
+    """A crafted --model.init_weights (or export --ckpt_path) is refused before anything in it runs."""
+    from export.exporter import load_checkpoint
+
+    marker = tmp_path / "payload_ran"
+    crafted = tmp_path / "crafted.ckpt"
+    torch.save({"state_dict": DepthNet(**TINY).state_dict(), "hyper_parameters": _Payload(marker)}, crafted)
+    with pytest.raises(InputError, match=r"crafted.ckpt needs more than the safe loader \(weights_only=True\) reads "
+                                         r"\(it pickles \S+\); refused, nothing in it ran"):
+        DepthNet(**TINY, init_weights=str(crafted)).setup("fit")
+    with pytest.raises(InputError, match="--ckpt_path: .*crafted.ckpt needs more than the safe loader"):
+        load_checkpoint(DepthNet(**TINY), crafted)
+    assert not marker.exists(), "the payload ran"
+    fn, args = _Payload(marker).__reduce__()  # the control: what an unpickler would call does touch it
+    fn(*args)
+    assert marker.exists()
+
+
 # ---------------------------------------------------------------- configs
 def _load(name: str) -> dict:
     return yaml.safe_load((CONFIGS / name).read_text())
