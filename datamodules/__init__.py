@@ -1,8 +1,11 @@
-"""LightningDataModules for colonoscopy sequences, and the procedural colon simulator.
+"""LightningDataModules for colonoscopy sequences, the published data sets' readers, and the
+procedural colon simulator.
 
-Importing this package does not import torch: ``datamodules.synthetic`` (the simulator)
-is torch-free. The data modules live in submodules that do import torch:
+Importing this package does not import torch; neither do ``datamodules.formats`` (the
+readers), ``datamodules.convert`` / ``python -m datamodules`` (the converter) and
+``datamodules.synthetic`` (the simulator). The data modules live in submodules that do:
 
 - :mod:`datamodules.base`: frame-tuple dataset and the sequence data-module base;
-- :mod:`datamodules.sequence`: the project's own sequence layout (SPEC §5.2).
+- :mod:`datamodules.sequence`: the project's own sequence layout (SPEC §5.2);
+- :mod:`datamodules.published`: UTS-synthetic, SimCol3D, C3VD and Colon10K as released.
 """

@@ -131,3 +131,43 @@ def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp
     with pytest.raises(SystemExit, match="bad.ckpt holds no state_dict"):
         contrafeat_eval.main(["--data", str(plane_dataset), "--checkpoint", str(bad), "--out", str(out)])
     assert out.read_text() == text  # the earlier report is intact
+
+
+def _import_benchmark(name: str):
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        return __import__(name)
+    finally:
+        sys.path.pop(0)
+
+
+def test_ttt_schedule_keeps_the_papers_fractions():
+    ttt = _import_benchmark("depthnet_ttt")
+    assert ttt.scaled_milestones(200) == [80, 120, 170]
+    assert ttt.scaled_milestones(10) == [4, 6, 8]
+    assert ttt.scaled_milestones(1) == [1, 2, 3]  # distinct even when the schedule is tiny
+
+
+@pytest.mark.slow
+def test_ttt_benchmark_end_to_end(tmp_path, monkeypatch):
+    """benchmarks/depthnet_ttt.py on a tiny sequence: both tables, with the seven metrics twice."""
+    from c3f_models.cli import main as cli
+    from datamodules.synthetic.fixture import make_tiny_sequence
+
+    monkeypatch.chdir(ROOT)
+    data = tmp_path / "data"
+    make_tiny_sequence(data / "train0", frames=8, size=48, seed=1)
+    held_out = make_tiny_sequence(tmp_path / "held" / "test0", frames=8, size=48, seed=2)
+    cli(["fit", "--config", "configs/trainer/cpu_smoke.yaml", "--config", "configs/depthnet/small.yaml",
+         "--data.data_dir", str(data), "--data.size", "[48, 48]", "--data.batch_size", "2", "--data.val", "[]",
+         "--data.test", "[]", "--data.train", '["train0"]', "--trainer.max_steps", "2",
+         "--trainer.default_root_dir", str(tmp_path / "base"), "--trainer.logger.init_args.save_dir",
+         str(tmp_path / "base"), "--trainer.enable_progress_bar", "false"])
+    run = tmp_path / "base" / "tb" / "version_0"
+    out = tmp_path / "ttt.md"
+    monkeypatch.setattr(sys, "argv", ["depthnet_ttt.py", "--base-config", str(run / "config.yaml"), "--base-ckpt",
+                                      str(run / "checkpoints" / "last.ckpt"), "--sequence", str(held_out),
+                                      "--epochs", "1", "--size", "48", "--work", str(tmp_path / "w"), "--out", str(out)])
+    _import_benchmark("depthnet_ttt").main()
+    text = out.read_text()
+    assert text.count("| base (before TTT) |") == 2 and text.count("| after TTT") == 2

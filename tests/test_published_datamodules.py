@@ -71,6 +71,10 @@ def test_contrafeat_pairs_from_a_published_layout(published):
         ContraFeatDataModule(str(root), layout="c3vd", layout_options={"fov": 90})
 
 
+#: SPEC §2: UTS renders 512 -> 400 centre crop; Colon10K's 270x216 scaled as they are; C3VD (ours): square crop
+PAPER_CROPS = {"uts": [400, 400], "simcol3d": None, "c3vd": [1080, 1080], "colon10k": None}
+
+
 @pytest.mark.parametrize("model, data", [("depthnet/full.yaml", "depthnet/uts.yaml"),
                                          ("depthnet/full.yaml", "depthnet/simcol3d.yaml"),
                                          ("depthnet/full.yaml", "depthnet/c3vd.yaml"),
@@ -88,10 +92,11 @@ def test_data_set_configs_compose_with_the_paper_model(published, model, data, m
                 "--data.val_fraction", "0", "--data.test_fraction", "0"], run=False)
     cfg = yaml.safe_load((ROOT / "configs" / data).read_text())["data"]
     assert type(cli.datamodule).__name__ == cfg["class_path"].rsplit(".", 1)[1]
+    assert cfg["init_args"]["size"] == [224, 224] and cfg["init_args"]["crop"] == PAPER_CROPS[layout]
     if model.startswith("depthnet"):
         hp = cli.model.hparams
         assert (hp.encoder_layers, hp.dcn, hp.lr, list(hp.milestones)) == (50, True, 1e-4, [16, 24, 32])
-        assert cfg["init_args"]["batch_size"] == 16 and cfg["init_args"]["size"] == [224, 224]
+        assert cfg["init_args"]["batch_size"] == 16
     assert cli.datamodule.split()["train"]
 
 
