@@ -171,8 +171,9 @@ class SequenceDataModule(L.LightningDataModule):
 
     Subclasses say which layout their sequences have (:meth:`sequence_format`, one of
     :mod:`datamodules.formats`); everything else (finding sequences, tuples, pre-processing,
-    splits, loaders) is shared. The splits are either given by name (``train``/``val``/``test``) or made from
-    the sorted names with ``val_fraction``/``test_fraction``.
+    splits, loaders) is shared. The splits are given by name (``train``/``val``/``test``), or
+    come from the data set's release (:meth:`published_split`), or are made from the sorted
+    names with ``val_fraction``/``test_fraction``.
 
     Args:
         data_dir: folder holding the sequences.
@@ -215,8 +216,9 @@ class SequenceDataModule(L.LightningDataModule):
         raise NotImplementedError(f"{type(self).__name__} must implement sequence_format()")
 
     def published_split(self) -> dict[str, list[str]] | None:
-        """The data set's own train/test lists (names), used when no split is configured."""
-        return None
+        """The data set's own train/test lists (names), used when no split is configured (and
+        only the sequences found under ``data_dir`` of them)."""
+        return self.sequence_format().published_split(self.data_dir)
 
     def find_sequences(self) -> list[Path]:
         """Paths of all sequences under ``data_dir``."""

@@ -57,7 +57,7 @@ class SimCol3DDataModule(SequenceDataModule):
         return make_format("simcol3d")
 
     def published_split(self) -> dict[str, list[str]] | None:
-        return self.sequence_format().published_split(self.data_dir) if self.hparams.published_split else None
+        return super().published_split() if self.hparams.published_split else None
 
 
 class C3VDDataModule(SequenceDataModule):

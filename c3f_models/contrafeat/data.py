@@ -121,9 +121,6 @@ class ContraFeatDataModule(SequenceDataModule):
             options.setdefault("min_frames", hp.min_frames)
         return make_format(hp.layout, option_prefix="data.", **options)
 
-    def published_split(self) -> dict[str, list[str]] | None:
-        return self.sequence_format().published_split(self.data_dir)
-
     def make_dataset(self, paths: list[Path], train: bool) -> GapPairDataset:
         hp = self.hparams
         seqs = [self.open_sequence(p) for p in paths]
