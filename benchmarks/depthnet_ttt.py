@@ -90,7 +90,27 @@ def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
         return {"error": str(exc)}
     st, P = read_tum(out / "trajectory.txt")
     g = Sequence(sequence)
-    return {"summary": s, "eval": evaluate_trajectory(st, P, g.timestamps, g.poses, n_frames=s["frames"])}
+    return {"summary": s, "eval": evaluate_trajectory(st, P, g.timestamps, g.poses, n_frames=s["frames"]), "out": out}
+
+
+def common_ate(sequence: Path, runs: dict) -> tuple[dict, int]:
+    """ATE Sim(3) RMSE (m) of each run over the frames both registered, and their number."""
+    import numpy as np
+
+    from c3f_slam.evaluate import evaluate_trajectory
+    from c3f_slam.io import Sequence, read_tum
+
+    if any("error" in r for r in runs.values()):
+        return {}, 0
+    g = Sequence(sequence)
+    tracks = {k: read_tum(r["out"] / "trajectory.txt") for k, r in runs.items()}
+    common = set.intersection(*(set(np.round(st, 6)) for st, _ in tracks.values()))
+    out = {}
+    for k, (st, P) in tracks.items():
+        keep = [i for i, t in enumerate(np.round(st, 6)) if t in common]
+        ev = evaluate_trajectory(st[keep], P[keep], g.timestamps, g.poses) if len(keep) >= 3 else {}
+        out[k] = ev.get("ate_sim3", {}).get("rmse_m")
+    return out, len(common)
 
 
 def _row(name: str, m: dict) -> str:
@@ -98,15 +118,17 @@ def _row(name: str, m: dict) -> str:
             + f" | {m['depth_cv']:.3f} |")
 
 
-def _slam_row(name: str, r: dict) -> str:
+def _slam_row(name: str, r: dict, common: float | None) -> str:
     if "error" in r:
-        return f"| {name} | failed: {r['error']} | | | |"
+        return f"| {name} | failed: {r['error']} | | | | |"
     ev, s = r["eval"], r["summary"]
+    scale = f"{s['depth_scale']['factor']:.3f} ({s['depth_scale']['source']})"
+    shared = f"{100 * common:.2f}" if common is not None else "-"
     if "ate_sim3" not in ev:
-        return f"| {name} | {ev.get('error', 'no ATE')} | {100 * ev['registered_share']:.1f} | | {s['depth_scale']} |"
+        return f"| {name} | {ev.get('error', 'no ATE')} | {100 * ev['registered_share']:.1f} | | {shared} | {scale} |"
     ate = ev["ate_sim3"]
     return (f"| {name} | {100 * ate['rmse_m']:.2f} / {100 * ate['std_m']:.2f} | {100 * ev['registered_share']:.1f} | "
-            f"{100 * ev['gt_length_m']:.1f} | {s['depth_scale']['factor']:.3f} ({s['depth_scale']['source']}) |")
+            f"{100 * ev['gt_length_m']:.1f} | {shared} | {scale} |")
 
 
 def main() -> None:
@@ -141,6 +163,7 @@ def main() -> None:
     for name, ckpt in (("base", a.base_ckpt), ("ttt", tuned)):
         onnx = export(a.base_config, ckpt, a.work / f"export_{name}")
         runs[name] = slam(a.sequence, onnx, a.work / f"slam_{name}", a.min_correspondences)
+    shared, n_shared = common_ate(a.sequence, runs)
     seq = Sequence(a.sequence)
     motion = frame_motion(seq.poses)
     cmd = "python " + " ".join([str(Path(sys.argv[0]).relative_to(ROOT)) if Path(sys.argv[0]).is_absolute()
@@ -173,16 +196,18 @@ def main() -> None:
         f"{a.min_correspondences}`, both exported with the base run's config: depth scale measured on the base "
         "run's training sequences):",
         "",
-        "| network | ATE Sim(3) cm (RMSE / std) | registered % | GT length cm | depth scale |",
-        "|---|---|---|---|---|",
-        _slam_row("base (before TTT)", runs["base"]),
-        _slam_row("after TTT", runs["ttt"]),
+        f"| network | ATE Sim(3) cm (RMSE / std) | registered % | GT length cm | ATE cm, the {n_shared} frames "
+        "both registered | depth scale |",
+        "|---|---|---|---|---|---|",
+        _slam_row("base (before TTT)", runs["base"], shared.get("base")),
+        _slam_row("after TTT", runs["ttt"], shared.get("ttt")),
         "",
     ])
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(text)
     (a.work / "depthnet_ttt.json").write_text(json.dumps({"before": before, "after": after, "slam": {
-        k: {"eval": v.get("eval"), "error": v.get("error")} for k, v in runs.items()}}, indent=2, default=str))
+        k: {"eval": v.get("eval"), "error": v.get("error")} for k, v in runs.items()}, "common_ate_m": shared},
+        indent=2, default=str))
     print(text)
 
 
