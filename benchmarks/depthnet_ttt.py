@@ -57,11 +57,13 @@ def test_metrics(base_config: Path, ckpt: Path, sequence: Path, size: list[int],
     return m
 
 
-def tune(base_config: Path, ckpt: Path, sequence: Path, epochs: int, root: Path, seed: int) -> tuple[Path, float]:
+def tune(base_config: Path, ckpt: Path, sequence: Path, epochs: int, root: Path, seed: int,
+         overrides: list[str]) -> tuple[Path, float]:
     from c3f_models.cli import main
 
     t0 = time.perf_counter()
-    cli = main(["fit", "--config", str(base_config), "--config", str(ROOT / "configs/depthnet/ttt.yaml"),
+    extra = [a for kv in overrides for a in (f"--model.{kv.partition('=')[0]}", kv.partition("=")[2])]
+    cli = main(["fit", "--config", str(base_config), "--config", str(ROOT / "configs/depthnet/ttt.yaml"), *extra,
                 "--model.init_weights", str(ckpt), "--data.data_dir", str(sequence),
                 "--trainer.max_epochs", str(epochs), "--model.milestones", json.dumps(scaled_milestones(epochs)),
                 "--trainer.default_root_dir", str(root), "--trainer.logger.init_args.save_dir", str(root),
@@ -139,11 +141,16 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=10)
     ap.add_argument("--size", type=int, default=128, help="network input size of the base run")
     ap.add_argument("--min-correspondences", type=int, default=15, help="SLAM new-fragment threshold (128 px: 15)")
+    ap.add_argument("--model", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="model argument of the test-time training only (repeatable), e.g. use_depth_consistency=false")
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--work", type=Path, default=Path("/tmp/depthnet_ttt"))
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/depthnet_ttt.md")
     a = ap.parse_args()
+    bad = [kv for kv in a.overrides if "=" not in kv or not kv.partition("=")[0]]
+    if bad:
+        ap.error(f"--model: expected KEY=VALUE, got {bad[0]!r}")
     for p in (a.base_config, a.base_ckpt):
         if not p.is_file():
             ap.error(f"{p}: file not found")
@@ -157,7 +164,7 @@ def main() -> None:
 
     size = [a.size, a.size]
     before = test_metrics(a.base_config, a.base_ckpt, a.sequence, size, a.work / "test_base")
-    tuned, fit_s = tune(a.base_config, a.base_ckpt, a.sequence, a.epochs, a.work / "ttt", a.seed)
+    tuned, fit_s = tune(a.base_config, a.base_ckpt, a.sequence, a.epochs, a.work / "ttt", a.seed, a.overrides)
     after = test_metrics(a.base_config, tuned, a.sequence, size, a.work / "test_ttt")
     runs = {}
     for name, ckpt in (("base", a.base_ckpt), ("ttt", tuned)):
@@ -181,7 +188,8 @@ def main() -> None:
         f"- Test-time training: `configs/depthnet/ttt.yaml` from the base weights (optimiser not resumed), "
         f"self-supervised on all {len(seq)} frames, {a.epochs} epochs with the lr halved at epochs {ms} "
         f"(the paper: {PAPER_EPOCHS} epochs, {list(PAPER_MILESTONES)}), {fit_s / 60:.1f} min on the CPU "
-        f"({a.threads} torch thread), seed {a.seed}.",
+        f"({a.threads} torch thread), seed {a.seed}"
+        + (f", model overrides for the tuning: {', '.join(a.overrides)}." if a.overrides else "."),
         "- Depth metrics on the same sequence, per-image median scaling; Sq Rel and RMSE in cm. The sequence's "
         "true depth is used only here and by the SLAM evaluation, never in training or in the depth scale.",
         "",
