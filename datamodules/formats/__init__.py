@@ -57,7 +57,8 @@ def find_sequences(fmt: SequenceFormat, root: str | Path) -> dict[str, Path]:
     found = fmt.find(root)
     if not found:
         others = [cls for name, cls in FORMATS.items() if name != fmt.name]
-        looks_like = next((cls for cls in others if cls.__new__(cls).find(root)), None)  # find() needs no options
+        # find() does not depend on a format's options: probe each without calling its constructor
+        looks_like = next((cls for cls in others if cls.__new__(cls).find(root)), None)
         hint = f"; it looks like {looks_like.title} data ({looks_like.name})" if looks_like else ""
         raise InputError(f"{root}: no {fmt.title} sequences found (expected {fmt.layout}){hint}")
     names: dict[str, Path] = {}

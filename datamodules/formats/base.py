@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import re
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import ClassVar
@@ -110,24 +111,25 @@ class PublishedSequence:
         raise InputError(f"{path}: this {self.dataset} sequence has no depth")
 
 
-class SequenceFormat:
+class SequenceFormat(ABC):
     """A published data set's layout: how to recognise, open and split its sequences.
 
     Subclasses set ``name`` (the converter's argument), ``title`` and ``layout`` (what a
     sequence folder holds, quoted in errors) and implement :meth:`is_sequence` and :meth:`open`.
+    Recognising and finding sequences must not depend on the constructor's options.
     """
 
     name: ClassVar[str]
     title: ClassVar[str]
     layout: ClassVar[str]
 
+    @abstractmethod
     def is_sequence(self, folder: Path) -> bool:
         """Whether ``folder`` is one sequence of this data set (cheap: file names only)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def open(self, folder: Path) -> PublishedSequence:
         """Open the sequence in ``folder`` (parses poses and lists files; frames stay on disk)."""
-        raise NotImplementedError
 
     def sequence_name(self, folder: Path) -> str:
         """The name of the sequence in ``folder``, unique within the data set."""
@@ -223,8 +225,7 @@ def read_number_rows(path: Path, count: int, sep: str | None = None, header: Cal
             continue
         if not rows and header is not None and header(line):
             continue
-        parts = [p for p in (line.split(sep) if sep else line.split())]
-        parts = [p.strip() for p in parts if p.strip()]
+        parts = [p.strip() for p in (line.split(sep) if sep else line.split()) if p.strip()]
         if len(parts) != count:
             hint = " (truncated file?)" if len(parts) < count else ""
             raise InputError(f"{path}:{lineno}: expected {count} {what} per line, got {len(parts)}{hint}")
