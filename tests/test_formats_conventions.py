@@ -39,7 +39,8 @@ def test_unity_conversion_is_the_readmes():
     P[:3, :3], P[:3, 3] = quaternion_to_matrix(q), [1.0, 2.0, 3.0]
     assert_allclose(T[:3, :3], (TM @ P @ TM)[:3, :3], atol=1e-12)
     t, q2 = pose_to_unity(T)
-    assert_allclose(t, [1.0, 2.0, 3.0]) and assert_allclose(np.abs(q2 @ q), 1.0)
+    assert_allclose(t, [1.0, 2.0, 3.0])
+    assert_allclose(abs(q2 @ q), 1.0)  # the same rotation back (q and -q are one rotation)
 
 
 # ---------------------------------------------------------------------- UTS

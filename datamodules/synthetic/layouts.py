@@ -170,7 +170,8 @@ class C3VDLayout(_Layout):
 
     def write_frame(self, i: int, rgb: np.ndarray, depth: np.ndarray) -> None:
         k, rgb_f, depth_f = next(self.views)  # the same frame through the fisheye
-        assert k == i
+        if k != i:
+            raise RuntimeError(f"layout c3vd: frames written out of order ({i} after {k - 1})")
         mask = self.valid.reshape(depth_f.shape)
         rgb_f = np.where(mask[..., None], rgb_f, 0).astype(np.uint8)
         _imwrite(self.seq / f"{i:04d}_color.png", _bgr(rgb_f))
