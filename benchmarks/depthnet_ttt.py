@@ -82,12 +82,11 @@ def export(base_config: Path, ckpt: Path, out: Path) -> Path:
 def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
     from c3f_slam.evaluate import evaluate_trajectory
     from c3f_slam.io import Sequence, read_tum
-    from c3f_slam.pipeline import SlamConfig, run_slam
+    from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
 
-    cfg = SlamConfig.preset_config("colon", min_consecutive_correspondences=min_corr, fuse=False)
+    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": min_corr}, fusion={"enabled": False})
     try:
-        s = run_slam(sequence, out, cfg, descriptors="sift", depth_source="model", progress=False,
-                     depth_model=str(depth_model))
+        s = run_slam(sequence, out, cfg, RunInputs("sift", "model", depth_model=str(depth_model)), progress=False)
     except Exception as exc:  # a failed run is a result: report it
         return {"error": str(exc)}
     st, P = read_tum(out / "trajectory.txt")

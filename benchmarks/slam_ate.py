@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from c3f_slam.evaluate import evaluate_trajectory, frame_motion  # noqa: E402
 from c3f_slam.io import Sequence, read_tum  # noqa: E402
-from c3f_slam.pipeline import SlamConfig, run_slam  # noqa: E402
+from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam  # noqa: E402
 from datamodules.synthetic.generate import read_event_labels  # noqa: E402
 
 
@@ -98,13 +98,14 @@ METHODS = {
 def run_one(seq: Path, out: Path, method: str, min_corr: int, mesh: bool, depth_model: str | None,
             feature_model: str | None, depth_scale: float | None = None) -> dict:
     mode, descriptors, depth_source = METHODS[method]
-    cfg = SlamConfig.preset_config("colon", mode=mode, min_consecutive_correspondences=min_corr, fuse=mesh)
+    cfg = SlamConfig.preset_config("colon", mode=mode, fragments={"min_correspondences": min_corr},
+                                   fusion={"enabled": mesh})
     t = time.perf_counter()
     try:
-        s = run_slam(seq, out, cfg, descriptors=descriptors, depth_source=depth_source, progress=False,
-                     depth_model=depth_model if depth_source == "model" else None,
-                     feature_model=feature_model if descriptors == "contrafeat" else None,
-                     depth_scale=depth_scale if depth_source == "model" else None)
+        inputs = RunInputs(descriptors, depth_source, depth_model=depth_model if depth_source == "model" else None,
+                           feature_model=feature_model if descriptors == "contrafeat" else None,
+                           depth_scale=depth_scale if depth_source == "model" else None)
+        s = run_slam(seq, out, cfg, inputs, progress=False)
     except Exception as exc:  # report, keep going
         return {"error": str(exc)}
     wall = time.perf_counter() - t

@@ -78,8 +78,8 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             for r in range(a.repeats):
                 for name, limit in settings.items():
-                    cfg = SlamConfig.preset_config("colon", fuse=False, blas_threads=limit,
-                                                   min_consecutive_correspondences=a.min_correspondences)
+                    cfg = SlamConfig.preset_config("colon", fusion={"enabled": False}, blas_threads=limit,
+                                                   fragments={"min_correspondences": a.min_correspondences})
                     s = run_slam(a.sequence, Path(tmp) / f"{r}_{limit}", cfg, progress=False, max_frames=a.max_frames)
                     res[name].append(s)
                     micro_ms[name].append(micro(limit))

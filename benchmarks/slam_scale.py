@@ -70,10 +70,10 @@ def main() -> None:
                     help="match all keyframes, keep all their loop edges and optimise whole components after "
                          "every loop (the literal rules)")
     ap.add_argument("--keyframes-in-ram", action="store_true",
-                    help="keep the stored keyframes' features in RAM (SlamConfig.keyframe_cache=False) instead of "
+                    help="keep the stored keyframes' features in RAM (SlamConfig.keyframes.cache=False) instead of "
                          "the run's keyframe cache file")
     ap.add_argument("--reuse-keyframes", action=argparse.BooleanOptionalAction, default=None,
-                    help="SlamConfig.reuse_keyframes (revisits hang off mapped keyframes); default: the config's")
+                    help="SlamConfig.keyframes.reuse (revisits hang off mapped keyframes); default: the config's")
     ap.add_argument("--out", type=Path, default=Path("/tmp/slam_scale"))
     ap.add_argument("--report", type=Path, default=ROOT / "benchmarks" / "results" / "slam_scale.md")
     args = ap.parse_args()
@@ -101,19 +101,19 @@ def main() -> None:
             if self._n % args.every == 0:
                 now, cpu = time.perf_counter(), time.process_time()
                 sec = {st: self.t.seconds.get(st, 0.0) for st in STAGES}
-                new_frag = self.n_fragments - self._frag
+                new_frag = self.counts.fragments - self._frag
                 samples.append(dict(
                     frames=self._n, ms=1000 * (now - self._t) / args.every, cpu_ms=1000 * (cpu - self._cpu) / args.every,
                     rss=rss_mb(), kf=len(self.keyframes),
                     kf_mb=self.keyframe_memory_bytes() / 2**20, kf_disk_mb=self.keyframes.disk_bytes / 2**20,
                     edges=self.graph.n_edges, edge_mb=self.graph.edge_nbytes() / 2**20,
                     stage_ms={st: 1000 * (sec[st] - self._stages[st]) / args.every for st in STAGES},
-                    pairs=(self.n_candidates_matched - self._pairs) / max(new_frag, 1),
-                    opts=self.n_optimizations - self._opts, win=self.n_windowed_optimizations - self._win,
+                    pairs=(self.counts.candidates_matched - self._pairs) / max(new_frag, 1),
+                    opts=self.schedule.counts.optimizations - self._opts, win=self.schedule.counts.windowed - self._win,
                 ))
-                self._t, self._cpu, self._stages, self._frag = now, cpu, sec, self.n_fragments
-                self._pairs, self._opts, self._win = self.n_candidates_matched, self.n_optimizations, \
-                    self.n_windowed_optimizations
+                self._t, self._cpu, self._stages, self._frag = now, cpu, sec, self.counts.fragments
+                self._pairs, self._opts, self._win = self.counts.candidates_matched, self.schedule.counts.optimizations, \
+                    self.schedule.counts.windowed
                 r = samples[-1]
                 print(f"{r['frames']} frames: {r['ms']:.1f} ms/frame (CPU {r['cpu_ms']:.1f}), RSS {r['rss']:.0f} MB, {r['kf']} keyframes, "
                       f"{r['pairs']:.1f} pairs/fragment, {r['opts']} opt ({r['win']} windowed), "
@@ -130,18 +130,18 @@ def main() -> None:
 
         def finish(self):
             t0 = time.perf_counter()
-            n0 = self.n_optimizations
+            n0 = self.schedule.counts.optimizations
             super().finish()
-            final.update(seconds=time.perf_counter() - t0, optimizations=self.n_optimizations - n0)
+            final.update(seconds=time.perf_counter() - t0, optimizations=self.schedule.counts.optimizations - n0)
 
-    over = dict(min_consecutive_correspondences=args.min_correspondences, fuse=args.mesh)
+    over: dict = {part: dict(fields) for part, fields in PAPER_RULES.items()} if args.paper_rules else {}
+    over.setdefault("keyframes", {})
     if args.keyframes_in_ram:
-        over["keyframe_cache"] = False
-    if args.paper_rules:
-        over.update(PAPER_RULES)
+        over["keyframes"]["cache"] = False
     if args.reuse_keyframes is not None:
-        over["reuse_keyframes"] = args.reuse_keyframes
-    cfg = SlamConfig.preset_config("colon", **over)
+        over["keyframes"]["reuse"] = args.reuse_keyframes
+    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": args.min_correspondences},
+                                   fusion={"enabled": args.mesh}, **over)
     t = time.perf_counter()
     error = ""
     try:

@@ -60,8 +60,7 @@ def main() -> None:
     seq = Sequence(a.sequence)
     # ground-truth motion of each consecutive pair (i - 1, i), at index i - 1
     step_t, step_rot = relative_motion(seq.poses) if seq.has_poses else (None, None)
-    front = Frontend(stream.camera.K, SiftDescriptors(), cfg.max_keypoints, cfg.sift_contrast_threshold,
-                     cfg.mask_specular, cfg.specular_dilation_px)
+    front = Frontend(stream.camera.K, SiftDescriptors(), cfg.frontend)
     rows = []
     prev = None
     for frame in stream:
@@ -69,7 +68,7 @@ def main() -> None:
             raise SystemExit(f"{a.sequence}: no depth/ folder (this diagnostic runs in RGB-D mode)")
         feat = front.describe(frame, front.keypoints(frame.rgb), frame.depth)
         if prev is not None:
-            att = explain_match(prev, feat, cfg.match_filter, "l2", cfg.ratio)
+            att = explain_match(prev, feat, cfg.match_filter, "l2", cfg.frontend.ratio)
             row = {"i": frame.index, "kp": len(feat), "candidates": att.candidates, "filtered": att.filtered,
                    "n": att.match.n if att.match else 0, "reason": att.reason}
             if step_t is not None:
@@ -95,8 +94,8 @@ def main() -> None:
     lines = [
         "# Consecutive-frame tracking breaks", "",
         f"Command: `python benchmarks/slam_tracking_breaks.py {' '.join(sys.argv[1:])}`", "",
-        f"- {n_frames} frames, {len(rows)} consecutive pairs; SIFT (max {cfg.max_keypoints} keypoints, contrast "
-        f"threshold {cfg.sift_contrast_threshold}), ratio {cfg.ratio}, match filter defaults (>= "
+        f"- {n_frames} frames, {len(rows)} consecutive pairs; SIFT (max {cfg.frontend.max_keypoints} keypoints, contrast "
+        f"threshold {cfg.frontend.sift_contrast_threshold}), ratio {cfg.frontend.ratio}, match filter defaults (>= "
         f"{cfg.match_filter.min_matches} correspondences, residual {1e3 * cfg.match_filter.max_residual:g} mm).",
         f"- Broken pairs (no accepted match): {len(broken)}; accepted but under {a.min_correspondences} "
         f"correspondences: {len(weak)}; median correspondences of all pairs: {np.median([r['n'] for r in rows]):.0f}.",

@@ -77,47 +77,58 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _run(args: argparse.Namespace) -> int:
-    from c3f_slam.pipeline import PAPER_RULES, SlamConfig, run_slam
+def _overrides(args: argparse.Namespace) -> dict:
+    """SlamConfig overrides (parts as dicts) of the run command's tuning options."""
+    from c3f_slam.pipeline import PAPER_RULES
 
-    if args.stride < 1:
-        raise InputError(f"--stride must be >= 1, got {args.stride}")
-    if args.max_frames is not None and args.max_frames < 1:
-        raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
-    if args.threads < 1:
-        raise InputError(f"--threads must be >= 1, got {args.threads}")
-    over = {}
+    over: dict[str, dict] = {"fragments": {}, "frontend": {}, "keyframes": {}, "candidates": {}}
     if args.min_correspondences is not None:
-        over["min_consecutive_correspondences"] = args.min_correspondences
+        over["fragments"]["min_correspondences"] = args.min_correspondences
     if args.min_overlap is not None:
-        over["min_overlap"] = args.min_overlap
+        over["fragments"]["min_overlap"] = args.min_overlap
     if args.max_keypoints is not None:
-        over["max_keypoints"] = over["keyframe_keypoints"] = args.max_keypoints
+        over["frontend"]["max_keypoints"] = over["keyframes"]["keypoints"] = args.max_keypoints
     if args.ratio is not None:
-        if not 0 <= args.ratio <= 1:
-            raise InputError(f"--ratio must be in [0, 1] (0 = off), got {args.ratio}")
-        over["ratio"] = args.ratio or None
+        _check(0 <= args.ratio <= 1, f"--ratio must be in [0, 1] (0 = off), got {args.ratio}")
+        over["frontend"]["ratio"] = args.ratio or None
     if args.max_keyframe_candidates is not None:
-        if args.max_keyframe_candidates < 0:
-            raise InputError(f"--max-keyframe-candidates must be >= 0, got {args.max_keyframe_candidates}")
+        _check(args.max_keyframe_candidates >= 0,
+               f"--max-keyframe-candidates must be >= 0, got {args.max_keyframe_candidates}")
         if args.max_keyframe_candidates == 0:
-            over.update(PAPER_RULES)
+            for part, fields in PAPER_RULES.items():
+                over.setdefault(part, {}).update(fields)
         else:
-            over["max_keyframe_candidates"] = args.max_keyframe_candidates
+            over["candidates"]["max_candidates"] = args.max_keyframe_candidates
     if args.max_loop_edges_per_keyframe is not None:
-        if args.max_loop_edges_per_keyframe < 0:
-            raise InputError(f"--max-loop-edges-per-keyframe must be >= 0, got {args.max_loop_edges_per_keyframe}")
-        over["max_loop_edges_per_keyframe"] = args.max_loop_edges_per_keyframe or None
+        _check(args.max_loop_edges_per_keyframe >= 0,
+               f"--max-loop-edges-per-keyframe must be >= 0, got {args.max_loop_edges_per_keyframe}")
+        over["keyframes"]["max_loop_edges"] = args.max_loop_edges_per_keyframe or None
     if args.reuse_keyframes is not None:
-        over["reuse_keyframes"] = args.reuse_keyframes
+        over["keyframes"]["reuse"] = args.reuse_keyframes
+    out: dict = {part: fields for part, fields in over.items() if fields}
     if args.blas_threads is not None:
-        if args.blas_threads < 0:
-            raise InputError(f"--blas-threads must be >= 0, got {args.blas_threads}")
-        over["blas_threads"] = args.blas_threads or None
-    cfg = SlamConfig.preset_config(args.preset, mode=args.baseline or "full", fuse=not args.no_mesh, **over)
-    s = run_slam(args.sequence, args.out, cfg, args.descriptors, args.depth_source, args.depth_model,
-                 args.feature_model, args.max_frames, args.stride, progress=not args.quiet,
-                 camera=args.camera, threads=args.threads, depth_scale=args.depth_scale)
+        _check(args.blas_threads >= 0, f"--blas-threads must be >= 0, got {args.blas_threads}")
+        out["blas_threads"] = args.blas_threads or None
+    return out
+
+
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise InputError(message)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
+
+    _check(args.stride >= 1, f"--stride must be >= 1, got {args.stride}")
+    _check(args.max_frames is None or args.max_frames >= 1, f"--max-frames must be >= 1, got {args.max_frames}")
+    _check(args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
+    cfg = SlamConfig.preset_config(args.preset, mode=args.baseline or "full", fusion={"enabled": not args.no_mesh},
+                                   **_overrides(args))
+    inputs = RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, args.camera,
+                       args.threads, args.depth_scale)
+    s = run_slam(args.sequence, args.out, cfg, inputs, max_frames=args.max_frames, stride=args.stride,
+                 progress=not args.quiet)
     fps = s["timings"]["total"]["frames_per_second"]
     print(f"{s['frames']} frames, {s['registered_frames']} registered ({100 * s['registered_share']:.1f} %), "
           f"{s.get('fragments', 0)} fragments, {s.get('loop_edges', 0)} loop edges, "

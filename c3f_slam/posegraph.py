@@ -60,6 +60,8 @@ node). :attr:`PoseGraph.edges` is a sequence of :class:`Edge` views built on acc
 
 from __future__ import annotations
 
+from enum import Enum
+
 from array import array
 from collections.abc import Iterable, Iterator
 from collections.abc import Sequence as SequenceABC
@@ -161,6 +163,14 @@ def _scale_pose(T: np.ndarray, k: float) -> np.ndarray:
 _TRI = np.triu_indices(6)
 _N_TRI = len(_TRI[0])  # 21; the last entry is (5, 5), the correspondence count
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0]).tobytes()
+class EdgeKind(str, Enum):
+    """Kinds of edges (str-valued: summary.json counts them by these names)."""
+
+    ODOMETRY = "odometry"  #: consecutive frames / fragments (certain)
+    LOOP = "loop"  #: a keyframe match that closes a loop (uncertain)
+    KEYFRAME = "keyframe"  #: a match to the predecessor's keyframe (uncertain)
+
+
 #: the default edge kinds (codes 0, 1, 2); other names get the next codes per graph
 _KINDS = ("odometry", "loop", "keyframe")
 #: edge matrices are stored in blocks of this many edges (:class:`c3f_slam.blocks.BlockRows`)

@@ -57,8 +57,9 @@ class PlaceWorld:
 
 def keyframe_per_frame_slam(world: PlaceWorld, **over) -> FragmentSlam:
     """A FragmentSlam on ``world``'s matcher in which every frame opens a fragment (no frame
-    reaches 10^6 correspondences): one keyframe per frame. ``over``: SlamConfig fields."""
-    cfg = SlamConfig.preset_config("colon", min_consecutive_correspondences=10**6, fuse=False, **over)
+    reaches 10^6 correspondences): one keyframe per frame. ``over``: SlamConfig parts (dicts)."""
+    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
+                                   **over)
     slam = FragmentSlam(cfg, np.eye(3))
     slam.match = world.match
     return slam

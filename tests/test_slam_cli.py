@@ -73,8 +73,8 @@ def test_keyframe_candidates_option(seq, tmp_path, capsys):
         assert main(["run", str(seq), "--out", str(out), "--max-keyframe-candidates", n, "--max-frames", "6",
                      "--min-correspondences", "15", "--no-mesh", "--quiet"]) == 0
         cfg = json.loads((out / "summary.json").read_text())["config"]
-        assert cfg["max_keyframe_candidates"] == expect
-        assert (cfg["optimize_growth"] is None) == (expect is None)
+        assert cfg["candidates"]["max_candidates"] == expect
+        assert (cfg["optimization"]["growth"] is None) == (expect is None)
     assert main(["run", str(seq), "--out", str(tmp_path / "bad"), "--max-keyframe-candidates", "-1",
                  "--quiet"]) == 2
     assert "--max-keyframe-candidates" in _error_line(capsys)
@@ -84,9 +84,9 @@ def test_keyframe_candidates_option(seq, tmp_path, capsys):
     "flag, key, cases, bad",
     [
         # --blas-threads N caps NumPy's BLAS threads during the run (default 1; 0 = the library's)
-        ("--blas-threads", "blas_threads", [(None, 1), ("2", 2), ("0", None)], "-1"),
+        ("--blas-threads", ("blas_threads",), [(None, 1), ("2", 2), ("0", None)], "-1"),
         # --ratio R: the matcher's ratio test (default 0.9; 0 = off; outside [0, 1] is an error)
-        ("--ratio", "ratio", [(None, 0.9), ("0.8", 0.8), ("0", None)], "1.5"),
+        ("--ratio", ("frontend", "ratio"), [(None, 0.9), ("0.8", 0.8), ("0", None)], "1.5"),
     ],
 )
 def test_option_reaches_config(seq, tmp_path, capsys, flag, key, cases, bad):
@@ -94,7 +94,10 @@ def test_option_reaches_config(seq, tmp_path, capsys, flag, key, cases, bad):
         args = [] if value is None else [flag, value]
         out = tmp_path / f"o{value}"
         assert main(["run", str(seq), "--out", str(out), "--max-frames", "3", "--no-mesh", "--quiet", *args]) == 0
-        assert json.loads((out / "summary.json").read_text())["config"][key] == expect
+        value = json.loads((out / "summary.json").read_text())["config"]
+        for part in key:
+            value = value[part]
+        assert value == expect
     assert main(["run", str(seq), "--out", str(tmp_path / "bad"), flag, bad, "--quiet"]) == 2
     assert flag in _error_line(capsys)
 

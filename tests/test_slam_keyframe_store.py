@@ -97,8 +97,8 @@ def _revisiting_walk(n: int = 90, places: int = 30) -> list[int]:
 def _fake_run(world: PlaceWorld, folder: Path | None) -> tuple[FragmentSlam, list[bytes]]:
     """One keyframe per frame on ``world``; the matcher checks what it gets from the store and
     records the bytes of every stored keyframe it is given."""
-    cfg = SlamConfig.preset_config("colon", min_consecutive_correspondences=10**6, fuse=False,
-                                   max_keyframe_candidates=6, optimize_small_map=10)
+    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
+                                   candidates={"max_candidates": 6}, optimization={"small_map": 10})
     slam = FragmentSlam(cfg, np.eye(3), keyframe_cache=folder)
     if folder is not None:
         slam.keyframes = KeyframeStore(folder, lru=4)  # small LRU: most candidates come from the file
@@ -158,7 +158,8 @@ def test_run_slam_identical_and_cache_removed(seq, tmp_path):
 
     outs = {}
     for cache in (True, False):
-        cfg = SlamConfig.preset_config("colon", min_consecutive_correspondences=15, fuse=False, keyframe_cache=cache)
+        cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False},
+                                       keyframes={"cache": cache})
         out = tmp_path / f"cache_{cache}"
         s = run_slam(seq, out, cfg, progress=False, slam_factory=Spy)
         assert seen["on_disk"] is cache and seen["file"] is cache
@@ -182,7 +183,7 @@ def test_run_slam_removes_cache_on_error(seq, tmp_path):
                 raise RuntimeError("planted failure")
             return super().add(feat, depth)
 
-    cfg = SlamConfig.preset_config("colon", min_consecutive_correspondences=15, fuse=False)
+    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False})
     with pytest.raises(RuntimeError, match="planted failure"):
         run_slam(seq, out, cfg, progress=False, slam_factory=Boom)
     assert not (out / CACHE_DIR).exists()

@@ -11,7 +11,8 @@ from c3f_slam import geometry as g
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.frontend import PairMatch
-from c3f_slam.pipeline.slam import FragmentSlam, cap_keyframe_edges
+from c3f_slam.pipeline.keyframe_edges import cap_keyframe_edges
+from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.posegraph import PoseGraph, PoseGraphConfig, information_from_points
 from tests.fake_places import PlaceWorld, keyframe_per_frame_slam
 from tests.test_slam_posegraph import _false_loop_graph
@@ -167,7 +168,7 @@ def test_cap_keeps_most_recent_then_strongest():
 
 def _run(cap: int | None, n_frames: int = 60) -> tuple[FragmentSlam, PlaceWorld]:
     world = PlaceWorld(10, reach=3, seed=1, graded=True)
-    slam = keyframe_per_frame_slam(world, max_keyframe_candidates=None, max_loop_edges_per_keyframe=cap)
+    slam = keyframe_per_frame_slam(world, candidates={"max_candidates": None}, keyframes={"max_loop_edges": cap})
     for k in range(n_frames):
         slam.add(world.frame(k, [*range(10), *range(8, 0, -1)][k % 18]), np.zeros((4, 4)))
     return slam, world
@@ -187,11 +188,11 @@ def test_slam_keeps_at_most_cap_loop_edges_and_the_most_recent(cap):
     full, _ = _run(None)
     capped, every = _loop_edges_by_keyframe(slam), _loop_edges_by_keyframe(full)
     assert max(len(v) for v in every.values()) > cap  # the cap does bite on this stream
-    assert slam.n_edges_capped == sum(max(len(v) - cap, 0) for v in every.values()) > 0
+    assert slam.counts.edges_capped == sum(max(len(v) - cap, 0) for v in every.values()) > 0
     for node, olds in every.items():
         assert len(capped[node]) == min(len(olds), cap)
         assert max(olds) in capped[node]  # the most recent matched keyframe is kept
-    assert slam.stats()["keyframe_matches_capped"] == slam.n_edges_capped
+    assert slam.stats()["keyframe_matches_capped"] == slam.counts.edges_capped
     # the map stays one piece and correct
     _, _, P, reg = slam.trajectory()
     assert reg.all()
@@ -202,10 +203,10 @@ def test_slam_keeps_at_most_cap_loop_edges_and_the_most_recent(cap):
 def test_cap_none_or_zero_keeps_every_match():
     full, _ = _run(None, 40)
     zero, _ = _run(0, 40)
-    assert full.n_edges_capped == zero.n_edges_capped == 0
+    assert full.counts.edges_capped == zero.counts.edges_capped == 0
     assert _loop_edges_by_keyframe(full) == _loop_edges_by_keyframe(zero)
-    with pytest.raises(InputError, match="max_loop_edges_per_keyframe"):
-        SlamConfig(max_loop_edges_per_keyframe=-1)
+    with pytest.raises(InputError, match="keyframes.max_loop_edges"):
+        SlamConfig(keyframes={"max_loop_edges": -1})
 
 
 # ---------------------------------------------------------------------- stored keyframes
@@ -232,7 +233,7 @@ def test_cli_loop_edge_cap_option(tiny_sequence, tmp_path, capsys):
         out = tmp_path / f"o{len(args)}{args[-1] if args else ''}"
         assert main(["run", str(tiny_sequence), "--out", str(out), "--max-frames", "4", "--min-correspondences", "15",
                      "--no-mesh", "--quiet", *args]) == 0
-        assert json.loads((out / "summary.json").read_text())["config"]["max_loop_edges_per_keyframe"] == expect
+        assert json.loads((out / "summary.json").read_text())["config"]["keyframes"]["max_loop_edges"] == expect
     capsys.readouterr()
     assert main(["run", str(tiny_sequence), "--out", str(tmp_path / "bad"), "--max-loop-edges-per-keyframe", "-2",
                  "--quiet"]) == 2

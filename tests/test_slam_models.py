@@ -23,7 +23,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.models import DepthModel, DescriptorModel, ModelMetadata, OnnxModel, PoseModel
 from c3f_slam.pipeline.frontend import ModelDepth
 from c3f_slam.pipeline.fusion_frames import CACHE_DIR, PredictedFrames
-from c3f_slam.pipeline.run import resolve_sources
+from c3f_slam.pipeline.sources import resolve_sources
 from c3f_slam.preprocess import prepare_network_input
 from c3f_slam.stream import StreamFrame
 from tests import onnx_fixtures as fx

@@ -19,13 +19,14 @@ from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.fragments import CORRESPONDENCES, OVERLAP, SIZE, Fragment, new_fragment_reason
 from c3f_slam.matching import MatchFilterConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, explain_match, match_frames
-from c3f_slam.pipeline.slam import FragmentSlam, OdometrySlam
+from c3f_slam.pipeline.odometry import OdometrySlam
+from c3f_slam.pipeline.slam import FragmentSlam
 from datamodules.synthetic.fixture import make_tiny_sequence
 
 FRAMES, SIZE_PX = 36, 128
 #: 128 px frames give 20-60 filtered correspondences between neighbours, so the paper's 100
 #: (tuned at 512+ px) would make every frame a keyframe; the tests use 15.
-CFG = dict(min_consecutive_correspondences=15)
+CFG = dict(fragments={"min_correspondences": 15})
 
 
 @pytest.fixture(scope="module")
@@ -123,7 +124,7 @@ def test_rgbd_end_to_end_full_system(seq, tmp_path):
 def test_odometry_baseline_and_injected_wrong_edge(seq, tmp_path):
     """The baseline tracks well; one wrong relative pose in its chain raises the ATE a lot
     (so the ATE checks above can fail)."""
-    cfg = SlamConfig.preset_config("colon", mode="odometry", fuse=False, **CFG)
+    cfg = SlamConfig.preset_config("colon", mode="odometry", fusion={"enabled": False}, **CFG)
     run_slam(seq, tmp_path / "odo", cfg, progress=False)
     clean = _evaluate(tmp_path / "odo", seq)["ate_sim3"]["rmse_m"]
 
@@ -162,7 +163,7 @@ def test_blas_threads_are_capped_during_a_run_and_restored(seq, tmp_path):
             seen.append(blas_threads())
             return super().add(feat, depth)
 
-    cfg = SlamConfig.preset_config("colon", mode="odometry", fuse=False, **CFG)
+    cfg = SlamConfig.preset_config("colon", mode="odometry", fusion={"enabled": False}, **CFG)
     run_slam(seq, tmp_path / "b1", cfg, progress=False, max_frames=4, slam_factory=Watching)
     assert seen and all(all(n == 1 for n in t) for t in seen), seen
     assert blas_threads() == before
@@ -189,7 +190,7 @@ def test_false_loop_closure_is_pruned(seq, tmp_path):
                 return m, n
             self.match = match
 
-    cfg = SlamConfig.preset_config("colon", fuse=False, **CFG)
+    cfg = SlamConfig.preset_config("colon", fusion={"enabled": False}, **CFG)
     s = run_slam(seq, tmp_path / "loop", cfg, progress=False, slam_factory=FalseLoop)
     ev = _evaluate(tmp_path / "loop", seq)
     assert s["loop_edges"] >= 1 and s["pruned_edges"] >= 1, s
@@ -226,9 +227,8 @@ def test_black_run_relocalises_to_the_map(seq, tmp_path, appearance_only):
     appearance top 3 (no recent, no spatial ones), through the global appearance score alone."""
     after, n_black = FRAMES // 2, 5
     dst = _with_black_run(seq, tmp_path / "black", after, n_black)
-    extra = dict(max_keyframe_candidates=3, recent_keyframe_candidates=0, spatial_keyframe_candidates=0) \
-        if appearance_only else {}
-    cfg = SlamConfig.preset_config("colon", fuse=False, **CFG, **extra)
+    extra = dict(candidates={"max_candidates": 3, "recent": 0, "spatial": 0}) if appearance_only else {}
+    cfg = SlamConfig.preset_config("colon", fusion={"enabled": False}, **CFG, **extra)
     s = run_slam(dst, tmp_path / "out", cfg, progress=False)
     assert s["skipped_black"] == n_black
     assert s["relocalised_keyframes"] >= 1  # a keyframe with no odometry link joined the map

@@ -206,25 +206,25 @@ def test_windowed_optimisation_keeps_the_rest_fixed():
 
 def test_optimisation_schedule_small_then_geometric():
     world = PlaceWorld(60, reach=2)
-    slam = keyframe_per_frame_slam(world, optimize_small_map=10, optimize_growth=0.5, max_optimize_nodes=None,
-                 final_optimize_nodes=None)
+    slam = keyframe_per_frame_slam(world, optimization={"small_map": 10, "growth": 0.5, "max_nodes": None,
+                                                          "final_nodes": None})
     fired: list[int] = []
-    inner = slam.optimize_global
+    inner = slam.schedule.optimize
 
-    def spy(node=None):
+    def spy(node, n_keyframes):
         fired.append(len(slam.keyframes))
-        return inner(node)
+        return inner(node, n_keyframes)
 
-    slam.optimize_global = spy
+    slam.schedule.optimize = spy
     for k in range(60):
         slam.add(world.frame(k, k), np.zeros((4, 4)))
     # keyframe 2 (the 3rd) is the first with a loop (to 0); every loop keyframe optimises while
     # the map is small (< 10), then only once the keyframes added since the last optimisation
     # are 50 % of the component to optimise: 9 -> 18 -> 36 (geometric)
     assert fired == [3, 4, 5, 6, 7, 8, 9, 18, 36]
-    n_before = slam.n_optimizations
+    n_before = slam.schedule.counts.optimizations
     slam.finish()
-    assert slam.n_optimizations == n_before + 1  # always at the end
+    assert slam.schedule.counts.optimizations == n_before + 1  # always at the end
     _, _, P, reg = slam.trajectory()
     assert reg.all()
     np.testing.assert_allclose(P[:, :3, 3], np.array(world.poses)[:, :3, 3], atol=1e-6)
@@ -232,11 +232,11 @@ def test_optimisation_schedule_small_then_geometric():
 
 def test_every_keyframe_switch_and_paper_rules():
     world = PlaceWorld(30, reach=2)
-    slam = keyframe_per_frame_slam(world, optimize_growth=None, max_keyframe_candidates=None)
+    slam = keyframe_per_frame_slam(world, optimization={"growth": None}, candidates={"max_candidates": None})
     for k in range(30):
         slam.add(world.frame(k, k), np.zeros((4, 4)))
-    assert slam.n_optimizations == 28  # every keyframe with a loop (keyframes 2..29)
-    assert slam.n_candidates_matched == sum(max(k - 1, 0) for k in range(30))  # all earlier but the link pair
+    assert slam.schedule.counts.optimizations == 28  # every keyframe with a loop (keyframes 2..29)
+    assert slam.counts.candidates_matched == sum(max(k - 1, 0) for k in range(30))  # all earlier but the link pair
 
 
 def test_bounded_candidates_windows_and_relocalisation():
@@ -244,8 +244,8 @@ def test_bounded_candidates_windows_and_relocalisation():
     window, the final sweep covers the map; after lost tracking, a keyframe of an old place
     is found by appearance alone (not recent, no pose estimate) and joins the map."""
     world = PlaceWorld(80, reach=2)
-    slam = keyframe_per_frame_slam(world, max_keyframe_candidates=6, recent_keyframe_candidates=2, spatial_keyframe_candidates=2,
-                 optimize_small_map=10, optimize_growth=0.1, max_optimize_nodes=12, final_optimize_nodes=30)
+    slam = keyframe_per_frame_slam(world, candidates={"max_candidates": 6, "recent": 2, "spatial": 2},
+                                   optimization={"small_map": 10, "growth": 0.1, "max_nodes": 12, "final_nodes": 30})
     sizes: list[int] = []
     inner = slam.graph.optimize
 
@@ -256,15 +256,15 @@ def test_bounded_candidates_windows_and_relocalisation():
 
     slam.graph.optimize = spy
     for k in range(70):
-        before = slam.n_candidates_matched
+        before = slam.counts.candidates_matched
         slam.add(world.frame(k, k), np.zeros((4, 4)))
-        assert slam.n_candidates_matched - before <= 6
-    assert max(sizes) <= 12 and slam.n_windowed_optimizations > 0
+        assert slam.counts.candidates_matched - before <= 6
+    assert max(sizes) <= 12 and slam.schedule.counts.windowed > 0
     # tracking lost; the camera is back at place 20 (50 places ago)
     slam.skip(70, 70 / 30.0)
-    reloc = slam.n_relocalised
+    reloc = slam.counts.relocalised
     slam.add(world.frame(71, 20), np.zeros((4, 4)))
-    assert slam.n_relocalised == reloc + 1
+    assert slam.counts.relocalised == reloc + 1
     new = len(slam.keyframes) - 1
     assert any({e.i, e.j} == {20, new} for e in slam.graph.edges)
     assert slam.in_main(new)

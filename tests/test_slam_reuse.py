@@ -17,12 +17,12 @@ K = np.array([[30.0, 0.0, 16.0], [0.0, 30.0, 16.0], [0.0, 0.0, 1.0]])
 DEPTH = np.full((32, 32), 0.03)
 
 
-def _slam(world: PlaceWorld, reuse: bool, **over) -> FragmentSlam:
+def _slam(world: PlaceWorld, reuse: bool, candidates: dict | None = None, **keyframes) -> FragmentSlam:
     """Graded matches (40 inliers at the same place, one fewer per place of distance) and 40
     consecutive correspondences needed to stay in a fragment: moving to another place opens
     a fragment, a frame at an already mapped place can continue that place's fragment."""
-    cfg = SlamConfig.preset_config("colon", min_consecutive_correspondences=40, fuse=False,
-                                   reuse_keyframes=reuse, **over)
+    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
+                                   keyframes={"reuse": reuse, **keyframes}, candidates=candidates or {})
     slam = FragmentSlam(cfg, K)
     slam.match = world.match
     return slam
@@ -53,7 +53,7 @@ def test_revisits_add_no_keyframes_and_no_edges():
             edges_after_first_return = slam.graph.n_edges
     # the first pass makes the 10 keyframes; after it every fragment hangs off one of them
     assert len(slam.keyframes) == slam.graph.n_nodes == 10
-    assert slam.n_attached == slam.n_fragments - 10 == 50
+    assert slam.counts.attached == slam.counts.fragments - 10 == 50
     # the first return closes one loop (the last new keyframe's link to its revisited
     # neighbour); from then on nothing is added
     assert slam.graph.n_edges == edges_after_first_return
@@ -92,12 +92,12 @@ def test_attach_needs_the_fragment_rules_overlap():
 
     slam.match = match
     slam.add(feat, DEPTH)
-    assert len(slam.keyframes) == 4 and slam.n_attached == 0
+    assert len(slam.keyframes) == 4 and slam.counts.attached == 0
     # and the same frame looking the right way hangs off keyframe 1
     slam.match = inner
     slam.skip(4, 4 / 30.0)
     slam.add(world.frame(5, 1), DEPTH)
-    assert len(slam.keyframes) == 4 and slam.n_attached == 1 and slam.frag_node[-1] == 1
+    assert len(slam.keyframes) == 4 and slam.counts.attached == 1 and slam.frag_node[-1] == 1
 
 
 def test_attached_revisit_merges_a_lone_component():
@@ -105,7 +105,7 @@ def test_attached_revisit_merges_a_lone_component():
     component), then back over 6, 5, 4: the revisit of place 4 hangs off its keyframe and its
     match to place 3 (now visible) merges the two components without a new keyframe."""
     world = PlaceWorld(8, reach=1, seed=3, graded=True)
-    slam = _slam(world, True, max_keyframe_candidates=None)
+    slam = _slam(world, True, candidates={"max_candidates": None})
     hide = {"on": True}
 
     def match(a: FrameFeatures, b: FrameFeatures) -> tuple[PairMatch | None, int]:
@@ -123,7 +123,7 @@ def test_attached_revisit_merges_a_lone_component():
     hide["on"] = False
     for k, p in zip(range(9, 12), [6, 5, 4]):
         slam.add(world.frame(k, p), DEPTH)
-    assert len(slam.keyframes) == 8 and slam.n_attached == 3
+    assert len(slam.keyframes) == 8 and slam.counts.attached == 3
     assert slam.graph.find(0) == slam.graph.find(7)
     slam.finish()
     # one map; the second component was moved rigidly into the first one's frame
@@ -141,7 +141,7 @@ def test_reuse_switch_in_config_and_cli(reuse, tiny_sequence, tmp_path):
     import json
 
     s = json.loads((out / "summary.json").read_text())
-    assert s["config"]["reuse_keyframes"] is reuse
+    assert s["config"]["keyframes"]["reuse"] is reuse
     assert s["keyframes"] + s["attached_fragments"] == s["fragments"]
     assert reuse or s["attached_fragments"] == 0
     graph = json.loads((out / "keyframe_graph.json").read_text())
@@ -170,11 +170,11 @@ def test_a_wrong_keyframe_match_does_not_attach_against_the_odometry(check):
         slam.add(world.frame(k, k), DEPTH)
     slam.finish()
     if check:
-        assert len(slam.keyframes) == 7 and slam.n_attached == 0
+        assert len(slam.keyframes) == 7 and slam.counts.attached == 0
         assert slam.graph.n_pruned() >= 1
         _check_trajectory(slam, world)
     else:
-        assert len(slam.keyframes) == 6 and slam.n_attached == 1 and slam.frag_node[-1] == 0
+        assert len(slam.keyframes) == 6 and slam.counts.attached == 1 and slam.frag_node[-1] == 0
         _, _, P, _ = slam.trajectory()
         np.testing.assert_allclose(P[-1], world.poses[0], atol=1e-9)  # the wrong pose
 
@@ -183,13 +183,13 @@ def test_reuse_options_are_checked():
     from c3f_slam.errors import InputError
 
     with pytest.raises(InputError, match="reuse_max_offset"):
-        SlamConfig(reuse_max_offset=-1.0)
+        SlamConfig(keyframes={"reuse_max_offset": -1.0})
     with pytest.raises(InputError, match="reuse_max_angle_deg"):
-        SlamConfig(reuse_max_angle_deg=200.0)
-    assert SlamConfig.preset_config("room").reuse_max_offset == 0.25
+        SlamConfig(keyframes={"reuse_max_angle_deg": 200.0})
+    assert SlamConfig.preset_config("room").keyframes.reuse_max_offset == 0.25
     from c3f_slam.pipeline import PAPER_RULES
 
-    assert SlamConfig().reuse_keyframes and not SlamConfig(**PAPER_RULES).reuse_keyframes
+    assert SlamConfig().keyframes.reuse and not SlamConfig(**PAPER_RULES).keyframes.reuse
 
 
 def test_no_attach_to_the_keyframe_the_overlap_test_just_failed():
@@ -202,12 +202,12 @@ def test_no_attach_to_the_keyframe_the_overlap_test_just_failed():
     slam.add(world.frame(0, 0), DEPTH)
     slam.add(world.frame(1, 0), DEPTH)  # appended to the keyframe's fragment
     slam.add(world.frame(2, 0), DEPTH * 2.0 / 3.0)
-    assert slam.reasons["overlap"] == 1
-    assert len(slam.keyframes) == 2 and slam.n_attached == 0
+    assert slam.counts.reasons["overlap"] == 1
+    assert len(slam.keyframes) == 2 and slam.counts.attached == 0
     # the same frame after a gap (no overlap test against the active keyframe) does hang off it
     slam.skip(3, 3 / 30.0)
     slam.add(world.frame(4, 0), DEPTH * 2.0 / 3.0)
-    assert len(slam.keyframes) == 2 and slam.n_attached == 1 and slam.n_relocalised == 1
+    assert len(slam.keyframes) == 2 and slam.counts.attached == 1 and slam.counts.relocalised == 1
 
 
 # ---------------------------------------------------------------------- end to end
@@ -247,7 +247,8 @@ def test_ping_pong_run_stops_adding_keyframes(tmp_path_factory):
     third_pass = 2 * 24 - 2  # first frame of the third pass
     res = {}
     for reuse in (True, False):
-        cfg = SlamConfig.preset_config("colon", min_consecutive_correspondences=15, fuse=False, reuse_keyframes=reuse)
+        cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False},
+                                       keyframes={"reuse": reuse})
         s = run_slam(seq, root / f"out_{reuse}", cfg, progress=False)
         ev = evaluate_run(root / f"out_{reuse}", seq)
         graph = json.loads((root / f"out_{reuse}" / "keyframe_graph.json").read_text())

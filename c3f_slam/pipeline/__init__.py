@@ -1,16 +1,21 @@
 """The SLAM runtime pipeline (SPEC §4): frontend, fragments, global keyframe graph, fusion.
 
-- :mod:`.config`: :class:`SlamConfig` and presets (colon / room);
+- :mod:`.config`: :class:`SlamConfig`, one small settings part per component, and presets;
+- :mod:`.sources`: the run's inputs (:class:`RunInputs`), checked and opened once;
 - :mod:`.frontend`: keypoints, descriptor / depth provider seams, pairwise matching;
+- :mod:`.backend`: the :class:`SlamBackend` protocol the run loop drives, frame log, timings;
+- :mod:`.slam`: the full back-end (fragments + global keyframe graph), built from
+  :mod:`.fragments` (the new-fragment rule, intra-fragment graphs), :mod:`.retrieval`
+  (keyframe candidates), :mod:`.keyframe_edges` (edge cap, placing a keyframe),
+  :mod:`.reuse` (revisits), :mod:`.schedule` (global optimisation), :mod:`.keyframe_store`;
+- :mod:`.odometry`: the frame-to-frame baseline back-end;
 - :mod:`.fusion_frames`: where fusion re-reads frames (sequence files, or the predicted-depth cache);
-- :mod:`.fragments`: the new-fragment rule and the intra-fragment pose graph;
-- :mod:`.retrieval`: the bounded set of keyframes a new keyframe is matched against;
-- :mod:`.slam`: the fragment + global keyframe back-end and the odometry baseline;
-- :mod:`.run`: the streaming run loop that writes the outputs;
+- :mod:`.run`: :func:`run_slam` and the :class:`SlamRun` that owns a run's resources;
 - :mod:`.evaluation`: the ``evaluate`` command's metrics and files.
 """
 
 from c3f_slam.pipeline.config import PAPER_RULES, SlamConfig
 from c3f_slam.pipeline.run import run_slam
+from c3f_slam.pipeline.sources import RunInputs
 
-__all__ = ["PAPER_RULES", "SlamConfig", "run_slam"]
+__all__ = ["PAPER_RULES", "RunInputs", "SlamConfig", "run_slam"]

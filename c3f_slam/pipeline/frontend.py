@@ -13,6 +13,7 @@ providers are bound to the stream's camera, whose intrinsics the frames already 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -31,6 +32,7 @@ from c3f_slam.matching import (
     to_gray_uint8,
 )
 from c3f_slam.models import DepthModel, DescriptorModel, NetworkView
+from c3f_slam.pipeline.config import FrontendConfig, SlamConfig
 from c3f_slam.preprocess import SPECULAR_DILATION_PX, specular_mask
 from c3f_slam.stream import StreamFrame
 
@@ -191,34 +193,25 @@ class FrameFeatures:
 class Frontend:
     """Keypoints outside speculars, descriptors and 3D points of one frame."""
 
-    def __init__(
-        self,
-        K: np.ndarray,
-        descriptors: DescriptorProvider | None = None,
-        max_keypoints: int = 1000,
-        contrast_threshold: float = 0.005,
-        mask_specular: bool = True,
-        specular_dilation_px: int | None = None,
-    ) -> None:
+    def __init__(self, K: np.ndarray, descriptors: DescriptorProvider | None = None,
+                 cfg: FrontendConfig | None = None) -> None:
+        """``K``: 3x3 intrinsics of the frames (px); ``descriptors`` default SIFT."""
         self.K = np.asarray(K, dtype=np.float64)
         self.provider = descriptors or SiftDescriptors()
-        self.max_keypoints = int(max_keypoints)
-        self.contrast_threshold = float(contrast_threshold)
-        self.mask_specular = bool(mask_specular)
-        self.specular_dilation_px = specular_dilation_px
+        self.cfg = cfg or FrontendConfig()
 
     def dilation(self, rgb: np.ndarray) -> int:
-        '''Specular-mask dilation (px) for this frame size (see SlamConfig).'''
-        if self.specular_dilation_px is not None:
-            return int(self.specular_dilation_px)
+        """Specular-mask dilation (px) for this frame size (``FrontendConfig.specular_dilation_px``)."""
+        if self.cfg.specular_dilation_px is not None:
+            return int(self.cfg.specular_dilation_px)
         px = int(round(SPECULAR_DILATION_PX * min(rgb.shape[:2]) / 512.0))
         return max(3, px | 1)
 
     def keypoints(self, rgb: np.ndarray) -> Keypoints:
-        mask = ~specular_mask(rgb, dilation_px=self.dilation(rgb)) if self.mask_specular else None
+        mask = ~specular_mask(rgb, dilation_px=self.dilation(rgb)) if self.cfg.mask_specular else None
         return detect_sift(
-            rgb, self.max_keypoints, mask=mask, descriptors=self.provider.needs_sift_descriptors,
-            contrast_threshold=self.contrast_threshold,
+            rgb, self.cfg.max_keypoints, mask=mask, descriptors=self.provider.needs_sift_descriptors,
+            contrast_threshold=self.cfg.sift_contrast_threshold,
         )
 
     def describe(self, frame: StreamFrame, kp: Keypoints, depth: np.ndarray) -> FrameFeatures:
@@ -291,3 +284,12 @@ def match_frames(
     """Mutual NN + :func:`filter_matches`; returns (match or None, number of inliers)."""
     a = explain_match(fi, fj, cfg, metric, ratio)
     return a.match, (a.match.n if a.match is not None else 0)
+
+
+#: matches two frames: (match or None, number of inliers)
+Matcher = Callable[[FrameFeatures, FrameFeatures], "tuple[PairMatch | None, int]"]
+
+
+def frame_matcher(cfg: SlamConfig, metric: str = "l2") -> Matcher:
+    """:func:`match_frames` with the run's match filter and ratio test."""
+    return lambda a, b: match_frames(a, b, cfg.match_filter, metric, cfg.frontend.ratio)

@@ -1,0 +1,137 @@
+"""What the run loop needs from a SLAM back-end (:class:`SlamBackend`), and the parts both
+back-ends share: the frame log (:class:`FrameLog`) and per-stage timings (:class:`Timings`).
+
+Two back-ends implement the protocol: :class:`c3f_slam.pipeline.slam.FragmentSlam` (the
+full system) and :class:`c3f_slam.pipeline.odometry.OdometrySlam` (the baseline). Poses are
+camera-to-world 4x4 matrices in metres; a frame is addressed by its log row (one row per
+streamed frame, processed or skipped, in stream order).
+"""
+
+from __future__ import annotations
+
+import time
+from array import array
+from collections import defaultdict
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from c3f_slam.outputs import KeyframeGraph
+from c3f_slam.pipeline.config import SlamConfig
+from c3f_slam.pipeline.frontend import FrameFeatures
+
+
+class Timings:
+    """Seconds per stage (io, depth, keypoints incl. descriptors, matching, posegraph, fusion)."""
+
+    STAGES = ("io", "depth", "keypoints", "matching", "posegraph", "fusion")
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = defaultdict(float)
+
+    def add(self, stage: str, t0: float) -> float:
+        """Add the time since ``t0`` (``time.perf_counter()``) to ``stage``; returns now."""
+        now = time.perf_counter()
+        self.seconds[stage] += now - t0
+        return now
+
+    def as_dict(self, n_frames: int) -> dict:
+        out = {}
+        for s in self.STAGES:
+            sec = self.seconds.get(s, 0.0)
+            out[s] = {"seconds": sec, "ms_per_frame": 1000.0 * sec / max(n_frames, 1)}
+        total = sum(self.seconds.values())
+        out["total"] = {"seconds": total, "frames_per_second": n_frames / total if total > 0 else None}
+        return out
+
+
+class FrameLog:
+    """Per streamed frame: timestamp, fragment id (-1 = not placed), local index and, once
+    its fragment is closed (:meth:`settle`), the global node the frame hangs off (-1 before)
+    and its node-from-frame pose (4x4 float64, row-major). Compact arrays, no objects."""
+
+    _UNSET = array("d", bytes(8 * 16))
+
+    def __init__(self) -> None:
+        self.index = array("q")
+        self.stamp = array("d")
+        self.fragment = array("q")
+        self.local = array("q")
+        self.node = array("q")
+        self.rel = array("d")
+
+    def append(self, index: int, stamp: float, fragment: int = -1, local: int = -1) -> None:
+        self.index.append(index)
+        self.stamp.append(stamp)
+        self.fragment.append(fragment)
+        self.local.append(local)
+        self.node.append(-1)
+        self.rel.extend(self._UNSET)
+
+    def settle(self, row0: int, node: int, poses: np.ndarray) -> None:
+        """Rows ``row0 ..`` (a closed fragment's frames, in order) hang off ``node`` with
+        node-from-frame ``poses`` (n, 4, 4)."""
+        n = len(poses)
+        self.node[row0:row0 + n] = array("q", [node]) * n
+        self.rel[16 * row0:16 * (row0 + n)] = array("d", np.ascontiguousarray(poses, np.float64).tobytes())
+
+    def node_pose(self, row: int) -> np.ndarray:
+        """Node-from-frame pose of a settled row."""
+        return np.array(self.rel[16 * row:16 * row + 16], dtype=np.float64).reshape(4, 4)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+class SlamBackend(Protocol):
+    """A back-end the run loop drives (:mod:`c3f_slam.pipeline.run`).
+
+    Constructed as ``factory(cfg, K, metric, timings, keyframe_cache=folder or None)``
+    (:data:`BackendFactory`); ``K`` the 3x3 intrinsics, ``metric`` the descriptors' distance
+    (``l2``), ``keyframe_cache`` a folder it may use for stored features.
+    """
+
+    mode: str  #: "full" or "odometry" (SlamConfig.mode)
+    log: FrameLog
+
+    def skip(self, index: int, stamp: float) -> None:
+        """A streamed frame that was not processed (black / saturated / featureless)."""
+
+    def add(self, feat: FrameFeatures, depth: np.ndarray) -> tuple[int, bool]:
+        """Process one frame; (fragment id for fusion, -1 = not placed; opened a new fragment)."""
+
+    def pose_of_log(self, row: int) -> np.ndarray | None:
+        """Camera-to-world pose of log row ``row`` now (None when unregistered)."""
+
+    def current_pose(self) -> np.ndarray | None:
+        """Camera-to-world pose of the last placed frame (None when unregistered or none)."""
+
+    def in_main(self, fid: int) -> bool:
+        """Fragment ``fid`` is registered (in the main map)."""
+
+    def main_fragments(self) -> set[int]:
+        """The registered fragments."""
+
+    def finish(self) -> None:
+        """End of the stream: close what is open, final optimisation."""
+
+    def close(self) -> None:
+        """Free files and folders (always called, also after errors)."""
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(frame indices, timestamps, poses (N, 4, 4) NaN when unregistered, registered mask)."""
+
+    def stats(self) -> dict:
+        """Counters for summary.json."""
+
+    def keyframe_graph(self) -> KeyframeGraph | None:
+        """The global keyframe graph for keyframe_graph.json (None: the back-end has none)."""
+
+    def n_keyframes(self) -> int:
+        """Keyframes so far (progress display)."""
+
+
+class BackendFactory(Protocol):
+    def __call__(self, cfg: SlamConfig, K: np.ndarray, metric: str = "l2", timings: Timings | None = None,
+                 keyframe_cache: str | Path | None = None) -> SlamBackend: ...

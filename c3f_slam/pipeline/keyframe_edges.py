@@ -1,0 +1,87 @@
+"""Edges of a new keyframe into the global graph: how many are kept and where the keyframe
+goes (SPEC §4.2).
+
+A new keyframe has at most one odometry edge (to the previous fragment's node, certain) and
+keyframe matches to earlier keyframes (kinds ``keyframe`` and ``loop``, uncertain). An edge
+(k, T_k,new) maps points of the new frame into keyframe k (p_k = T_k,new p_new, metres).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from c3f_slam.geometry import invert_pose
+from c3f_slam.pipeline.frontend import PairMatch
+from c3f_slam.posegraph import EdgeKind, PoseGraph
+
+
+class KeyframeEdge(NamedTuple):
+    """An edge from earlier keyframe ``k`` to a new frame: ``match.T_ij`` = T_k,new."""
+
+    k: int
+    match: PairMatch
+    kind: EdgeKind
+
+
+def cap_keyframe_edges(
+    edges: list[KeyframeEdge], cap: int | None, component: Callable[[int], int] | None = None
+) -> tuple[list[KeyframeEdge], int]:
+    """Bound the keyframe-match edges of a new keyframe (``KeyframeConfig.max_loop_edges``);
+    returns (kept edges in their input order, number discarded).
+
+    ``odometry`` edges are always kept and not counted. Of the others, at most ``cap`` are
+    kept (None or 0: all), chosen in this order: the match to the most recent keyframe
+    (highest id); then, for each component (``component(k)``, e.g. the pose graph's
+    union-find root) that no kept edge reaches yet, its strongest match, so that no merge of
+    components is lost; then the strongest of the rest. Strength = inlier correspondences
+    (``PairMatch.n``), ties to the more recent keyframe.
+    """
+    matches = [n for n, e in enumerate(edges) if e[2] != EdgeKind.ODOMETRY]
+    if not cap or len(matches) <= cap:
+        return list(edges), 0
+    comp = component or (lambda k: k)
+    covered = {comp(k) for k, _, kind in edges if kind == EdgeKind.ODOMETRY}
+    by_strength = sorted(matches, key=lambda n: (edges[n][1].n, edges[n][0]), reverse=True)
+    most_recent = max(matches, key=lambda n: edges[n][0])
+    chosen = [most_recent]
+    covered.add(comp(edges[most_recent][0]))
+    for n in by_strength:
+        c = comp(edges[n][0])
+        if len(chosen) < cap and c not in covered:
+            chosen.append(n)
+            covered.add(c)
+    for n in by_strength:
+        if len(chosen) >= cap:
+            break
+        if n not in chosen:
+            chosen.append(n)
+    keep = set(chosen) | {n for n, e in enumerate(edges) if e[2] == EdgeKind.ODOMETRY}
+    return [e for n, e in enumerate(edges) if n in keep], len(matches) - len(chosen)
+
+
+def place_new_frame(graph: PoseGraph, edges: list[KeyframeEdge]) -> tuple[np.ndarray | None, int]:
+    """World pose (camera-to-world) of a new frame linked by ``edges`` to earlier keyframes
+    (None without edges), after moving the other components it connects rigidly into the
+    frame of the oldest one (so that optimisation starts consistent). Touches only the nodes
+    of the components it merges. Returns (T_w,new, number of components merged into the
+    anchor). Per component the edge used is the odometry one, else the strongest."""
+    if not edges:
+        return None, 0
+    by_comp: dict[int, KeyframeEdge] = {}  # component root -> best edge
+    for e in edges:
+        c = graph.find(e.k)
+        best = by_comp.get(c)
+        if best is None or (e.kind == EdgeKind.ODOMETRY) > (best.kind == EdgeKind.ODOMETRY) or e.match.n > best.match.n:
+            by_comp[c] = e
+    anchor = min(by_comp, key=graph.component_oldest)
+    k, m, _ = by_comp[anchor]
+    T_wn = graph.pose(k) @ m.T_ij
+    for c, (k, m, _) in by_comp.items():
+        if c == anchor:
+            continue
+        G = T_wn @ invert_pose(m.T_ij) @ invert_pose(graph.pose(k))
+        graph.transform_nodes(graph.component_nodes(k), G)
+    return T_wn, len(by_comp) - 1

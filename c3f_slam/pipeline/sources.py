@@ -1,0 +1,135 @@
+"""Where a run's frames, depth and descriptors come from: the command-line choices
+(:class:`RunInputs`), checked once, opened into a :class:`RunSources`.
+
+``descriptors`` / ``depth_source`` None follow the models given: ``--depth-model`` alone
+means model depth, ``--feature-model`` alone ContraFeat, else depth files and SIFT.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from c3f_slam.camera import PinholeCamera
+from c3f_slam.errors import InputError
+from c3f_slam.models import DepthModel, DescriptorModel
+from c3f_slam.pipeline.frontend import (
+    ContraFeatDescriptors,
+    DepthProvider,
+    DescriptorProvider,
+    FileDepth,
+    ModelDepth,
+    SiftDescriptors,
+)
+from c3f_slam.stream import FrameStream
+
+DESCRIPTORS = ("sift", "contrafeat")
+DEPTH_SOURCES = ("files", "model")
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """The command-line choices of a run's inputs."""
+
+    descriptors: str | None = None  #: sift | contrafeat; None: contrafeat when feature_model is given
+    depth_source: str | None = None  #: files | model; None: model when depth_model is given
+    depth_model: str | Path | None = None  #: DepthNet ONNX export
+    feature_model: str | Path | None = None  #: ContraFeat ONNX export
+    camera: str | Path | PinholeCamera | None = None  #: intrinsics of a video (default camera.json beside it)
+    threads: int = 2  #: onnxruntime intra-op threads per model
+    depth_scale: float | None = None  #: factor on model depth; None: the model's metric_scale, else 1
+
+    def resolved(self) -> RunInputs:
+        """A copy with ``descriptors`` and ``depth_source`` decided (:func:`resolve_sources`)."""
+        descriptors, depth_source = resolve_sources(self.descriptors, self.depth_source, self.depth_model,
+                                                    self.feature_model)
+        return replace(self, descriptors=descriptors, depth_source=depth_source)
+
+
+def resolve_sources(
+    descriptors: str | None, depth_source: str | None, depth_model: str | Path | None,
+    feature_model: str | Path | None,
+) -> tuple[str, str]:
+    """(descriptors, depth source) of the command-line choices. InputError for unknown
+    values, a model choice without its file, or a file left unused."""
+    descriptors = descriptors or ("contrafeat" if feature_model else "sift")
+    depth_source = depth_source or ("model" if depth_model else "files")
+    if descriptors not in DESCRIPTORS:
+        raise InputError(f"--descriptors must be one of {DESCRIPTORS}, got {descriptors!r}")
+    if depth_source not in DEPTH_SOURCES:
+        raise InputError(f"--depth-source must be one of {DEPTH_SOURCES}, got {depth_source!r}")
+    if descriptors == "contrafeat" and not feature_model:
+        raise InputError("--descriptors contrafeat needs --feature-model FILE.onnx (a ContraFeat export)")
+    if descriptors != "contrafeat" and feature_model:
+        raise InputError(f"--feature-model is used with --descriptors contrafeat, not {descriptors}")
+    if depth_source == "model" and not depth_model:
+        raise InputError("--depth-source model needs --depth-model FILE.onnx (a DepthNet export)")
+    if depth_source != "model" and depth_model:
+        raise InputError(f"--depth-model is used with --depth-source model, not {depth_source}")
+    return descriptors, depth_source
+
+
+def make_providers(inputs: RunInputs, camera: PinholeCamera | None = None) -> tuple[DescriptorProvider, DepthProvider]:
+    """The descriptor and depth providers of ``inputs``; model providers load their ONNX file
+    and are bound to ``camera``, the frames' intrinsics. InputError otherwise."""
+    inputs = inputs.resolved()
+    descriptors, depth_source = inputs.descriptors, inputs.depth_source
+    if camera is None and (descriptors == "contrafeat" or depth_source == "model"):
+        raise ValueError("model providers need the frames' camera")
+    desc: DescriptorProvider = SiftDescriptors()
+    depth: DepthProvider = FileDepth()
+    if descriptors == "contrafeat":
+        desc = ContraFeatDescriptors(DescriptorModel(inputs.feature_model, inputs.threads, "--feature-model"), camera)
+    if depth_source == "model":
+        depth = ModelDepth(DepthModel(inputs.depth_model, inputs.threads, "--depth-model"), camera,
+                           inputs.depth_scale)
+    return desc, depth
+
+
+@dataclass
+class RunSources:
+    """The opened inputs of a run: the frame stream and the two providers."""
+
+    descriptors: str  #: resolved choice
+    depth_source: str  #: resolved choice
+    stream: FrameStream
+    describer: DescriptorProvider
+    depth: DepthProvider
+
+    @property
+    def camera(self) -> PinholeCamera:
+        return self.stream.camera
+
+    def summary(self) -> dict:
+        """What summary.json records about the inputs."""
+        out: dict = {"descriptors": self.descriptors, "depth_source": self.depth_source,
+                     "camera": self.camera.to_dict()}
+        if isinstance(self.depth, ModelDepth):
+            out["depth_scale"] = {"factor": self.depth.scale, "source": self.depth.scale_source}
+        out["models"] = {
+            name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe()}
+            for name, p in (("descriptors", self.describer), ("depth", self.depth)) if hasattr(p, "model")
+        }
+        return out
+
+
+def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_frames: int | None = None) -> RunSources:
+    """Check resolved ``inputs`` (:meth:`RunInputs.resolved`) against ``sequence`` (a sequence
+    folder, or a video with model depth) and open the stream and providers. InputError on any
+    mismatch."""
+    descriptors, depth_source = inputs.descriptors, inputs.depth_source
+    if descriptors is None or depth_source is None:
+        raise ValueError("open_sources needs resolved inputs (RunInputs.resolved())")
+    stream = FrameStream(sequence, camera=inputs.camera, use_depth=depth_source == "files", step=stride,
+                         max_frames=max_frames)
+    if inputs.camera is not None and stream.sequence is not None:
+        raise InputError(f"{sequence}: --camera is for videos; a sequence folder uses its camera.json")
+    if depth_source == "files":
+        if stream.sequence is None:
+            raise InputError(f"{sequence}: --depth-source files needs a sequence folder, not a video")
+        if not stream.sequence.has_depth:
+            raise InputError(f"{sequence}: --depth-source files but the sequence has no depth/ folder")
+    if inputs.depth_scale is not None and depth_source != "model":
+        raise InputError("--depth-scale applies to model depth (--depth-model) only")
+    describer, depth = make_providers(inputs, stream.camera)
+    return RunSources(descriptors, depth_source, stream, describer, depth)
