@@ -55,7 +55,7 @@ class Open3DProblem:
 
 @dataclass
 class Open3DSolution:
-    """``node_poses``: camera-to-world pose per node after optimisation (new arrays, same units
+    """``node_poses``: camera-to-world pose per node after optimisation (same units
     as the problem); ``edge_confidence``: per input edge Open3D's line-process value, None for
     the edges it removed."""
 
