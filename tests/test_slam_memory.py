@@ -79,7 +79,7 @@ def test_multi_block_edge_storage_equals_open3d_reference():
     for _ in range(4200):
         i, j = sorted(rng.choice(40, 2, replace=False).tolist())
         pg.add_edge(i, j, g.relative_pose(gt[i], gt[j]), information=info, uncertain=True)
-    assert len(pg._T.blocks) == 2
+    assert pg._edges.n_matrix_blocks == 2
     ref_poses, ref_pruned = _open3d_reference(pg, PoseGraphConfig(max_iterations=20))
     res = pg.optimize(PoseGraphConfig(max_iterations=20))
     assert res.pruned == ref_pruned == []

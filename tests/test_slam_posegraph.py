@@ -9,6 +9,7 @@ import pytest
 from c3f_slam import geometry as g
 from c3f_slam.posegraph import (
     POSEGRAPH_PRESETS,
+    EdgeKind,
     PoseGraph,
     PoseGraphConfig,
     information_from_points,
@@ -224,3 +225,17 @@ def test_bad_edges_rejected():
         pg.add_edge(0, 1, np.eye(4))  # neither points nor information
     with pytest.raises(ValueError):
         pg.add_edge(0, 1, np.full((4, 4), np.nan), information=np.eye(6))
+
+
+def test_edge_kinds():
+    """``kind`` takes an EdgeKind or its string and reads back as the plain string; other names are refused."""
+    pg = PoseGraph()
+    for _ in range(3):
+        pg.add_node(np.eye(4))
+    k = pg.add_edge(0, 1, np.eye(4), information=np.eye(6), uncertain=True, kind=EdgeKind.KEYFRAME)
+    pg.add_edge(1, 2, np.eye(4), information=np.eye(6), kind="loop")
+    assert pg.edges[k].kind == "keyframe" and type(pg.edges[k].kind) is str
+    assert pg.kind_counts() == {"loop": 1, "keyframe": 1}
+    with pytest.raises(ValueError, match="unknown edge kind 'relocalisation'"):
+        pg.add_edge(0, 2, np.eye(4), information=np.eye(6), kind="relocalisation")
+    assert pg.n_edges == 2
