@@ -36,7 +36,7 @@ def _check(ok: bool, message: str) -> None:
         raise InputError(message)
 
 
-def _at_least(value: int | float | None, low: float, name: str, none: str = "") -> None:
+def _at_least(value: float | None, low: float, name: str, none: str = "") -> None:
     """InputError unless ``value`` is None or >= ``low``; ``none`` says what None means."""
     _check(value is None or value >= low, f"{name} must be >= {low}{f' (or None: {none})' if none else ''}, "
                                           f"got {value}")

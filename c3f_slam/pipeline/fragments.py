@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
-from c3f_slam.posegraph import PoseGraph, PoseGraphConfig
+from c3f_slam.posegraph import EdgeKind, PoseGraph, PoseGraphConfig
 
 #: reasons a frame opens a new fragment
 CORRESPONDENCES, OVERLAP, SIZE, FIRST = "correspondences", "overlap", "size", "first"
@@ -92,9 +92,9 @@ class Fragment:
         prev = len(self.frames) - 1
         assert self.graph is not None, "the fragment is closed"
         node = self.graph.add_node(self.graph.pose(prev) @ link.T_ij)
-        self.graph.add_edge(prev, node, link.T_ij, points_j=link.points_j, kind="odometry")
+        self.graph.add_edge(prev, node, link.T_ij, points_j=link.points_j, kind=EdgeKind.ODOMETRY)
         for local, m in extra or []:
-            self.graph.add_edge(local, node, m.T_ij, points_j=m.points_j, uncertain=True, kind="loop")
+            self.graph.add_edge(local, node, m.T_ij, points_j=m.points_j, uncertain=True, kind=EdgeKind.LOOP)
         self.n_edges += 1 + len(extra or [])
         self.frames.append(feat.index)
         assert self.features is not None

@@ -178,9 +178,9 @@ class FrameFeatures:
     points: np.ndarray
 
     def __len__(self) -> int:
-        return int(len(self.descriptors))
+        return len(self.descriptors)
 
-    def subset(self, n: int) -> "FrameFeatures":
+    def subset(self, n: int) -> FrameFeatures:
         """The first ``n`` (strongest) keypoints with depth."""
         ok = np.flatnonzero(np.isfinite(self.points).all(axis=1))[:n]
         return FrameFeatures(self.index, self.timestamp, self.xy[ok], self.descriptors[ok], self.points[ok])
@@ -271,7 +271,7 @@ def explain_match(
     if not res.accepted:
         return MatchAttempt(len(m), len(res.inlier_indices), None, res.reason)
     kept = res.kept
-    return MatchAttempt(len(m), len(kept), PairMatch(res.T_ij, pj[kept], int(len(kept))), "")
+    return MatchAttempt(len(m), len(kept), PairMatch(res.T_ij, pj[kept], len(kept)), "")
 
 
 def match_frames(

@@ -22,9 +22,8 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from open3d.geometry import TriangleMesh
-
 import numpy as np
+from open3d.geometry import TriangleMesh
 from threadpoolctl import threadpool_limits
 
 from c3f_slam.errors import InputError
@@ -215,7 +214,7 @@ def run_slam(
         if mesh is not None:
             if len(mesh.triangles):
                 write_mesh(mesh, outputs.mesh)
-            summary["mesh_triangles"] = int(len(mesh.triangles))
+            summary["mesh_triangles"] = len(mesh.triangles)
         summary["status"] = "ok"
     except BaseException as exc:  # write what we have, then pass the error on
         summary["status"] = "error"

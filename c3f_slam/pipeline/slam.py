@@ -28,45 +28,24 @@ what remains proportional to the map is vectorised (appearance scores, spatial d
 from __future__ import annotations
 
 import time
-from array import array
-from collections import defaultdict
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import invert_pose, transform_points
-from c3f_slam.outputs import KeyframeGraph
-from c3f_slam.pipeline.backend import FrameLog, Timings
+from c3f_slam.pipeline.backend import Timings
 from c3f_slam.pipeline.config import SlamConfig
+from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch, frame_matcher
 from c3f_slam.pipeline.keyframe_edges import KeyframeEdge, cap_keyframe_edges, place_new_frame
-from c3f_slam.pipeline.keyframe_store import KeyframeStore
-from c3f_slam.pipeline.retrieval import Candidates, KeyframeRetrieval, global_descriptor
+from c3f_slam.pipeline.retrieval import Candidates, global_descriptor
 from c3f_slam.pipeline.reuse import find_host, revisit_edges
-from c3f_slam.pipeline.schedule import OptimizationSchedule
-from c3f_slam.posegraph import EdgeKind, PoseGraph
+from c3f_slam.posegraph import EdgeKind
 
 
-@dataclass
-class FragmentCounts:
-    """What the back-end did, for summary.json (see :meth:`FragmentSlam.stats`)."""
-
-    fragments: int = 0  #: fragments opened (also the next fragment id)
-    attached: int = 0  #: fragments hung off an earlier keyframe (reuse)
-    lone_created: int = 0  #: keyframes created without any edge
-    relocalised: int = 0  #: keyframes / fragments placed without an odometry link
-    intra_edges: int = 0  #: edges of closed fragments' graphs
-    intra_pruned: int = 0  #: of them pruned
-    candidates_matched: int = 0  #: keyframe pairs matched (sum over new keyframes)
-    edges_capped: int = 0  #: accepted keyframe matches discarded by the loop-edge cap
-    candidate_sources: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    reasons: dict[str, int] = field(default_factory=lambda: defaultdict(int))  #: new-fragment reasons
-
-
-class FragmentSlam:
+class FragmentSlam(FragmentMap):
     """Full system: fragments with intra-fragment pose graphs and a global keyframe graph."""
 
     mode = "full"
@@ -75,22 +54,13 @@ class FragmentSlam:
                  keyframe_cache: str | Path | None = None) -> None:
         """``K``: 3x3 intrinsics (px); ``keyframe_cache``: folder for the stored keyframes'
         features (emptied now, removed by :meth:`close`); None keeps them in RAM. Same results."""
+        super().__init__(cfg, keyframe_cache)
         self.cfg = cfg
         self.K = np.asarray(K, dtype=np.float64)
         self.t = timings or Timings()
-        self.log = FrameLog()
-        self.counts = FragmentCounts()
-        self.frag_node = array("q")  # fragment id -> the global node it hangs off
-        self.node_fragment = array("q")  # global node (keyframe) id -> the fragment that made it
-        self.keyframes = KeyframeStore(keyframe_cache)
-        self.graph = PoseGraph()
-        self.retrieval = KeyframeRetrieval(cfg.candidates)
-        self.schedule = OptimizationSchedule(cfg.optimization, cfg.posegraph, self.graph)
-        self.active: Fragment | None = None
         self._active_row = -1  # log row of the active fragment's first frame
         self.prev: FrameFeatures | None = None  # last placed frame (in the active fragment)
         self.gap = True  # the previous streamed frame was skipped / unusable
-        self._last_row = -1  # log row of the last placed frame
         self.match: Matcher = frame_matcher(cfg, metric)
 
     # ------------------------------------------------------------------ per frame
@@ -213,7 +183,7 @@ class FragmentSlam:
         if link is not None and prev_frag is not None:
             T_est = self.graph.pose(prev_frag.node) @ prev_frag.node_pose(len(prev_frag) - 1) @ link.T_ij
             root = self.graph.find(prev_frag.node)
-            accept = lambda k: self.graph.find(k) == root  # noqa: E731
+            accept = lambda k: self.graph.find(k) == root
         return self.retrieval.candidates(g, self.graph.pose_array(), T_est, accept)
 
     def _reuse_host(self, edges: list[KeyframeEdge], depth: np.ndarray, reason: str,
@@ -277,99 +247,9 @@ class FragmentSlam:
         self.t.add("posegraph", t0)
         return fid
 
-    # ------------------------------------------------------------------ queries
-    def main_fragments(self) -> set[int]:
-        """Fragments whose node is in the main component (a new set, O(fragments))."""
-        in_main = self.graph.in_main
-        return {f for f, node in enumerate(self.frag_node) if in_main(node)}
-
-    def in_main(self, fid: int) -> bool:
-        """Fragment ``fid`` is registered (its node is in the main component); O(1)."""
-        return self.graph.in_main(self.frag_node[fid])
-
-    def pose_of_log(self, row: int) -> np.ndarray | None:
-        """World pose of the frame in log row ``row`` (None when unregistered)."""
-        if self.log.fragment[row] < 0:
-            return None
-        node = self.log.node[row]
-        if node >= 0:  # its fragment is closed
-            return self.graph.pose(node) @ self.log.node_pose(row) if self.graph.in_main(node) else None
-        act = self.active  # a frame of the active fragment
-        assert act is not None and act.id == self.log.fragment[row]
-        if not self.graph.in_main(act.node):
-            return None
-        return self.graph.pose(act.node) @ act.node_pose(self.log.local[row])
-
-    def current_pose(self) -> np.ndarray | None:
-        """World pose of the last placed frame (None when lone or none)."""
-        return self.pose_of_log(self._last_row) if self._last_row >= 0 else None
-
     def finish(self) -> None:
         """Close the active fragment and optimise the main component one last time."""
         self._close_active()
         t0 = time.perf_counter()
         self.schedule.finish(len(self.keyframes))
         self.t.add("posegraph", t0)
-
-    def close(self) -> None:
-        """Free the keyframe store's file and cache folder (if any); the trajectory, graph and
-        stats stay available, matching new keyframes does not."""
-        self.keyframes.close()
-
-    def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(frame indices, timestamps, poses (N, 4, 4) NaN when unregistered, registered mask)."""
-        n = len(self.log)
-        poses = np.full((n, 4, 4), np.nan)
-        reg = np.zeros(n, bool)
-        for r in range(n):
-            P = self.pose_of_log(r)
-            if P is not None:
-                poses[r], reg[r] = P, True
-        return np.asarray(self.log.index), np.asarray(self.log.stamp), poses, reg
-
-    def keyframe_memory_bytes(self) -> int:
-        """Bytes of keyframe data held in RAM: the store's (features, or their records and
-        LRU when on disk) and the appearance index (global descriptors)."""
-        return self.keyframes.nbytes + self.retrieval.index.nbytes
-
-    def n_keyframes(self) -> int:
-        return len(self.keyframes)
-
-    def keyframe_graph(self) -> KeyframeGraph | None:
-        """The global graph for keyframe_graph.json (None while it has no node)."""
-        pg = self.graph
-        if not pg.n_nodes:
-            return None
-        return KeyframeGraph.from_posegraph(
-            pg, self.keyframes.frame_indices.tolist(), self.keyframes.timestamps.tolist(),
-            lone={k for k in range(pg.n_nodes) if not pg.in_main(k)}, fragments=self.node_fragment.tolist())
-
-    def stats(self) -> dict:
-        """Counters for summary.json."""
-        c, opt = self.counts, self.schedule.counts
-        kinds: dict[str, int] = defaultdict(int, self.graph.kind_counts())
-        act = self.active if self.active is not None and self.active.rel_poses is None else None
-        return {
-            "fragments": c.fragments,
-            "keyframes": len(self.keyframes),
-            "attached_fragments": c.attached,
-            "lone_fragments": c.fragments - len(self.main_fragments()),
-            "lone_created": c.lone_created,
-            "relocalised_keyframes": c.relocalised,
-            "global_edges": self.graph.n_edges,
-            "odometry_edges": kinds["odometry"],
-            "keyframe_edges": kinds["keyframe"],
-            "loop_edges": kinds["loop"],
-            "pruned_edges": self.graph.n_pruned(),
-            "pruned_edges_intra": c.intra_pruned,
-            "intra_edges": c.intra_edges + (act.n_edges if act is not None else 0),
-            "global_optimizations": opt.optimizations,
-            "windowed_optimizations": opt.windowed,
-            "max_optimized_nodes": opt.max_nodes,
-            "keyframe_candidates_per_fragment": c.candidates_matched / c.fragments if c.fragments else 0.0,
-            "keyframe_matches_capped": c.edges_capped,
-            "keyframe_matches_by_source": dict(c.candidate_sources),
-            "new_fragment_reasons": dict(c.reasons),
-            "keyframe_memory_bytes": self.keyframe_memory_bytes(),
-            "keyframe_disk_bytes": self.keyframes.disk_bytes,
-        }
