@@ -3,7 +3,7 @@
 For each checkpoint (saved by ``benchmarks/contrafeat_pr.py``, small configuration) and each
 keypoint-filter residual threshold: recall / precision of SIFT, SIFT+kpf, CDF and CDF+kpf,
 averaged over the sequences, and where the precision goes (near misses vs gross errors, see
-:mod:`c3f_slam.matching.evaluation`). The residual sweep shows what the kpf's threshold trades:
+:mod:`c3f_slam.matching.match_accuracy`). The residual sweep shows what the kpf's threshold trades:
 the pairwise tolerance follows it (2 x residual, as in ``MatchFilterConfig.colon``).
 
     python benchmarks/contrafeat_eval.py --data DIR/test --checkpoint A.ckpt --checkpoint B.ckpt \

@@ -27,7 +27,7 @@ from contrafeat_pr import SMALL_MODEL, load_weights  # noqa: E402
 from c3f_models.contrafeat.data import ContraFeatDataModule  # noqa: E402
 from c3f_models.contrafeat.pairs import batch_frames, make_pairs  # noqa: E402
 from c3f_models.contrafeat_module import ContraFeat  # noqa: E402
-from c3f_slam.matching.evaluation import near_misses  # noqa: E402
+from c3f_slam.matching.match_accuracy import near_misses  # noqa: E402
 from c3f_slam.matching.visual import draw_matches  # noqa: E402
 
 

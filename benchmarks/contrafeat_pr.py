@@ -78,7 +78,7 @@ def generate(preset: str, seed: int, frames: int, size: int, out: Path, coverage
 
 def median_motion(seqs: list[Path]) -> str:
     """Median ground-truth motion between consecutive frames over sequences, for the report."""
-    from c3f_slam.evaluate import frame_motion
+    from c3f_slam.trajectory_metrics import frame_motion
     from c3f_slam.io import Sequence
 
     steps = [frame_motion(Sequence(s).poses) for s in seqs]
@@ -128,7 +128,7 @@ def table(results: dict[str, dict[str, float]]) -> list[str]:
 
 
 def wrong_match_table(results: dict[str, dict[str, float]]) -> list[str]:
-    """Where the precision goes, averaged over the sequences (see c3f_slam.matching.evaluation).
+    """Where the precision goes, averaged over the sequences (see c3f_slam.matching.match_accuracy).
 
     A sequence without wrong matches has no shares; it is left out of those averages.
     """
@@ -287,7 +287,7 @@ def main() -> None:
         "",
         *table(trained),
         "",
-        "Where the precision goes (trained model; wrong matches split as in `c3f_slam.matching.evaluation`: "
+        "Where the precision goes (trained model; wrong matches split as in `c3f_slam.matching.match_accuracy`: "
         f"a near miss lands within {3 * SMALL_MODEL['pixel_radius']:g} px of the true position; 'without "
         f"counterpart' means frame j had no keypoint within {SMALL_MODEL['pixel_radius']:g} px of it, so no "
         "correct match existed):",

@@ -56,7 +56,7 @@ def motion_per_frame(data: Path, names: list[str]) -> dict[str, float]:
     rotation (degrees), translation (mm) and translation / the sequence's median depth."""
     import numpy as np
 
-    from c3f_slam.evaluate import frame_motion
+    from c3f_slam.trajectory_metrics import frame_motion
     from c3f_slam.io.sequence import Sequence
 
     rot, trans, rel = [], [], []

@@ -80,7 +80,7 @@ def export(base_config: Path, ckpt: Path, out: Path) -> Path:
 
 
 def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
-    from c3f_slam.evaluate import evaluate_trajectory
+    from c3f_slam.trajectory_metrics import evaluate_trajectory
     from c3f_slam.io import Sequence, read_tum
     from c3f_slam.pipeline import SlamConfig, run_slam
 
@@ -99,7 +99,7 @@ def common_ate(sequence: Path, runs: dict) -> tuple[dict, int]:
     """ATE Sim(3) RMSE (m) of each run over the frames both registered, and their number."""
     import numpy as np
 
-    from c3f_slam.evaluate import evaluate_trajectory
+    from c3f_slam.trajectory_metrics import evaluate_trajectory
     from c3f_slam.io import Sequence, read_tum
 
     if any("error" in r for r in runs.values()):
@@ -159,7 +159,7 @@ def main() -> None:
     import torch
 
     torch.set_num_threads(a.threads)
-    from c3f_slam.evaluate import frame_motion
+    from c3f_slam.trajectory_metrics import frame_motion
     from c3f_slam.io import Sequence
 
     size = [a.size, a.size]

@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 def _stage_breakdown(params, frames: int) -> dict[str, float]:
     """Median milliseconds per frame of each stage, on ``frames`` frames of the same scene."""
     from c3f_slam.io import SequenceWriter
-    from datamodules.synthetic.generate import build_scene
+    from datamodules.synthetic.scene import build_scene
     from datamodules.synthetic.noise import FRAME, stream
 
     scene = build_scene(params)

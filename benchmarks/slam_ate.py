@@ -36,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from c3f_slam.evaluate import evaluate_trajectory, frame_motion  # noqa: E402
+from c3f_slam.trajectory_metrics import evaluate_trajectory, frame_motion  # noqa: E402
 from c3f_slam.io import Sequence, read_tum  # noqa: E402
 from c3f_slam.pipeline import SlamConfig, run_slam  # noqa: E402
 from datamodules.synthetic.generate import read_event_labels  # noqa: E402

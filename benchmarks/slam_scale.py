@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from c3f_slam.io import Sequence, write_tum  # noqa: E402
 from c3f_slam.pipeline import PAPER_RULES, SlamConfig, run_slam  # noqa: E402
-from c3f_slam.pipeline.evaluation import evaluate_run  # noqa: E402
+from c3f_slam.pipeline.run_evaluation import evaluate_run  # noqa: E402
 from c3f_slam.pipeline.slam import FragmentSlam  # noqa: E402
 from datamodules.synthetic.fixture import make_tiny_sequence  # noqa: E402
 

@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from c3f_slam.evaluate import relative_motion  # noqa: E402
+from c3f_slam.geometry import relative_motion  # noqa: E402
 from c3f_slam.io import Sequence  # noqa: E402
 from c3f_slam.pipeline import SlamConfig  # noqa: E402
 from c3f_slam.pipeline.frontend import Frontend, SiftDescriptors, explain_match  # noqa: E402

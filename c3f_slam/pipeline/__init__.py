@@ -7,7 +7,7 @@
 - :mod:`.retrieval`: the bounded set of keyframes a new keyframe is matched against;
 - :mod:`.slam`: the fragment + global keyframe back-end and the odometry baseline;
 - :mod:`.run`: the streaming run loop that writes the outputs;
-- :mod:`.evaluation`: the ``evaluate`` command's metrics and files.
+- :mod:`.run_evaluation`: the ``evaluate`` command: a run folder against ground truth (metrics and files).
 """
 
 from c3f_slam.pipeline.config import PAPER_RULES, SlamConfig

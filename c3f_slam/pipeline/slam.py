@@ -40,9 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.evaluate import motion_magnitudes
 from c3f_slam.frustum import frustum_overlap
-from c3f_slam.geometry import invert_pose, transform_points
+from c3f_slam.geometry import invert_pose, motion_magnitudes, transform_points
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, match_frames

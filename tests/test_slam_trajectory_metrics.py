@@ -9,19 +9,19 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from c3f_slam import geometry as g
-from c3f_slam.evaluate import (
+from c3f_slam.geometry import relative_motion
+from c3f_slam.trajectory_metrics import (
     ErrorStats,
     apply_sim3,
     associate,
     ate,
-    frame_motion,
     evaluate_trajectory,
-    plot_trajectories,
+    frame_motion,
     registered_share,
-    relative_motion,
     rpe,
     umeyama,
 )
+from c3f_slam.trajectory_plot import plot_trajectories
 
 
 def _trajectory(n: int = 60, seed: int = 0) -> np.ndarray:
