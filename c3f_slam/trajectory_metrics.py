@@ -237,3 +237,22 @@ def evaluate_trajectory(
     out["rpe"] = rpe(E, G, rpe_delta, scale=a_sim3.scale).as_dict()
     out["gt_length_m"] = float(np.linalg.norm(np.diff(G[:, :3, 3], axis=0), axis=1).sum())
     return out
+
+
+def common_frames_ate(
+    tracks: dict[str, tuple[np.ndarray, np.ndarray]], gt_stamps: np.ndarray, gt_poses: np.ndarray
+) -> tuple[dict[str, float | None], int]:
+    """ATE Sim(3) RMSE (metres) of each estimated trajectory over the frames that all of them
+    registered (equal timestamps), each aligned on those frames alone, and the number of those frames.
+
+    ``tracks``: name -> (timestamps (N,), camera-to-world poses (N, 4, 4)). A trajectory gets
+    None when fewer than 3 frames are common or too few of them associate with the ground truth.
+    Compares runs that register different parts of a sequence on the same frames.
+    """
+    common = set.intersection(*({float(t) for t in stamps} for stamps, _ in tracks.values()))
+    rmse: dict[str, float | None] = {}
+    for name, (stamps, poses) in tracks.items():
+        keep = [k for k, t in enumerate(stamps) if float(t) in common]
+        ev = evaluate_trajectory(stamps[keep], poses[keep], gt_stamps, gt_poses) if len(keep) >= 3 else {}
+        rmse[name] = ev["ate_sim3"]["rmse_m"] if "ate_sim3" in ev else None
+    return rmse, len(common)
