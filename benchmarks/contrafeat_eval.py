@@ -1,38 +1,33 @@
 """Evaluate saved ContraFeat checkpoints on held-out sequences (paper table 2), without training.
 
-For each checkpoint (saved by ``benchmarks/contrafeat_pr.py``, small configuration) and each
+For each checkpoint (saved by ``benchmarks.contrafeat_pr``, small configuration) and each
 keypoint-filter residual threshold: recall / precision of SIFT, SIFT+kpf, CDF and CDF+kpf,
 averaged over the sequences, and where the precision goes (near misses vs gross errors, see
-:mod:`c3f_slam.matching.evaluation`). The residual sweep shows what the kpf's threshold trades:
+:mod:`c3f_slam.matching.match_accuracy`). The residual sweep shows what the kpf's threshold trades:
 the pairwise tolerance follows it (2 x residual, as in ``MatchFilterConfig.colon``).
 
-    python benchmarks/contrafeat_eval.py --data DIR/test --checkpoint A.ckpt --checkpoint B.ckpt \
+    python -m benchmarks.contrafeat_eval --data DIR/test --checkpoint A.ckpt --checkpoint B.ckpt \
         --max-residual-mm 1.0 0.5 --out benchmarks/results/contrafeat_eval.md
 """
 
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+import torch
 
-import torch  # noqa: E402
-from contrafeat_pr import SMALL_MODEL, evaluate, load_weights, table, wrong_match_table  # noqa: E402
-
-from c3f_models.contrafeat_module import ContraFeat  # noqa: E402
+from benchmarks.common import contrafeat as cf
+from benchmarks.common.report import Report
+from c3f_models.contrafeat_module import ContraFeat
 
 
 def load(ckpt: Path, residual_m: float) -> tuple[ContraFeat, int]:
     """The small-configuration model with the checkpoint's weights and the given kpf residual."""
-    model = ContraFeat(**{**SMALL_MODEL, "filter_overrides": {"max_residual": residual_m,
+    model = ContraFeat(**{**cf.SMALL_MODEL, "filter_overrides": {"max_residual": residual_m,
                                                                "pairwise_tolerance": 2 * residual_m}})
-    steps = load_weights(model, ckpt)
+    steps = cf.load_weights(model, ckpt)
     return model.eval(), steps
 
 
@@ -61,25 +56,23 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"--max-residual-mm must be positive, got {args.max_residual_mm}")
 
     t0 = time.time()
-    cmd = "python " + shlex.join(["benchmarks/contrafeat_eval.py", *(argv if argv is not None else sys.argv[1:])])
-    lines = ["# ContraFeat checkpoints on held-out sequences", "", f"Command: `{cmd}`", "",
-             f"Sequences: {', '.join(seqs)} in `{args.data}`; pairs at gaps {args.eval_gaps} (one "
+    pairs = cf.PairSelection.from_args(args)
+    lines = [(f"Sequences: {', '.join(seqs)} in `{args.data}`; pairs at gaps {args.eval_gaps} (one "
              f"pair in {args.eval_stride} of each gap), {args.size}x{args.size}, mutual nearest neighbours without ratio test, "
-             f"correctness radius {SMALL_MODEL['pixel_radius']:g} px, kpf on ground-truth depth. "
-             "Recall/precision %, averaged over the sequences.", ""]
+             f"correctness radius {cf.SMALL_MODEL['pixel_radius']:g} px, kpf on ground-truth depth. "
+             "Recall/precision %, averaged over the sequences."), ""]
     for ckpt in args.checkpoint:
         for r_mm in args.max_residual_mm:
             model, steps = load(ckpt, r_mm * 1e-3)
-            res = evaluate(model, args.data, seqs, args)
-            lines += [f"## `{ckpt}` ({steps} steps), kpf residual {r_mm:g} mm", "", *table(res), "",
-                      *wrong_match_table(res), ""]
+            res = cf.metrics_per_sequence(model, args.data, seqs, pairs)
+            lines += [f"## `{ckpt}` ({steps} steps), kpf residual {r_mm:g} mm", "", *cf.recall_precision_table(res), "",
+                      *cf.wrong_match_table(res), ""]
             print(f"{ckpt} residual {r_mm:g} mm done ({time.time() - t0:.0f} s)", flush=True)
     lines.append(f"Wall time {(time.time() - t0) / 60:.1f} min, {args.threads} torch thread(s).")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(args.out)
-    print("\n".join(lines))
+    report = Report(__file__, "ContraFeat checkpoints on held-out sequences", argv)
+    text = report.render(lines)
+    report.write(args.out, text)
+    print(text)
 
 
 if __name__ == "__main__":

@@ -3,32 +3,27 @@
 Each row shows frame i (left) and frame j (right) with the mutual-nearest-neighbour CDF
 matches at SIFT keypoints: green = correct (ground truth within ``pixel_radius``), yellow = near
 miss (wrong, but within 3 x ``pixel_radius`` of the true position), red = other wrong.
-The checkpoints are those ``benchmarks/contrafeat_pr.py`` saves (small configuration).
+The checkpoints are those ``benchmarks.contrafeat_pr`` saves (small configuration).
 
-    python benchmarks/contrafeat_match_image.py --data DIR/test --seq test_seq3 --gap 8 \
+    python -m benchmarks.contrafeat_match_image --data DIR/test --seq test_seq3 --gap 8 \
         --checkpoint A.ckpt --checkpoint B.ckpt --out matches.png
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent
-sys.path.insert(0, str(ROOT.parent))
-sys.path.insert(0, str(ROOT))
+import cv2
+import numpy as np
+import torch
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from contrafeat_pr import SMALL_MODEL, load_weights  # noqa: E402
-
-from c3f_models.contrafeat.data import ContraFeatDataModule  # noqa: E402
-from c3f_models.contrafeat.pairs import batch_frames, make_pairs  # noqa: E402
-from c3f_models.contrafeat_module import ContraFeat  # noqa: E402
-from c3f_slam.matching.evaluation import near_misses  # noqa: E402
-from c3f_slam.matching.visual import draw_matches  # noqa: E402
+from benchmarks.common.contrafeat import SMALL_MODEL, load_weights
+from c3f_models.contrafeat.data import ContraFeatDataModule
+from c3f_models.contrafeat.pairs import batch_frames, make_pairs
+from c3f_models.contrafeat_module import ContraFeat
+from c3f_slam.matching.match_accuracy import near_misses
+from c3f_slam.matching.visual import draw_matches
 
 
 def main() -> None:

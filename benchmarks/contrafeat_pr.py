@@ -6,8 +6,8 @@ Outside CI. It (1) renders simulator sequences (``python -m datamodules.syntheti
 number of steps or a wall-clock budget, whichever comes first, (3) evaluates on held-out
 sequences (other presets and seeds) and (4) writes ``benchmarks/results/contrafeat_pr.md``.
 
-    python benchmarks/contrafeat_pr.py                        # the default run (about 25 min, 2 cores)
-    python benchmarks/contrafeat_pr.py --data DIR --size 48   # on existing sequences DIR/{train,test}/*
+    python -m benchmarks.contrafeat_pr                        # the default run (about 25 min, 2 cores)
+    python -m benchmarks.contrafeat_pr --data DIR --size 48   # on existing sequences DIR/{train,test}/*
 
 Precision = correct / found, recall = recovered ground-truth matches / ground-truth matches, both
 summed over all evaluated pairs of a sequence (micro-average); a found match is correct when it
@@ -18,68 +18,38 @@ mutual nearest neighbours (SIFT: L2, CDF: cosine), no ratio test; the kpf uses g
 from __future__ import annotations
 
 import argparse
-import math
-import shlex
-import subprocess
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import lightning as L
+import torch
+from lightning.pytorch.callbacks import Callback
 
-import lightning as L  # noqa: E402
-import torch  # noqa: E402
-from lightning.pytorch.callbacks import Callback  # noqa: E402
-
-from c3f_models.contrafeat.data import ContraFeatDataModule  # noqa: E402
-from c3f_models.contrafeat_module import METHODS, ContraFeat  # noqa: E402
+from benchmarks.common import RESULTS
+from benchmarks.common.contrafeat import (
+    LABELS,
+    SMALL_MODEL,
+    PairSelection,
+    load_weights,
+    metrics_per_sequence,
+    recall_precision_table,
+    wrong_match_table,
+)
+from benchmarks.common.report import Report
+from benchmarks.common.simulate import SimSequence, ensure_sequence
+from c3f_models.contrafeat.data import ContraFeatDataModule
+from c3f_models.contrafeat_module import METHODS, ContraFeat
 
 PAPER = {  # paper table 2, averages of three synthetic sequences (recall / precision %)
     "sift": (37.9, 21.8), "sift_kpf": (27.0, 99.5), "cdf": (78.2, 86.3), "cdf_kpf": (74.9, 100.0),
 }
-LABELS = {"sift": "SIFT", "sift_kpf": "SIFT+kpf", "cdf": "CDF", "cdf_kpf": "CDF+kpf"}
-SMALL_MODEL = dict(  # configs/contrafeat/small.yaml
-    backbone_layers=18, descriptor_dim=128, fpn_channels=64, stem_channels=16, head_channels=64,
-    lr=1e-3, weight_decay=1e-4, tau=0.01, max_keypoints=256, sift_contrast_threshold=0.005,
-    keypoint_border=2, pixel_radius=2.0, depth_tolerance=0.05, filter_preset="colon", num_visualisations=0,
-    dense_points=512, dense_spacing=4,
-)
-
-
-def load_weights(model: ContraFeat, ckpt: Path, option: str = "--checkpoint") -> int:
-    """Load a checkpoint this script saved into ``model``; returns its step count.
-
-    Exits with one line naming ``option`` and the file when it is missing, holds no
-    ``state_dict`` or does not fit the model.
-    """
-    if not ckpt.is_file():
-        raise SystemExit(f"{option}: no such file: {ckpt}")
-    saved = torch.load(ckpt, map_location="cpu", weights_only=True)
-    if not isinstance(saved, dict) or "state_dict" not in saved:
-        raise SystemExit(f"{option}: {ckpt} holds no state_dict (not a ContraFeat checkpoint)")
-    try:
-        model.load_state_dict(saved["state_dict"])
-    except RuntimeError as e:
-        raise SystemExit(f"{option}: {ckpt} does not fit the small ContraFeat configuration: "
-                         f"{str(e).splitlines()[0]}") from None
-    return int(saved.get("global_step", 0))
-
-
-def generate(preset: str, seed: int, frames: int, size: int, out: Path, coverage: float) -> None:
-    if (out / "rgb").is_dir() and (out / "poses.txt").is_file():
-        return
-    cmd = [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", preset, "--frames", str(frames),
-           "--size", str(size), "--seed", str(seed), "--set", f"path.coverage={coverage}", "--out", str(out),
-           "--no-progress"]
-    print("+", shlex.join(cmd), flush=True)
-    subprocess.run(cmd, cwd=ROOT, check=True)
 
 
 def median_motion(seqs: list[Path]) -> str:
     """Median ground-truth motion between consecutive frames over sequences, for the report."""
-    from c3f_slam.evaluate import frame_motion
     from c3f_slam.io import Sequence
+    from c3f_slam.trajectory_metrics import frame_motion
 
     steps = [frame_motion(Sequence(s).poses) for s in seqs]
     t = sorted(m.trans.median for m in steps)[len(steps) // 2]
@@ -98,56 +68,7 @@ class LossTrace(Callback):
         self.losses.append(float(loss))
 
 
-def evaluate(model: ContraFeat, data_dir: Path, seqs: list[str], args) -> dict[str, dict[str, float]]:
-    """Per held-out sequence: the test metrics of ``model``."""
-    out = {}
-    for name in seqs:
-        dm = ContraFeatDataModule(str(data_dir), train=[], val=[], test=[name], gaps=args.eval_gaps,
-                                  eval_stride=args.eval_stride, size=(args.size, args.size), batch_size=4)
-        trainer = L.Trainer(accelerator="cpu", logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                            enable_model_summary=False, limit_test_batches=args.eval_batches)
-        out[name] = trainer.test(model, dm, verbose=False)[0]
-    return out
-
-
-def fmt(rec: float, prec: float) -> str:
-    f = lambda x: "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.1f}"  # noqa: E731
-    return f"{f(rec)}/{f(prec)}"
-
-
-def table(results: dict[str, dict[str, float]]) -> list[str]:
-    lines = ["| Seq. | " + " | ".join(f"{LABELS[m]} [%]" for m in METHODS) + " | GT matches / pair |",
-             "|---|" + "---|" * (len(METHODS) + 1)]
-    for name, r in results.items():
-        cells = [fmt(r[f"test/{m}_recall"], r[f"test/{m}_precision"]) for m in METHODS]
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {r['test/gt_matches']:.1f} |")
-    avg = {k: sum(r[k] for r in results.values()) / len(results) for k in next(iter(results.values()))}
-    cells = [fmt(avg[f"test/{m}_recall"], avg[f"test/{m}_precision"]) for m in METHODS]
-    lines.append("| **average** | " + " | ".join(f"**{c}**" for c in cells) + f" | {avg['test/gt_matches']:.1f} |")
-    return lines
-
-
-def wrong_match_table(results: dict[str, dict[str, float]]) -> list[str]:
-    """Where the precision goes, averaged over the sequences (see c3f_slam.matching.evaluation).
-
-    A sequence without wrong matches has no shares; it is left out of those averages.
-    """
-    pct = lambda x: "n/a" if x is None or math.isnan(x) else f"{100 * x:.1f}"  # noqa: E731
-    lines = ["| | precision [%] | precision within 3 x radius [%] | near misses / wrong [%] | "
-             "near misses without counterpart / wrong [%] |", "|---|---|---|---|---|"]
-    def mean(values: list[float]) -> float:  # over the sequences where it is defined (a share needs a wrong match)
-        values = [v for v in values if not math.isnan(v)]
-        return sum(values) / len(values) if values else float("nan")
-
-    for m in METHODS:
-        avg = {k: mean([r[f"test/{m}_{k}"] for r in results.values()])
-               for k in ("precision", "near_precision", "near_miss_share", "no_counterpart_share")}
-        lines.append(f"| {LABELS[m]} | {pct(avg['precision'])} | {pct(avg['near_precision'])} | "
-                     f"{pct(avg['near_miss_share'])} | {pct(avg['no_counterpart_share'])} |")
-    return lines
-
-
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/c3f_contrafeat_pr"), help="sequences and logs")
     ap.add_argument("--data", type=Path, default=None, help="existing DIR/{train,test}/<seq> (skips rendering)")
@@ -184,22 +105,66 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1,
                     help="torch CPU threads (1 is fastest on a shared 2-core machine)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/contrafeat_pr.md")
-    args = ap.parse_args()
-    t_start = time.time()
-    torch.set_num_threads(args.threads)
-    L.seed_everything(args.seed, workers=True)
+    ap.add_argument("--out", type=Path, default=RESULTS / "contrafeat_pr.md")
+    return ap.parse_args()
 
-    if args.data is None:
-        data = args.work / "data"
-        for k, preset in enumerate(args.train_presets):
-            generate(preset, 100 + 17 * k + args.seed, args.frames, args.size, data / "train" / f"train_{preset}",
-                     args.coverage)
-        for preset in args.test_presets:
-            generate(preset, int(preset[3:]) + args.seed, args.test_frames, args.size, data / "test" / f"test_{preset}",
-                     args.coverage * args.test_frames / args.frames)
-    else:
-        data = args.data
+
+@dataclass
+class Run:
+    """What one benchmark run measured, for the report (times in seconds)."""
+
+    train_seqs: list[str]
+    test_seqs: list[str]
+    motion: dict[str, str]
+    init_steps: int
+    steps: int
+    losses: list[float]
+    untrained: dict[str, dict]
+    trained: dict[str, dict]
+    t_data: float
+    t_train: float
+    t_eval: float
+    total: float
+
+
+def prepare_data(args: argparse.Namespace) -> Path:
+    """The folder with train/ and test/ sequences: ``--data``, or rendered into ``--work``/data."""
+    if args.data is not None:
+        return args.data
+    data = args.work / "data"
+    for k, preset in enumerate(args.train_presets):
+        spec = SimSequence(preset, 100 + 17 * k + args.seed, args.frames, args.size,
+                           (f"path.coverage={args.coverage}",))
+        ensure_sequence(spec, data / "train" / f"train_{preset}", echo=True)
+    for preset in args.test_presets:
+        spec = SimSequence(preset, int(preset[3:]) + args.seed, args.test_frames, args.size,
+                           (f"path.coverage={args.coverage * args.test_frames / args.frames}",))
+        ensure_sequence(spec, data / "test" / f"test_{preset}", echo=True)
+    return data
+
+
+def train(model: ContraFeat, data: Path, train_seqs: list[str],
+          args: argparse.Namespace) -> tuple[int, list[float], float]:
+    """Fit ``model`` within the step and time budget; returns the steps taken, each step's loss
+    and the seconds the fit took."""
+    dm = ContraFeatDataModule(str(data / "train"), train=train_seqs, val=[], test=[], gaps=args.gaps,
+                              size=(args.size, args.size), batch_size=args.batch_size)
+    trace = LossTrace()
+    trainer = L.Trainer(
+        accelerator="cpu", max_steps=args.steps, max_time={"minutes": args.train_minutes}, max_epochs=-1,
+        logger=L.pytorch.loggers.TensorBoardLogger(str(args.work / "runs"), name="contrafeat_pr"),
+        enable_checkpointing=False, callbacks=[trace], log_every_n_steps=10, limit_val_batches=0,
+        enable_progress_bar=False, enable_model_summary=False,
+    )
+    t0 = time.time()
+    trainer.fit(model, dm)
+    return trainer.global_step, trace.losses, time.time() - t0
+
+
+def run(args: argparse.Namespace) -> Run:
+    """Data, the untrained control, training (saving ``--work``/contrafeat_small.ckpt), the trained model."""
+    t_start = time.time()
+    data = prepare_data(args)
     train_seqs = sorted(p.name for p in (data / "train").iterdir() if (p / "rgb").is_dir())
     test_seqs = sorted(p.name for p in (data / "test").iterdir() if (p / "rgb").is_dir())
     t_data = time.time() - t_start
@@ -212,55 +177,39 @@ def main() -> None:
                           "pretrained_path": str(args.pretrained) if args.pretrained else None})
     init_steps = 0 if args.init_weights is None else load_weights(model, args.init_weights, "--init-weights")
     t0 = time.time()
-    untrained = evaluate(model, data / "test", test_seqs, args)
+    pairs = PairSelection.from_args(args)
+    untrained = metrics_per_sequence(model, data / "test", test_seqs, pairs)
     t_eval = time.time() - t0
 
-    dm = ContraFeatDataModule(str(data / "train"), train=train_seqs, val=[], test=[], gaps=args.gaps,
-                              size=(args.size, args.size), batch_size=args.batch_size)
-    trace = LossTrace()
-    minutes = args.train_minutes
-    trainer = L.Trainer(
-        accelerator="cpu", max_steps=args.steps, max_time={"minutes": minutes}, max_epochs=-1,
-        logger=L.pytorch.loggers.TensorBoardLogger(str(args.work / "runs"), name="contrafeat_pr"),
-        enable_checkpointing=False, callbacks=[trace], log_every_n_steps=10, limit_val_batches=0,
-        enable_progress_bar=False, enable_model_summary=False,
-    )
-    t0 = time.time()
-    trainer.fit(model, dm)
-    t_train = time.time() - t0
-    steps = init_steps + trainer.global_step
+    new_steps, losses, t_train = train(model, data, train_seqs, args)
+    steps = init_steps + new_steps
     args.work.mkdir(parents=True, exist_ok=True)
     # the trained weights, loadable by `python -m c3f_models export` / export.export_model
     torch.save({"state_dict": model.state_dict(), "global_step": steps}, args.work / "contrafeat_small.ckpt")
     t0 = time.time()
-    trained = evaluate(model, data / "test", test_seqs, args)
+    trained = metrics_per_sequence(model, data / "test", test_seqs, pairs)
     t_eval += time.time() - t0
-    total = time.time() - t_start
+    return Run(train_seqs, test_seqs, motion, init_steps, steps, losses, untrained, trained, t_data, t_train,
+               t_eval, time.time() - t_start)
 
-    k = max(1, len(trace.losses) // 10)
-    head = sum(trace.losses[:k]) / len(trace.losses[:k]) if trace.losses else float("nan")
-    tail = sum(trace.losses[-k:]) / len(trace.losses[-k:]) if trace.losses else float("nan")
-    script = Path(sys.argv[0]).resolve()
-    shown = str(script.relative_to(ROOT)) if script.is_relative_to(ROOT) else sys.argv[0]
-    cmd = "python " + shlex.join([shown, *sys.argv[1:]])
-    lines = [
-        "# ContraFeat keypoint matching: recall / precision (paper table 2)",
-        "",
-        f"Command: `{cmd}`",
-        "",
-        "## Setup",
-        "",
+
+def setup_lines(args: argparse.Namespace, res: Run) -> list[str]:
+    """The report's set-up bullets: data, model, training, evaluation, wall time."""
+    k = max(1, len(res.losses) // 10)
+    head = sum(res.losses[:k]) / len(res.losses[:k]) if res.losses else float("nan")
+    tail = sum(res.losses[-k:]) / len(res.losses[-k:]) if res.losses else float("nan")
+    return [
         f"- Data: procedural colon simulator, {args.size}x{args.size} frames. Training sequences "
-        f"({len(train_seqs)} x {args.frames} frames, presets {', '.join(args.train_presets)} rendered with seeds "
-        f"100 + 17 k + seed): {', '.join(train_seqs)}; held-out test sequences ({len(test_seqs)} x "
+        f"({len(res.train_seqs)} x {args.frames} frames, presets {', '.join(args.train_presets)} rendered with seeds "
+        f"100 + 17 k + seed): {', '.join(res.train_seqs)}; held-out test sequences ({len(res.test_seqs)} x "
         f"{args.test_frames} frames, the presets' own seeds, i.e. other colons, paths and textures than any "
-        f"training sequence): {', '.join(test_seqs)}." if args.data is None else
-        f"- Data: existing sequences in `{args.data}` (train: {', '.join(train_seqs)}; test: {', '.join(test_seqs)}), "
+        f"training sequence): {', '.join(res.test_seqs)}." if args.data is None else
+        f"- Data: existing sequences in `{args.data}` (train: {', '.join(res.train_seqs)}; test: {', '.join(res.test_seqs)}), "
         f"{args.size}x{args.size}.",
-        f"- Median motion per frame (translation / rotation): training {motion['train']}, test {motion['test']} "
-        f"(path.coverage {args.coverage:g}; the paper's sequences move ~0.3 mm per frame).",
+        (f"- Median motion per frame (translation / rotation): training {res.motion['train']}, test {res.motion['test']} "
+         f"(path.coverage {args.coverage:g}; the paper's sequences move ~0.3 mm per frame)."),
         "- Model: `configs/contrafeat/small.yaml` (ResNet18 + FPN 64 ch, 128-d full-resolution descriptors), "
-        + (f"continued from `{args.init_weights}` ({init_steps} steps; fresh optimiser)"
+        + (f"continued from `{args.init_weights}` ({res.init_steps} steps; fresh optimiser)"
            if args.init_weights is not None else
            "from scratch (no ImageNet weights)" if args.pretrained is None else
            f"backbone started from `{args.pretrained}` (no ImageNet weights)")
@@ -271,33 +220,38 @@ def main() -> None:
         + ("training loss on the keypoint matches only (the paper's)." if args.dense_points == 0 else
            f"training loss on the keypoint matches plus up to {args.dense_points} dense ground-truth "
            f"correspondences per pair (jittered {args.dense_spacing}-px grid; `model.dense_points`)."),
-        f"- Training: {steps} steps ({steps - init_steps} in this run) of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
-        f"{t_train / 60:.1f} min on CPU (limits: {args.steps} steps or {minutes:g} min). Training loss "
-        f"{head:.3f} (first 10 % of steps) -> {tail:.3f} (last 10 %).",
-        f"- Evaluation: pairs at gaps {args.eval_gaps} (one pair in {args.eval_stride} of each gap), mutual nearest "
-        f"neighbours (SIFT L2, CDF cosine), no ratio test; ground truth and correctness radius "
-        f"{SMALL_MODEL['pixel_radius']} px, occlusion tolerance {100 * SMALL_MODEL['depth_tolerance']:.0f} % of depth; "
-        f"kpf = `MatchFilterConfig.colon()` on ground-truth depth (>= 10 matches, residual <= 1 mm, pairwise "
-        f"tolerance 2 mm + 5 %, condition number < 100, area >= 10 mm^2). Counts summed over the pairs of a "
-        f"sequence; the average is over sequences.",
-        f"- Wall time: {total / 60:.1f} min in all (data {t_data / 60:.1f}, training {t_train / 60:.1f}, "
-        f"evaluation {t_eval / 60:.1f}).",
-        "",
+        (f"- Training: {res.steps} steps ({res.steps - res.init_steps} in this run) of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
+         f"{res.t_train / 60:.1f} min on CPU (limits: {args.steps} steps or {args.train_minutes:g} min). Training loss "
+         f"{head:.3f} (first 10 % of steps) -> {tail:.3f} (last 10 %)."),
+        (f"- Evaluation: pairs at gaps {args.eval_gaps} (one pair in {args.eval_stride} of each gap), mutual nearest "
+         f"neighbours (SIFT L2, CDF cosine), no ratio test; ground truth and correctness radius "
+         f"{SMALL_MODEL['pixel_radius']} px, occlusion tolerance {100 * SMALL_MODEL['depth_tolerance']:.0f} % of depth; "
+         f"kpf = `MatchFilterConfig.colon()` on ground-truth depth (>= 10 matches, residual <= 1 mm, pairwise "
+         f"tolerance 2 mm + 5 %, condition number < 100, area >= 10 mm^2). Counts summed over the pairs of a "
+         f"sequence; the average is over sequences."),
+        (f"- Wall time: {res.total / 60:.1f} min in all (data {res.t_data / 60:.1f}, training {res.t_train / 60:.1f}, "
+         f"evaluation {res.t_eval / 60:.1f})."),
+    ]
+
+
+def result_lines(args: argparse.Namespace, res: Run) -> list[str]:
+    """The report's tables (trained, control, paper) and notes."""
+    return [
         "## Trained ContraFeat",
         "",
-        *table(trained),
+        *recall_precision_table(res.trained),
         "",
-        "Where the precision goes (trained model; wrong matches split as in `c3f_slam.matching.evaluation`: "
-        f"a near miss lands within {3 * SMALL_MODEL['pixel_radius']:g} px of the true position; 'without "
-        f"counterpart' means frame j had no keypoint within {SMALL_MODEL['pixel_radius']:g} px of it, so no "
-        "correct match existed):",
+        ("Where the precision goes (trained model; wrong matches split as in `c3f_slam.matching.match_accuracy`: "
+         f"a near miss lands within {3 * SMALL_MODEL['pixel_radius']:g} px of the true position; 'without "
+         f"counterpart' means frame j had no keypoint within {SMALL_MODEL['pixel_radius']:g} px of it, so no "
+         "correct match existed):"),
         "",
-        *wrong_match_table(trained),
+        *wrong_match_table(res.trained),
         "",
         ("## Untrained ContraFeat (same network at initialisation; control)" if args.init_weights is None else
-         f"## Starting weights ({init_steps} steps; control)"),
+         f"## Starting weights ({res.init_steps} steps; control)"),
         "",
-        *table(untrained),
+        *recall_precision_table(res.untrained),
         "",
         "## Paper (synthetic, average of three sequences)",
         "",
@@ -307,24 +261,30 @@ def main() -> None:
         "",
         "## Notes",
         "",
-        f"- This is a CPU-budget run ({steps} steps "
-        f"{'from scratch' if args.pretrained is None and args.init_weights is None else 'after the given init'} "
-        f"at {args.size}x{args.size}); the paper trains for many "
-        "epochs on GPU at full resolution. Compare the CDF rows with the untrained control to see what the "
-        "training budget bought, not with the paper's numbers.",
-        "- Precision of CDF+kpf below 100 %: read the table above. Near misses (the right place, a keypoint "
-        "2-6 px off) pass the kpf when their metric error is below its 1 mm residual (1.5 px at 3 cm depth "
-        "for a 128x128 frame with fx 45 px); gross errors are what "
-        "geometry can reject. Weak (untrained or briefly trained) descriptors also make gross errors that fit "
-        "one rigid motion of the tube (rotated about or slid along its axis), 18-40 px off, which the kpf "
-        "accepts as well (seen by hand in an early run).",
+        (f"- This is a CPU-budget run ({res.steps} steps "
+         f"{'from scratch' if args.pretrained is None and args.init_weights is None else 'after the given init'} "
+         f"at {args.size}x{args.size}); the paper trains for many "
+         "epochs on GPU at full resolution. Compare the CDF rows with the untrained control to see what the "
+         "training budget bought, not with the paper's numbers."),
+        ("- Precision of CDF+kpf below 100 %: read the table above. Near misses (the right place, a keypoint "
+         "2-6 px off) pass the kpf when their metric error is below its 1 mm residual (1.5 px at 3 cm depth "
+         "for a 128x128 frame with fx 45 px); gross errors are what "
+         "geometry can reject. Weak (untrained or briefly trained) descriptors also make gross errors that fit "
+         "one rigid motion of the tube (rotated about or slid along its axis), 18-40 px off, which the kpf "
+         "accepts as well (seen by hand in an early run)."),
         "",
     ]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text("\n".join(lines))
-    tmp.replace(args.out)
-    print("\n".join(lines))
+
+
+def main() -> None:
+    args = parse_args()
+    torch.set_num_threads(args.threads)
+    L.seed_everything(args.seed, workers=True)
+    res = run(args)
+    report = Report(__file__, "ContraFeat keypoint matching: recall / precision (paper table 2)")
+    text = report.render(["## Setup", "", *setup_lines(args, res), "", *result_lines(args, res)])
+    report.write(args.out, text)
+    print(text)
 
 
 if __name__ == "__main__":

@@ -21,30 +21,27 @@ there: the true depth agrees within 5 %), and for each such surface point it com
   next to the true median |d_true|. A scale that jumps by more than the true depth change
   swamps the motion.
 
-    python benchmarks/depth_motion.py SEQ --depth-model runs/exported/full_warm800/depthnet.onnx \
+    python -m benchmarks.depth_motion SEQ --depth-model runs/exported/full_warm800/depthnet.onnx \
         [--depth-model OTHER.onnx ...] --gaps 1 10 30 --pairs 60 --report benchmarks/results/depth_motion.md
 """
 
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from c3f_models.metrics import median_scale  # noqa: E402
-from c3f_slam.geometry import backproject_pixels, relative_pose  # noqa: E402
-from c3f_slam.io import Sequence  # noqa: E402
-from c3f_slam.matching.ground_truth import project_keypoints  # noqa: E402
-from c3f_slam.matching.kabsch import kabsch  # noqa: E402
-from c3f_slam.matching.points import sample_depth  # noqa: E402
-from c3f_slam.models import DepthModel  # noqa: E402
+from benchmarks.common import RESULTS
+from benchmarks.common.report import Report
+from c3f_models.metrics import median_scale
+from c3f_slam.geometry import backproject_pixels, relative_pose
+from c3f_slam.io import Sequence
+from c3f_slam.matching.ground_truth import project_keypoints
+from c3f_slam.matching.kabsch import kabsch
+from c3f_slam.matching.points import sample_depth
+from c3f_slam.models import DepthModel
 
 STRIDE = 4  # pixel grid of frame t
 VISIBLE_TOL = 0.05  # true depth agreement in frame t + gap (relative)
@@ -109,18 +106,18 @@ def analyse(seq: Sequence, predict: Callable[[int], np.ndarray], starts: list[in
         if not d_true:
             continue
         a, b = np.concatenate(d_true), np.concatenate(d_pred)
-        out[gap] = dict(
-            pairs=len(ds), points=len(a), t_mm=float(np.median(t_mm)),
-            med_abs_true=float(np.median(np.abs(np.array([np.median(x) for x in d_true])))),
-            slope=float((a - a.mean()) @ (b - b.mean()) / max(((a - a.mean()) ** 2).sum(), 1e-18)),
-            corr=float(np.corrcoef(a, b)[0, 1]),
-            ratio=float(np.median(ratio)), cos=float(np.median(cos)),
-            ratio_gt=float(np.median(ratio_gt)), cos_gt=float(np.median(cos_gt)),
-            scale_jump=float(np.median(ds)),
-        )
+        out[gap] = {
+            "pairs": len(ds), "points": len(a), "t_mm": float(np.median(t_mm)),
+            "med_abs_true": float(np.median(np.abs(np.array([np.median(x) for x in d_true])))),
+            "slope": float((a - a.mean()) @ (b - b.mean()) / max(((a - a.mean()) ** 2).sum(), 1e-18)),
+            "corr": float(np.corrcoef(a, b)[0, 1]),
+            "ratio": float(np.median(ratio)), "cos": float(np.median(cos)),
+            "ratio_gt": float(np.median(ratio_gt)), "cos_gt": float(np.median(cos_gt)),
+            "scale_jump": float(np.median(ds)),
+        }
     scales = np.array([scale(i) for i in sorted(cache)])
-    return dict(gaps=out, scale_cv=float(scales.std() / scales.mean()), scale_median=float(np.median(scales)),
-                frames=len(cache))
+    return {"gaps": out, "scale_cv": float(scales.std() / scales.mean()), "scale_median": float(np.median(scales)),
+                "frames": len(cache)}
 
 
 def main() -> None:
@@ -131,7 +128,7 @@ def main() -> None:
     ap.add_argument("--gaps", type=int, nargs="+", default=[1, 10, 30])
     ap.add_argument("--pairs", type=int, default=60, help="start frames, evenly spaced over the sequence")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--report", type=Path, default=ROOT / "benchmarks" / "results" / "depth_motion.md")
+    ap.add_argument("--report", type=Path, default=RESULTS / "depth_motion.md")
     args = ap.parse_args()
     seq = Sequence(args.sequence)
     if not (seq.has_depth and seq.has_poses):
@@ -150,27 +147,24 @@ def main() -> None:
                 f"{100 * r['med_abs_true']:.2f} | {r['slope']:.3f} | {r['corr']:.3f} | {r['ratio']:.2f} | {r['cos']:.2f} | "
                 f"{r['ratio_gt']:.2f} / {r['cos_gt']:.2f} | {100 * r['scale_jump']:.2f} | "
                 f"{res['scale_median']:.2f} / {res['scale_cv']:.3f} |")
-    cmd = "python benchmarks/depth_motion.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    text = "\n".join([
-        "# Does the depth network see the camera move?", "",
-        f"Command: `{cmd}`", "",
-        f"- Sequence: {args.sequence} ({len(seq)} frames, {seq.camera.width}x{seq.camera.height} px); "
-        f"{args.pairs} start frames evenly spaced; pixels on a {STRIDE}-px grid of frame t carried into frame t + gap "
-        f"with the true depth and pose, kept where the true depth there agrees within {100 * VISIBLE_TOL:.0f} %.",
-        "- Columns: pairs (points); median true camera translation of a pair (mm); median over pairs of "
-        "|median true log depth change| (%); slope and correlation of the predicted on the true log depth "
-        "change of the same surface points (1 and 1: the prediction follows the motion; slope 0: it ignores it); "
-        "Kabsch on the predicted 3D points of all carried pixels (perfect matches): median |t_est| / |t_true| and "
-        "median cosine between t_est and t_true; the same Kabsch on the true depth (control); median change of "
-        "the prediction's per-frame scale median(P) / median(z) between the two frames, |log(s_{t+gap}/s_t)| (%); "
-        "that scale's median and spread (CV) over all frames read.", "",
-        "| depth model | gap | pairs (points) | true translation mm | true depth change % | slope | corr | "
-        "translation ratio | cos | "
-        "GT-depth control ratio / cos | scale change % | scale median / CV |",
+    report = Report(__file__, "Does the depth network see the camera move?")
+    text = report.render([
+        (f"- Sequence: {args.sequence} ({len(seq)} frames, {seq.camera.width}x{seq.camera.height} px); "
+         f"{args.pairs} start frames evenly spaced; pixels on a {STRIDE}-px grid of frame t carried into frame t + gap "
+         f"with the true depth and pose, kept where the true depth there agrees within {100 * VISIBLE_TOL:.0f} %."),
+        ("- Columns: pairs (points); median true camera translation of a pair (mm); median over pairs of "
+         "|median true log depth change| (%); slope and correlation of the predicted on the true log depth "
+         "change of the same surface points (1 and 1: the prediction follows the motion; slope 0: it ignores it); "
+         "Kabsch on the predicted 3D points of all carried pixels (perfect matches): median |t_est| / |t_true| and "
+         "median cosine between t_est and t_true; the same Kabsch on the true depth (control); median change of "
+         "the prediction's per-frame scale median(P) / median(z) between the two frames, |log(s_{t+gap}/s_t)| (%); "
+         "that scale's median and spread (CV) over all frames read."), "",
+        ("| depth model | gap | pairs (points) | true translation mm | true depth change % | slope | corr | "
+         "translation ratio | cos | "
+         "GT-depth control ratio / cos | scale change % | scale median / CV |"),
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
-        *rows, ""])
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    args.report.write_text(text)
+        *rows])
+    report.write(args.report, text)
     print(text)
 
 

@@ -13,10 +13,10 @@ sequences with the project's metric function (per-image median scaling), next to
 of a constant depth. Sq Rel and RMSE are printed in centimetres, as the paper's table is.
 Training throughput is images/s over the whole fit (data loading included).
 
-    python benchmarks/depthnet_ablation.py --data runs/bench/depth_slow --steps 500
-    python benchmarks/depthnet_ablation.py --data runs/bench/depth_slow --steps 150 \
+    python -m benchmarks.depthnet_ablation --data runs/bench/depth_slow --steps 500
+    python -m benchmarks.depthnet_ablation --data runs/bench/depth_slow --steps 150 \
         --variants full-no-dc,full-no-outlier --out runs/switches.md
-    python benchmarks/depthnet_ablation.py --data runs/bench/depth_slow --steps 400 \
+    python -m benchmarks.depthnet_ablation --data runs/bench/depth_slow --steps 400 \
         --init runs/bench/baseline/tb/version_0/checkpoints/last.ckpt --out runs/warm.md
 
 Sequences missing from --data are generated (--frames, --coverage: keep the per-frame motion
@@ -29,26 +29,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
-IN_CM = {"sq_rel": 100.0, "rmse": 100.0}  # metres -> cm for the table (Sq Rel has units of depth)
+from benchmarks.common import RESULTS, ROOT
+from benchmarks.common.depth_metrics import HEADER, METRICS, logged_test_metrics, metric_cells
+from benchmarks.common.report import Report
+from benchmarks.common.simulate import SimSequence, ensure_sequence
 
 
 def generate(data: Path, names: list[str], frames: int, size: int, coverage: float) -> None:
+    """Sequence k of ``names`` in ``data``: preset seq(k mod 8 + 1), seed 100 + k (made unless it exists)."""
     for k, name in enumerate(names):
-        out = data / name
-        if (out / "camera.json").is_file():
-            continue
-        preset = f"seq{k % 8 + 1}"
-        cmd = [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", preset, "--frames", str(frames),
-               "--size", str(size), "--seed", str(100 + k), "--set", f"path.coverage={coverage}",
-               "--out", str(out), "--no-progress", "--overwrite"]
-        subprocess.run(cmd, check=True, cwd=ROOT)
+        spec = SimSequence(f"seq{k % 8 + 1}", 100 + k, frames, size, (f"path.coverage={coverage}",))
+        ensure_sequence(spec, data / name, overwrite=True)
 
 
 def motion_per_frame(data: Path, names: list[str]) -> dict[str, float]:
@@ -56,8 +50,8 @@ def motion_per_frame(data: Path, names: list[str]) -> dict[str, float]:
     rotation (degrees), translation (mm) and translation / the sequence's median depth."""
     import numpy as np
 
-    from c3f_slam.evaluate import frame_motion
     from c3f_slam.io.sequence import Sequence
+    from c3f_slam.trajectory_metrics import frame_motion
 
     rot, trans, rel = [], [], []
     for name in names:
@@ -104,8 +98,7 @@ def run(config: str, overrides: dict, data: Path, train: list[str], test: list[s
     fit_s = time.perf_counter() - t0
     ckpt = Path(cli.trainer.checkpoint_callback.last_model_path)
     cli = main(["test", *common, "--ckpt_path", str(ckpt), "--trainer.limit_test_batches", "1.0"])
-    metrics = {k: float(cli.trainer.callback_metrics[f"test/{k}"]) for k in METRICS}
-    metrics["depth_cv"] = float(cli.trainer.callback_metrics["test/depth_cv"])
+    metrics = logged_test_metrics(cli.trainer.callback_metrics)
     metrics["images_per_s"] = steps * batch / fit_s
     return metrics
 
@@ -136,7 +129,8 @@ def constant_depth_metrics(data: Path, test: list[str], size: int) -> dict:
     return {name: v / max(n, 1) for name, v in sums.items()}
 
 
-def main() -> None:
+def parse_args() -> tuple[argparse.Namespace, list[str], dict[str, str]]:
+    """The options, the variants to run and the ``--model`` overrides (checked before any work)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=ROOT / "runs/bench/depth_data")
     ap.add_argument("--train-seqs", type=int, default=4)
@@ -159,7 +153,7 @@ def main() -> None:
                     help="model argument for every variant (repeatable), e.g. lambda_dc=0.01")
     ap.add_argument("--init", type=Path, default=None,
                     help="checkpoint whose weights start every variant (model.init_weights; optimiser not resumed)")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/depthnet_ablation.md")
+    ap.add_argument("--out", type=Path, default=RESULTS / "depthnet_ablation.md")
     a = ap.parse_args()
     variants = [v.strip() for v in a.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS]
@@ -173,18 +167,15 @@ def main() -> None:
         if not sep or not key:
             ap.error(f"--model: expected KEY=VALUE, got {kv!r}")
         extra[key.strip()] = value.strip()
-    import torch
+    return a, variants, extra
 
-    torch.set_num_threads(a.threads)
 
-    train = [f"train{k}" for k in range(a.train_seqs)]
-    test = [f"test{k}" for k in range(a.test_seqs)]
-    generate(a.data, train + test, a.frames, a.size, a.coverage)
-    motion = motion_per_frame(a.data, train + test)
-    results = {"constant depth (reference)": constant_depth_metrics(a.data, test, a.size)}
-    warmup = a.dc_warmup_steps if a.dc_warmup_steps is not None else a.steps // 2
+def run_variants(a: argparse.Namespace, variants: list[str], extra: dict[str, str], train: list[str],
+                 test: list[str], warmup: int) -> tuple[dict[str, dict], dict[str, str]]:
+    """Train and test each variant; returns the metrics by table label and each variant's label."""
     tag = ("".join(f"-{k}={v}" for k, v in extra.items()) + ("-init" if a.init is not None else "")
            + (f"-seed{a.seed}" if a.seed != 7 else ""))
+    results: dict[str, dict] = {}
     keys: dict[str, str] = {}
     for v in variants:
         cfg, overrides = VARIANTS[v]
@@ -196,11 +187,16 @@ def main() -> None:
         root = a.data.parent / (v.replace("+", "_plus_") + tag)
         keys[v] = LABELS.get(v, v) + (f" ({', '.join(a.model_overrides)})" if extra else "")
         results[keys[v]] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size, root, a.seed)
+    return results, keys
 
-    head = ("| method | AbsRel | SqRel (cm) | RMSE (cm) | RMSElog | δ1 | δ2 | δ3 | depth CV | train img/s |\n"
+
+def report_body(a: argparse.Namespace, variants: list[str], extra: dict[str, str], motion: dict[str, float],
+                results: dict[str, dict], keys: dict[str, str], warmup: int) -> list[str]:
+    """The set-up paragraph, the table (one row per result) and the Sq Rel ratio of full / baseline."""
+    head = (f"| method | {HEADER} | depth CV | train img/s |\n"
             "|---|---|---|---|---|---|---|---|---|---|\n")
     rows = "".join(
-        f"| {n} | " + " | ".join(f"{m[k] * IN_CM.get(k, 1.0):.4f}" for k in METRICS)
+        f"| {n} | " + metric_cells(m)
         + f" | {m['depth_cv']:.3f} | " + (f"{m['images_per_s']:.2f}" if "images_per_s" in m else "-") + " |\n"
         for n, m in results.items()
     )
@@ -208,10 +204,7 @@ def main() -> None:
     if "baseline" in variants and "full" in variants:
         base, full = results[keys["baseline"]], results[keys["full"]]
         ratio = f"Sq Rel full / baseline = {full['sq_rel'] / base['sq_rel']:.3f} (paper: 0.049 / 0.058 = 0.845)\n"
-    cmd = "python " + " ".join([str(Path(sys.argv[0]).relative_to(ROOT) if Path(sys.argv[0]).is_absolute() else sys.argv[0]), *sys.argv[1:]])
     text = (
-        "# DepthNet ablation: full objective vs Monodepth2 baseline\n\n"
-        f"Command: `{cmd}`\n\n"
         f"Setup: ResNet18 without DCN (the small CPU variant), {a.size}x{a.size}, batch {a.batch}, {a.steps} steps each, "
         f"seed {a.seed}, CPU ({a.threads} torch thread)"
         + (f", every variant starting from the weights of {a.init} (optimiser not resumed)" if a.init else "")
@@ -227,8 +220,26 @@ def main() -> None:
         "the score a network must beat to have learnt any structure.\n\n"
         + head + rows + "\n" + ratio
     )
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(text)
+    return [text]
+
+
+def main() -> None:
+    a, variants, extra = parse_args()
+    import torch
+
+    torch.set_num_threads(a.threads)
+
+    train = [f"train{k}" for k in range(a.train_seqs)]
+    test = [f"test{k}" for k in range(a.test_seqs)]
+    generate(a.data, train + test, a.frames, a.size, a.coverage)
+    motion = motion_per_frame(a.data, train + test)
+    results = {"constant depth (reference)": constant_depth_metrics(a.data, test, a.size)}
+    warmup = a.dc_warmup_steps if a.dc_warmup_steps is not None else a.steps // 2
+    measured, keys = run_variants(a, variants, extra, train, test, warmup)
+    results.update(measured)
+    report = Report(__file__, "DepthNet ablation: full objective vs Monodepth2 baseline")
+    text = report.render(report_body(a, variants, extra, motion, results, keys, warmup))
+    report.write(a.out, text)
     print(text)
 
 

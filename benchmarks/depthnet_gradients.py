@@ -7,7 +7,7 @@ reported, with the ratio |grad L_dc| / |grad L_ph|. Multiply that ratio by lambd
 the paper) to compare the two terms' pulls in the training loss. Run at the random
 initialisation (seeded) and, with --ckpt, at a trained checkpoint's weights.
 
-    python benchmarks/depthnet_gradients.py --data runs/bench/depth_slow --seqs train0 train1 \
+    python -m benchmarks.depthnet_gradients --data runs/bench/depth_slow --seqs train0 train1 \
         --ckpt runs/bench/baseline400.ckpt
 """
 
@@ -15,11 +15,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.common import ROOT
+from benchmarks.common.report import Report
 
 TERMS = ("ph", "ph_extra", "dc")
 
@@ -74,18 +73,16 @@ def main() -> None:
                     + " | ".join(f"{statistics.median(norms[(t, net)]):.2e}" for net in nets for t in TERMS)
                     + f" | {ratio['depth']:.1f} | {ratio['pose']:.1f} |")
 
-    text = "\n".join([
-        "# DepthNet: gradient norm of each loss term", "",
-        f"Command: `python benchmarks/depthnet_gradients.py {' '.join(sys.argv[1:])}`", "",
-        f"{len(batches)} batches of 4 triplets from {', '.join(a.seqs)} in `{a.data}`, {a.size}x{a.size}, small CPU "
-        f"variant (ResNet18, no DCN, {a.num_scales} scales), every loss switch on; medians over the batches. Terms "
-        "unweighted (the training loss adds 0.1 x L_ph-extra and lambda_dc x L_dc).", "",
-        "| weights | L_ph | L_ph-extra | L_dc | depth: grad L_ph | grad L_ph-extra | grad L_dc | pose: grad L_ph "
-        "| grad L_ph-extra | grad L_dc | depth: grad L_dc / grad L_ph | pose: grad L_dc / grad L_ph |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, ""])
+    report = Report(__file__, "DepthNet: gradient norm of each loss term")
+    text = report.render([
+        (f"{len(batches)} batches of 4 triplets from {', '.join(a.seqs)} in `{a.data}`, {a.size}x{a.size}, small CPU "
+         f"variant (ResNet18, no DCN, {a.num_scales} scales), every loss switch on; medians over the batches. Terms "
+         "unweighted (the training loss adds 0.1 x L_ph-extra and lambda_dc x L_dc)."), "",
+        ("| weights | L_ph | L_ph-extra | L_dc | depth: grad L_ph | grad L_ph-extra | grad L_dc | pose: grad L_ph "
+         "| grad L_ph-extra | grad L_dc | depth: grad L_dc / grad L_ph | pose: grad L_dc / grad L_ph |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|", *rows])
     if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(text)
+        report.write(a.out, text)
     print(text)
 
 

@@ -15,18 +15,16 @@ signal towards structure on this data. Terms are averaged over all triplets of t
 sequences (finest scale, each LossConfig switch as in configs/depthnet/small.yaml unless
 changed with --no-outlier). Outside CI.
 
-    python benchmarks/depthnet_loss_landscape.py --data runs/bench/depth_slow --seqs test0 test1
+    python -m benchmarks.depthnet_loss_landscape --data runs/bench/depth_slow --seqs test0 test1
 """
 
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.common import RESULTS
+from benchmarks.common.report import Report
 
 TERMS = ("ph", "ph_extra", "dc", "loss")
 
@@ -37,7 +35,7 @@ def main() -> None:
     ap.add_argument("--seqs", nargs="+", required=True, help="sequence names in --data (with depth and poses)")
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--no-outlier", action="store_true", help="turn off the 80th-percentile outlier removal")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/depthnet_loss_landscape.md")
+    ap.add_argument("--out", type=Path, default=RESULTS / "depthnet_loss_landscape.md")
     a = ap.parse_args()
     import torch
 
@@ -72,17 +70,14 @@ def main() -> None:
                     sums[case][name] += float(getattr(t, name)) * k
             n += k
     rows = "".join(f"| {c} | " + " | ".join(f"{sums[c][t] / n:.5f}" for t in TERMS) + " |\n" for c in cases)
-    cmd = "python " + shlex.join([str(Path(sys.argv[0])), *sys.argv[1:]])
-    text = (
-        "# DepthNet objective at ground-truth depth and pose\n\n"
-        f"Command: `{cmd}`\n\n"
+    report = Report(__file__, "DepthNet objective at ground-truth depth and pose")
+    text = report.render([
         f"{n} triplets of {', '.join(a.seqs)} in `{a.data}`, {a.size}x{a.size}; terms of the training objective "
         f"(finest scale, lambda 0.1 for both extras, outlier removal {'off' if a.no_outlier else 'on'}), averaged over "
         "triplets. Flat depth: each frame's depth replaced by its median; no motion: identity poses.\n\n"
         "| inputs | L_ph | L_ph-extra | L_dc | L |\n|---|---|---|---|---|\n" + rows
-    )
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(text)
+    ])
+    report.write(a.out, text)
     print(text)
 
 

@@ -15,7 +15,7 @@ truth used in training), then both networks are
 The paper's schedule is 200 epochs, lr halved at 80/120/170; ``--epochs E`` shortens it for a
 CPU and scales the milestones with it (the report says which were used).
 
-    python benchmarks/depthnet_ttt.py --base-config runs/full/tb/version_0/config.yaml \\
+    python -m benchmarks.depthnet_ttt --base-config runs/full/tb/version_0/config.yaml \\
         --base-ckpt runs/full/tb/version_0/checkpoints/last.ckpt --sequence data/test0 --epochs 10 \\
         --work /tmp/ttt --out benchmarks/results/depthnet_ttt.md
 """
@@ -24,15 +24,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.common import RESULTS, ROOT
+from benchmarks.common.depth_metrics import HEADER, logged_test_metrics, metric_cells
+from benchmarks.common.report import Report
 
-METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
-IN_CM = {"sq_rel": 100.0, "rmse": 100.0}
 PAPER_EPOCHS, PAPER_MILESTONES = 200, (80, 120, 170)
 
 
@@ -52,9 +50,7 @@ def test_metrics(base_config: Path, ckpt: Path, sequence: Path, size: list[int],
                 "--data.train", "[]", "--data.val", "[]", "--data.test", json.dumps([sequence.name]),
                 "--data.size", json.dumps(size), "--trainer.limit_test_batches", "1.0", "--trainer.logger", "false",
                 "--trainer.default_root_dir", str(root), "--trainer.enable_progress_bar", "false"])
-    m = {k: float(cli.trainer.callback_metrics[f"test/{k}"]) for k in METRICS}
-    m["depth_cv"] = float(cli.trainer.callback_metrics["test/depth_cv"])
-    return m
+    return logged_test_metrics(cli.trainer.callback_metrics)
 
 
 def tune(base_config: Path, ckpt: Path, sequence: Path, epochs: int, root: Path, seed: int,
@@ -80,14 +76,14 @@ def export(base_config: Path, ckpt: Path, out: Path) -> Path:
 
 
 def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
-    from c3f_slam.evaluate import evaluate_trajectory
     from c3f_slam.io import Sequence, read_tum
     from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
+    from c3f_slam.trajectory_metrics import evaluate_trajectory
 
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": min_corr}, fusion={"enabled": False})
     try:
         s = run_slam(sequence, out, cfg, RunInputs("sift", "model", depth_model=str(depth_model)), progress=False)
-    except Exception as exc:  # a failed run is a result: report it
+    except Exception as exc:  # noqa: BLE001 -- a failed run is a result: report it
         return {"error": str(exc)}
     st, P = read_tum(out / "trajectory.txt")
     g = Sequence(sequence)
@@ -96,27 +92,18 @@ def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
 
 def common_ate(sequence: Path, runs: dict) -> tuple[dict, int]:
     """ATE Sim(3) RMSE (m) of each run over the frames both registered, and their number."""
-    import numpy as np
-
-    from c3f_slam.evaluate import evaluate_trajectory
     from c3f_slam.io import Sequence, read_tum
+    from c3f_slam.trajectory_metrics import common_frames_ate
 
     if any("error" in r for r in runs.values()):
         return {}, 0
     g = Sequence(sequence)
-    tracks = {k: read_tum(r["out"] / "trajectory.txt") for k, r in runs.items()}
-    common = set.intersection(*(set(np.round(st, 6)) for st, _ in tracks.values()))
-    out = {}
-    for k, (st, P) in tracks.items():
-        keep = [i for i, t in enumerate(np.round(st, 6)) if t in common]
-        ev = evaluate_trajectory(st[keep], P[keep], g.timestamps, g.poses) if len(keep) >= 3 else {}
-        out[k] = ev.get("ate_sim3", {}).get("rmse_m")
-    return out, len(common)
+    return common_frames_ate({k: read_tum(r["out"] / "trajectory.txt") for k, r in runs.items()}, g.timestamps,
+                             g.poses)
 
 
 def _row(name: str, m: dict) -> str:
-    return (f"| {name} | " + " | ".join(f"{m[k] * IN_CM.get(k, 1.0):.4f}" for k in METRICS)
-            + f" | {m['depth_cv']:.3f} |")
+    return f"| {name} | {metric_cells(m)} | {m['depth_cv']:.3f} |"
 
 
 def _slam_row(name: str, r: dict, common: float | None) -> str:
@@ -132,7 +119,7 @@ def _slam_row(name: str, r: dict, common: float | None) -> str:
             f"{100 * ev['gt_length_m']:.1f} | {shared} | {scale} |")
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--base-config", type=Path, required=True, help="config.yaml of the run that made --base-ckpt")
     ap.add_argument("--base-ckpt", type=Path, required=True)
@@ -145,7 +132,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--work", type=Path, default=Path("/tmp/depthnet_ttt"))
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/depthnet_ttt.md")
+    ap.add_argument("--out", type=Path, default=RESULTS / "depthnet_ttt.md")
     a = ap.parse_args()
     bad = [kv for kv in a.overrides if "=" not in kv or not kv.partition("=")[0]]
     if bad:
@@ -155,12 +142,57 @@ def main() -> None:
             ap.error(f"{p}: file not found")
     if not (a.sequence / "depth").is_dir():
         ap.error(f"--sequence {a.sequence}: needs true depth (a depth/ folder) to measure the error")
+    return a
+
+
+def report_body(a: argparse.Namespace, before: dict, after: dict, fit_s: float,
+                runs: dict) -> tuple[list[str], dict]:
+    """Set-up bullets, the depth metrics before / after and the SLAM table (lengths in cm); also
+    the ATE (m) of each run on the frames both registered."""
+    from c3f_slam.io import Sequence
+    from c3f_slam.trajectory_metrics import frame_motion
+
+    shared, n_shared = common_ate(a.sequence, runs)
+    seq = Sequence(a.sequence)
+    motion = frame_motion(seq.poses)
+    ms = scaled_milestones(a.epochs)
+    ratio = {k: after[k] / before[k] for k in ("abs_rel", "sq_rel", "rmse", "rmse_log")}
+    return [
+        (f"- Base network: `{a.base_ckpt}` (config `{a.base_config}`); held-out sequence `{a.sequence}` "
+         f"({len(seq)} frames, {seq.camera.width}x{seq.camera.height}; true motion per frame: median "
+         f"{1e3 * motion.trans.median:.2f} mm, {motion.rot_deg.median:.2f} deg), never seen by the base run."),
+        f"- Test-time training: `configs/depthnet/ttt.yaml` from the base weights (optimiser not resumed), "
+        f"self-supervised on all {len(seq)} frames, {a.epochs} epochs with the lr halved at epochs {ms} "
+        f"(the paper: {PAPER_EPOCHS} epochs, {list(PAPER_MILESTONES)}), {fit_s / 60:.1f} min on the CPU "
+        f"({a.threads} torch thread), seed {a.seed}"
+        + (f", model overrides for the tuning: {', '.join(a.overrides)}." if a.overrides else "."),
+        ("- Depth metrics on the same sequence, per-image median scaling; Sq Rel and RMSE in cm. The sequence's "
+         "true depth is used only here and by the SLAM evaluation, never in training or in the depth scale."),
+        "",
+        f"| network | {HEADER} | depth CV |",
+        "|---|---|---|---|---|---|---|---|---|",
+        _row("base (before TTT)", before),
+        _row(f"after TTT ({a.epochs} epochs)", after),
+        "",
+        "After / before: " + ", ".join(f"{k} {v:.3f}" for k, v in ratio.items()) + ".",
+        "",
+        ("SLAM on the sequence with each network's predicted depth (SIFT, `--min-correspondences "
+         f"{a.min_correspondences}`, both exported with the base run's config: depth scale measured on the base "
+         "run's training sequences):"),
+        "",
+        (f"| network | ATE Sim(3) cm (RMSE / std) | registered % | GT length cm | ATE cm, the {n_shared} frames "
+         "both registered | depth scale |"),
+        "|---|---|---|---|---|---|",
+        _slam_row("base (before TTT)", runs["base"], shared.get("base")),
+        _slam_row("after TTT", runs["ttt"], shared.get("ttt")),
+    ], shared
+
+
+def main() -> None:
+    a = parse_args()
     import torch
 
     torch.set_num_threads(a.threads)
-    from c3f_slam.evaluate import frame_motion
-    from c3f_slam.io import Sequence
-
     size = [a.size, a.size]
     before = test_metrics(a.base_config, a.base_ckpt, a.sequence, size, a.work / "test_base")
     tuned, fit_s = tune(a.base_config, a.base_ckpt, a.sequence, a.epochs, a.work / "ttt", a.seed, a.overrides)
@@ -169,49 +201,10 @@ def main() -> None:
     for name, ckpt in (("base", a.base_ckpt), ("ttt", tuned)):
         onnx = export(a.base_config, ckpt, a.work / f"export_{name}")
         runs[name] = slam(a.sequence, onnx, a.work / f"slam_{name}", a.min_correspondences)
-    shared, n_shared = common_ate(a.sequence, runs)
-    seq = Sequence(a.sequence)
-    motion = frame_motion(seq.poses)
-    cmd = "python " + " ".join([str(Path(sys.argv[0]).relative_to(ROOT)) if Path(sys.argv[0]).is_absolute()
-                                else sys.argv[0], *sys.argv[1:]])
-    ms = scaled_milestones(a.epochs)
-    ratio = {k: after[k] / before[k] for k in ("abs_rel", "sq_rel", "rmse", "rmse_log")}
-    text = "\n".join([
-        "# Test-time training on a held-out sequence",
-        "",
-        f"Command: `{cmd}`",
-        "",
-        f"- Base network: `{a.base_ckpt}` (config `{a.base_config}`); held-out sequence `{a.sequence}` "
-        f"({len(seq)} frames, {seq.camera.width}x{seq.camera.height}; true motion per frame: median "
-        f"{1e3 * motion.trans.median:.2f} mm, {motion.rot_deg.median:.2f} deg), never seen by the base run.",
-        f"- Test-time training: `configs/depthnet/ttt.yaml` from the base weights (optimiser not resumed), "
-        f"self-supervised on all {len(seq)} frames, {a.epochs} epochs with the lr halved at epochs {ms} "
-        f"(the paper: {PAPER_EPOCHS} epochs, {list(PAPER_MILESTONES)}), {fit_s / 60:.1f} min on the CPU "
-        f"({a.threads} torch thread), seed {a.seed}"
-        + (f", model overrides for the tuning: {', '.join(a.overrides)}." if a.overrides else "."),
-        "- Depth metrics on the same sequence, per-image median scaling; Sq Rel and RMSE in cm. The sequence's "
-        "true depth is used only here and by the SLAM evaluation, never in training or in the depth scale.",
-        "",
-        "| network | AbsRel | SqRel (cm) | RMSE (cm) | RMSElog | δ1 | δ2 | δ3 | depth CV |",
-        "|---|---|---|---|---|---|---|---|---|",
-        _row("base (before TTT)", before),
-        _row(f"after TTT ({a.epochs} epochs)", after),
-        "",
-        "After / before: " + ", ".join(f"{k} {v:.3f}" for k, v in ratio.items()) + ".",
-        "",
-        "SLAM on the sequence with each network's predicted depth (SIFT, `--min-correspondences "
-        f"{a.min_correspondences}`, both exported with the base run's config: depth scale measured on the base "
-        "run's training sequences):",
-        "",
-        f"| network | ATE Sim(3) cm (RMSE / std) | registered % | GT length cm | ATE cm, the {n_shared} frames "
-        "both registered | depth scale |",
-        "|---|---|---|---|---|---|",
-        _slam_row("base (before TTT)", runs["base"], shared.get("base")),
-        _slam_row("after TTT", runs["ttt"], shared.get("ttt")),
-        "",
-    ])
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(text)
+    body, shared = report_body(a, before, after, fit_s, runs)
+    report = Report(__file__, "Test-time training on a held-out sequence")
+    text = report.render(body)
+    report.write(a.out, text)
     (a.work / "depthnet_ttt.json").write_text(json.dumps({"before": before, "after": after, "slam": {
         k: {"eval": v.get("eval"), "error": v.get("error")} for k, v in runs.items()}, "common_ate_m": shared},
         indent=2, default=str))

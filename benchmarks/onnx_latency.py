@@ -7,7 +7,7 @@ for both (torch.set_num_threads / intra_op_num_threads). Runs alternate between 
 back-ends, so machine noise hits both alike; the table gives medians and the ratio
 eager / onnxruntime (> 1 means onnxruntime is faster).
 
-    python benchmarks/onnx_latency.py --threads 2 --repeats 20
+    python -m benchmarks.onnx_latency --threads 2 --repeats 20
 
 Writes benchmarks/results/onnx_latency.md (numbers + the command line).
 """
@@ -18,7 +18,6 @@ import argparse
 import os
 import platform
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -26,13 +25,12 @@ import numpy as np
 import onnxruntime as ort
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from c3f_models.contrafeat.network import ContraFeatNet  # noqa: E402
-from c3f_models.depth.networks import DepthNetwork, PoseNetwork  # noqa: E402
-from export.graphs import DepthGraph, DescriptorGraph, PoseGraph  # noqa: E402
-from export.onnx_io import OPSET, OPSET_DEFORM, to_onnx  # noqa: E402
+from benchmarks.common import RESULTS
+from benchmarks.common.report import Report
+from c3f_models.contrafeat.network import ContraFeatNet
+from c3f_models.depth.networks import DepthNetwork, PoseNetwork
+from export.graphs import DepthGraph, DescriptorGraph, PoseGraph
+from export.onnx_io import OPSET, OPSET_DEFORM, to_onnx
 
 
 def graphs(size: int, small: bool):
@@ -73,7 +71,7 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--size", type=int, default=224, help="input height = width (the configs' default: 224)")
     ap.add_argument("--small", action="store_true", help="the CPU variants (ResNet18 depth without DCN, small FPN)")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/onnx_latency.md")
+    ap.add_argument("--out", type=Path, default=RESULTS / "onnx_latency.md")
     a = ap.parse_args()
     torch.manual_seed(0)
     torch.set_num_threads(a.threads)
@@ -94,20 +92,17 @@ def main() -> None:
         rows.append((label, e, r, e / r, diff))
         print(f"{label}: eager {e:.1f} ms, onnxruntime {r:.1f} ms, ratio {e / r:.2f}, max|diff| {diff:.2g}", flush=True)
 
-    cmd = "python " + " ".join([os.path.relpath(sys.argv[0], ROOT), *sys.argv[1:]])
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    text = (
-        "# Per-frame latency: PyTorch eager vs onnxruntime (CPU)\n\n"
-        f"Command: `{cmd}`\n\n"
+    report = Report(__file__, "Per-frame latency: PyTorch eager vs onnxruntime (CPU)")
+    text = report.render([
         f"Setup: batch 1, {a.size}x{a.size}, {a.threads} threads for both back-ends, random weights, "
         f"median of {a.repeats} alternating runs after {a.warmup} warm-up runs. torch {torch.__version__}, "
         f"onnxruntime {ort.__version__}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"load average at the end {load:.2f}.\n\n"
         "| net | eager ms | onnxruntime ms | eager / onnxruntime | max abs diff |\n|---|---|---|---|---|\n"
         + "".join(f"| {label} | {e:.1f} | {r:.1f} | {ratio:.2f} | {d:.1e} |\n" for label, e, r, ratio, d in rows)
-    )
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(text)
+    ])
+    report.write(a.out, text)
     print(text)
 
 

@@ -1,6 +1,6 @@
 """Frames per second of the colonoscopy simulator, generation including writing.
 
-    python benchmarks/simulator_fps.py [--preset seq1] [--frames 300] [--size 256] [--seed 7]
+    python -m benchmarks.simulator_fps [--preset seq1] [--frames 300] [--size 256] [--seed 7]
 
 Runs the real pipeline (``generate_sequence``: colon + path + texture, ray casting, shading,
 PNG encoding of RGB and depth, mesh.ply, params.json, poses.txt) into a temporary folder and
@@ -15,23 +15,22 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import shlex
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import numpy as np
 
-import numpy as np  # noqa: E402
+from benchmarks.common import RESULTS
+from benchmarks.common.report import Report
 
 
 def _stage_breakdown(params, frames: int) -> dict[str, float]:
     """Median milliseconds per frame of each stage, on ``frames`` frames of the same scene."""
     from c3f_slam.io import SequenceWriter
-    from datamodules.synthetic.generate import build_scene
     from datamodules.synthetic.noise import FRAME, stream
+    from datamodules.synthetic.scene import build_scene
 
     scene = build_scene(params)
     r = scene.renderer
@@ -61,12 +60,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--seed", type=int, default=7)
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "simulator_fps.md"))
+    ap.add_argument("--out", default=str(RESULTS / "simulator_fps.md"))
     args = ap.parse_args(argv)
-    command = "python " + " ".join(shlex.quote(a) for a in [os.path.relpath(__file__, ROOT), *(argv if argv is not None else sys.argv[1:])])
 
-    import open3d
     import cv2
+    import open3d
 
     from datamodules.synthetic.generate import generate_sequence
     from datamodules.synthetic.params import apply_overrides, get_preset
@@ -95,17 +93,13 @@ def main(argv: list[str] | None = None) -> int:
     stages = _stage_breakdown(params, min(40, n))
 
     lines = [
-        "# Simulator throughput",
+        (f"Machine: {os.cpu_count()} CPU cores, {platform.processor() or platform.machine()}, Python {platform.python_version()},"
+         f" NumPy {np.__version__}, OpenCV {cv2.__version__}, Open3D {open3d.__version__}; no GPU."),
+        (f"Load average (1 min) before / after: {load_before[0]:.2f} / {load_after[0]:.2f}"
+         " (other jobs share these cores; rates scale with the free CPU)."),
         "",
-        f"Command: `{command}` (from the repository root)",
-        "",
-        f"Machine: {os.cpu_count()} CPU cores, {platform.processor() or platform.machine()}, Python {platform.python_version()},"
-        f" NumPy {np.__version__}, OpenCV {cv2.__version__}, Open3D {open3d.__version__}; no GPU.",
-        f"Load average (1 min) before / after: {load_before[0]:.2f} / {load_after[0]:.2f}"
-        " (other jobs share these cores; rates scale with the free CPU).",
-        "",
-        f"Preset {params.preset}, {n} frames at {args.size}x{args.size}, seed {args.seed},"
-        f" colon {params.colon.length} m, mesh of the full colon; output {size_mb:.1f} MB.",
+        (f"Preset {params.preset}, {n} frames at {args.size}x{args.size}, seed {args.seed},"
+         f" colon {params.colon.length} m, mesh of the full colon; output {size_mb:.1f} MB."),
         "",
         "| measure | value |",
         "|---|---|",
@@ -122,11 +116,10 @@ def main(argv: list[str] | None = None) -> int:
         "|---|---|",
     ]
     lines += [f"| {k} | {v:.1f} |" for k, v in stages.items()]
-    lines += [f"| sum | {sum(stages.values()):.1f} |", ""]
-    text = "\n".join(lines)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
+    lines += [f"| sum | {sum(stages.values()):.1f} |"]
+    report = Report(__file__, "Simulator throughput", argv)
+    text = report.render(lines)
+    report.write(Path(args.out), text)
     print(text)
     return 0
 

@@ -14,7 +14,7 @@ The paper's sequences are 150 s at 30 frames/s (4,500 frames over 1.25 m, ~0.3 m
 ``--frames 4500`` keeps that rate (fewer frames cross the same colon faster; the set-up line
 reports the ground-truth motion per frame).
 
-    python benchmarks/slam_ate.py --presets seq1 seq3 --frames 4500 --size 128 --out /tmp/slam_ate
+    python -m benchmarks.slam_ate --presets seq1 seq3 --frames 4500 --size 128 --out /tmp/slam_ate
 
 The simulator's events (close-ups, fast-motion bursts, fold approaches, quick rolls) break
 tracking by design; ``--set KEY=VALUE`` passes generator overrides, e.g. ``--set
@@ -28,18 +28,16 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import subprocess
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from c3f_slam.evaluate import evaluate_trajectory, frame_motion  # noqa: E402
-from c3f_slam.io import Sequence, read_tum  # noqa: E402
-from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam  # noqa: E402
-from datamodules.synthetic.generate import read_event_labels  # noqa: E402
+from benchmarks.common import RESULTS
+from benchmarks.common.report import Report
+from benchmarks.common.simulate import SimSequence, ensure_sequence
+from c3f_slam.io import Sequence, read_tum
+from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
+from c3f_slam.trajectory_metrics import common_frames_ate, evaluate_trajectory, frame_motion
+from datamodules.synthetic.generate import read_event_labels
 
 
 def sequence_dir(out: Path, preset: str, seed: int, overrides: list[str]) -> Path:
@@ -50,38 +48,18 @@ def sequence_dir(out: Path, preset: str, seed: int, overrides: list[str]) -> Pat
     return out / name
 
 
-def generate(preset: str, frames: int, size: int, seed: int, out: Path, overrides: list[str]) -> None:
-    """Generate the sequence unless ``out`` already holds one of ``frames`` frames."""
-    if (out / "camera.json").is_file():
-        n = len(Sequence(out))
-        if n != frames:
-            raise SystemExit(f"{out}: holds {n} frames, not --frames {frames}; use another --out")
-        return
-    cmd = [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", preset, "--frames", str(frames),
-           "--size", str(size), "--seed", str(seed), "--out", str(out), "--no-progress"]
-    for kv in overrides:
-        cmd += ["--set", kv]
-    subprocess.run(cmd, cwd=ROOT, check=True)
-
-
 def event_share(seq: Path) -> float:
     """Share of the frames inside a simulator event (frames.csv ``event`` column)."""
     events = read_event_labels(seq)
     return sum(1 for e in events if e) / max(len(events), 1)
 
 
-def common_frames_ate(seq: Path, outs: dict[str, Path]) -> dict[str, tuple[float, int] | None]:
+def common_ate(seq: Path, outs: dict[str, Path]) -> dict[str, tuple[float, int] | None]:
     """ATE Sim(3) RMSE (m) of each method over the frames every method registered, and the
     number of those frames; None when fewer than 3 frames are common."""
     g = Sequence(seq)
-    tracks = {m: read_tum(o / "trajectory.txt") for m, o in outs.items()}
-    common = set.intersection(*(set(float(t) for t in st) for st, _ in tracks.values()))
-    res: dict[str, tuple[float, int] | None] = {}
-    for m, (st, P) in tracks.items():
-        keep = [k for k, t in enumerate(st) if float(t) in common]
-        ev = evaluate_trajectory(st[keep], P[keep], g.timestamps, g.poses) if len(keep) >= 3 else {}
-        res[m] = (ev["ate_sim3"]["rmse_m"], len(keep)) if "ate_sim3" in ev else None
-    return res
+    rmse, n = common_frames_ate({m: read_tum(o / "trajectory.txt") for m, o in outs.items()}, g.timestamps, g.poses)
+    return {m: None if r is None else (r, n) for m, r in rmse.items()}
 
 
 # method -> (mode, descriptors, depth source)
@@ -106,7 +84,7 @@ def run_one(seq: Path, out: Path, method: str, min_corr: int, mesh: bool, depth_
                            feature_model=feature_model if descriptors == "contrafeat" else None,
                            depth_scale=depth_scale if depth_source == "model" else None)
         s = run_slam(seq, out, cfg, inputs, progress=False)
-    except Exception as exc:  # report, keep going
+    except Exception as exc:  # noqa: BLE001 -- report, keep going
         return {"error": str(exc)}
     wall = time.perf_counter() - t
     st, P = read_tum(out / "trajectory.txt")
@@ -115,7 +93,7 @@ def run_one(seq: Path, out: Path, method: str, min_corr: int, mesh: bool, depth_
     return {"summary": s, "eval": ev, "wall": wall}
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--presets", nargs="+", default=["seq1", "seq3"])
     ap.add_argument("--frames", type=int, default=300)
@@ -133,7 +111,7 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="simulator override for the generated sequences (repeatable), e.g. path.closeups=0")
     ap.add_argument("--out", type=Path, default=Path("/tmp/slam_ate"))
-    ap.add_argument("--report", type=Path, default=ROOT / "benchmarks" / "results" / "slam_ate.md")
+    ap.add_argument("--report", type=Path, default=RESULTS / "slam_ate.md")
     args = ap.parse_args()
     for m in args.methods:
         _, descriptors, depth_source = METHODS[m]
@@ -141,50 +119,55 @@ def main() -> None:
             ap.error(f"--methods {m} needs --depth-model")
         if descriptors == "contrafeat" and not args.feature_model:
             ap.error(f"--methods {m} needs --feature-model")
+    return args
 
-    rows, stage_rows, motion = [], [], []
-    for preset in args.presets:
-        seq = sequence_dir(args.out, preset, args.seed, args.overrides)
-        t = time.perf_counter()
-        generate(preset, args.frames, args.size, args.seed, seq, args.overrides)
-        print(f"{preset}: generated in {time.perf_counter() - t:.0f} s", flush=True)
-        m = frame_motion(Sequence(seq).poses)
-        motion.append(f"{preset} {1e3 * m.trans.median:.2f} mm / {m.rot_deg.median:.2f} deg, "
-                      f"{100 * event_share(seq):.0f} % of frames in events")
-        done: dict[str, tuple[dict, dict]] = {}
-        outs: dict[str, Path] = {}
-        for mode in args.methods:
-            outs[mode] = args.out / f"{seq.name}_{mode}"
-            r = run_one(seq, outs[mode], mode, args.min_correspondences,
-                        args.mesh and mode == "full", args.depth_model, args.feature_model, args.depth_scale)
-            if "error" in r:
-                rows.append(f"| {preset} | {mode} | error: {r['error']} | | | | | | |")
-                continue
-            s, ev = r["summary"], r["eval"]
-            if "ate_sim3" not in ev:
-                rows.append(f"| {preset} | {mode} | {ev.get('error')} | | | | | | |")
-                continue
-            done[mode] = (s, ev)
-            tm = s["timings"]
-            stage_rows.append(f"| {preset} | {mode} | " + " | ".join(
-                f"{tm[k]['ms_per_frame']:.1f}" for k in ("io", "keypoints", "matching", "posegraph", "fusion")) + " |")
-        common = common_frames_ate(seq, {k: outs[k] for k in done}) if len(done) > 1 else {}
-        for mode, (s, ev) in done.items():
-            a, b = ev["ate_sim3"], ev["ate_se3"]
-            c = common.get(mode)
-            rows.append(
-                f"| {preset} | {mode} | {100 * a['rmse_m']:.2f} / {100 * a['std_m']:.2f} | "
-                f"{100 * b['rmse_m']:.2f} / {100 * b['std_m']:.2f} | {100 * s['registered_share']:.1f} | "
-                f"{100 * ev['gt_length_m']:.1f} | {s.get('fragments', 0)} / {s.get('loop_edges', 0)} / "
-                f"{s.get('pruned_edges', 0)} | {s['timings']['total']['frames_per_second']:.1f} | "
-                + (f"{100 * c[0]:.2f} ({c[1]})" if c else "-") + " |"
-            )
-            print(rows[-1], flush=True)
 
-    cmd = " ".join(["python benchmarks/slam_ate.py", *sys.argv[1:]])
-    text = "\n".join([
-        "# SLAM ATE: full system vs frame-to-frame odometry", "",
-        f"Command: `{cmd}`", "",
+def run_preset(preset: str, args: argparse.Namespace, rows: list[str], stage_rows: list[str]) -> str:
+    """Generate the preset's sequence and run every method on it, appending the table rows;
+    returns the sequence's motion for the set-up line."""
+    seq = sequence_dir(args.out, preset, args.seed, args.overrides)
+    t = time.perf_counter()
+    ensure_sequence(SimSequence(preset, args.seed, args.frames, args.size, tuple(args.overrides)), seq,
+                    require_frames=True)
+    print(f"{preset}: generated in {time.perf_counter() - t:.0f} s", flush=True)
+    m = frame_motion(Sequence(seq).poses)
+    motion = (f"{preset} {1e3 * m.trans.median:.2f} mm / {m.rot_deg.median:.2f} deg, "
+              f"{100 * event_share(seq):.0f} % of frames in events")
+    done: dict[str, tuple[dict, dict]] = {}
+    outs: dict[str, Path] = {}
+    for mode in args.methods:
+        outs[mode] = args.out / f"{seq.name}_{mode}"
+        r = run_one(seq, outs[mode], mode, args.min_correspondences,
+                    args.mesh and mode == "full", args.depth_model, args.feature_model, args.depth_scale)
+        if "error" in r:
+            rows.append(f"| {preset} | {mode} | error: {r['error']} | | | | | | |")
+            continue
+        s, ev = r["summary"], r["eval"]
+        if "ate_sim3" not in ev:
+            rows.append(f"| {preset} | {mode} | {ev.get('error')} | | | | | | |")
+            continue
+        done[mode] = (s, ev)
+        tm = s["timings"]
+        stage_rows.append(f"| {preset} | {mode} | " + " | ".join(
+            f"{tm[k]['ms_per_frame']:.1f}" for k in ("io", "keypoints", "matching", "posegraph", "fusion")) + " |")
+    common = common_ate(seq, {k: outs[k] for k in done}) if len(done) > 1 else {}
+    for mode, (s, ev) in done.items():
+        a, b = ev["ate_sim3"], ev["ate_se3"]
+        c = common.get(mode)
+        rows.append(
+            f"| {preset} | {mode} | {100 * a['rmse_m']:.2f} / {100 * a['std_m']:.2f} | "
+            f"{100 * b['rmse_m']:.2f} / {100 * b['std_m']:.2f} | {100 * s['registered_share']:.1f} | "
+            f"{100 * ev['gt_length_m']:.1f} | {s.get('fragments', 0)} / {s.get('loop_edges', 0)} / "
+            f"{s.get('pruned_edges', 0)} | {s['timings']['total']['frames_per_second']:.1f} | "
+            + (f"{100 * c[0]:.2f} ({c[1]})" if c else "-") + " |"
+        )
+        print(rows[-1], flush=True)
+    return motion
+
+
+def report_body(args: argparse.Namespace, motion: list[str], rows: list[str], stage_rows: list[str]) -> list[str]:
+    """Set-up bullets, the ATE table, the per-stage times and the paper's numbers."""
+    return [
         f"- Data: procedural colon simulator, presets {', '.join(args.presets)} (paper-length colon, 1.25 m "
         f"centreline), {args.frames} frames at {args.size}x{args.size} px, seed {args.seed}; median ground-truth "
         f"motion per frame: {'; '.join(motion)} (the paper: 4,500 frames, ~0.3 mm per frame). Methods: "
@@ -192,22 +175,31 @@ def main() -> None:
         f"{f' (depth x {args.depth_scale:g})' if args.depth_model and args.depth_scale is not None else ''}; "
         f"feature model: {args.feature_model or '-'}."
         + (f" Simulator overrides: {' '.join(args.overrides)}." if args.overrides else ""),
-        f"- Fragments: new fragment below {args.min_correspondences} filtered consecutive correspondences "
-        "(the paper's 100 is for full-resolution frames) or below 85 % frustum overlap.",
-        "- ATE after Sim(3) and SE(3) alignment, cm (RMSE / std); registered share of all frames; "
-        "fragments / loop edges / pruned edges; total frames/s on 2 shared CPU cores; last column: ATE Sim(3) "
-        "RMSE over the frames that every method of the preset registered (their number), each method aligned "
-        "on those frames.", "",
-        "| preset | method | ATE Sim(3) cm | ATE SE(3) cm | registered % | GT length cm | frag / loops / pruned "
-        "| frames/s | ATE common frames cm (n) |",
+        (f"- Fragments: new fragment below {args.min_correspondences} filtered consecutive correspondences "
+         "(the paper's 100 is for full-resolution frames) or below 85 % frustum overlap."),
+        ("- ATE after Sim(3) and SE(3) alignment, cm (RMSE / std); registered share of all frames; "
+         "fragments / loop edges / pruned edges; total frames/s on 2 shared CPU cores; last column: ATE Sim(3) "
+         "RMSE over the frames that every method of the preset registered (their number), each method aligned "
+         "on those frames."), "",
+        ("| preset | method | ATE Sim(3) cm | ATE SE(3) cm | registered % | GT length cm | frag / loops / pruned "
+         "| frames/s | ATE common frames cm (n) |"),
         "|---|---|---|---|---|---|---|---|---|", *rows, "",
         "Milliseconds per frame per stage:", "",
         "| preset | method | io | keypoints | matching | posegraph | fusion |", "|---|---|---|---|---|---|---|",
         *stage_rows, "",
-        "Paper (synthetic, predicted depth, 125 cm): C3Fusion+SIFT 36.1 / 3.3 cm, C3Fusion 28.9 / 2.7 cm, "
-        "DSO 53.4 / 12.3 cm. Not comparable: ground-truth depth here, smaller frames, our simulator.", ""])
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    args.report.write_text(text)
+        ("Paper (synthetic, predicted depth, 125 cm): C3Fusion+SIFT 36.1 / 3.3 cm, C3Fusion 28.9 / 2.7 cm, "
+         "DSO 53.4 / 12.3 cm. Not comparable: ground-truth depth here, smaller frames, our simulator.")
+    ]
+
+
+def main() -> None:
+    args = parse_args()
+    rows: list[str] = []
+    stage_rows: list[str] = []
+    motion = [run_preset(preset, args, rows, stage_rows) for preset in args.presets]
+    report = Report(__file__, "SLAM ATE: full system vs frame-to-frame odometry")
+    text = report.render(report_body(args, motion, rows, stage_rows))
+    report.write(args.report, text)
     print(text)
 
 

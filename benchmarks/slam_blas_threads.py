@@ -8,7 +8,7 @@ setting) alternately, ``--repeats`` times each, and reports the median per-stage
 their ratio, plus a micro-benchmark of one descriptor matching. Run it on an idle machine and
 again with ``--busy N`` (N busy-looping processes started beside it) to see both regimes.
 
-    python benchmarks/slam_blas_threads.py /work/slam_ate4500/seq1_s1 --max-frames 300 --busy 2
+    python -m benchmarks.slam_blas_threads /work/slam_ate4500/seq1_s1 --max-frames 300 --busy 2
 """
 
 from __future__ import annotations
@@ -17,20 +17,16 @@ import argparse
 import multiprocessing as mp
 import os
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_info, threadpool_limits
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
-
-from c3f_slam.matching import mutual_nearest_neighbours  # noqa: E402
-from c3f_slam.pipeline import SlamConfig, run_slam  # noqa: E402
+from benchmarks.common.report import Report
+from c3f_slam.matching import mutual_nearest_neighbours
+from c3f_slam.pipeline import SlamConfig, run_slam
 
 STAGES = ("keypoints", "matching", "posegraph")
 
@@ -100,14 +96,12 @@ def main() -> None:
 
     one, lib = settings
     lines = [
-        "# SLAM runtime: BLAS capped at one thread vs the library default", "",
-        f"Command: `python benchmarks/slam_blas_threads.py {' '.join(sys.argv[1:])}`", "",
-        f"- {a.max_frames} frames of {a.sequence.name}, RGB-D, SIFT, full system, no mesh; {a.repeats} alternating "
-        f"runs per setting, medians; {a.busy} busy-looping processes beside the runs; {os.cpu_count()} CPUs, "
-        f"load average {load:.1f} at the end; "
-        f"BLAS: {', '.join(blas) or 'none found'}.",
-        f"- Identical results: registered share {res[one][0]['registered_share']:.3f} vs "
-        f"{res[lib][0]['registered_share']:.3f}, keyframes {res[one][0].get('keyframes')} vs {res[lib][0].get('keyframes')}.",
+        (f"- {a.max_frames} frames of {a.sequence.name}, RGB-D, SIFT, full system, no mesh; {a.repeats} alternating "
+         f"runs per setting, medians; {a.busy} busy-looping processes beside the runs; {os.cpu_count()} CPUs, "
+         f"load average {load:.1f} at the end; "
+         f"BLAS: {', '.join(blas) or 'none found'}."),
+        (f"- Identical results: registered share {res[one][0]['registered_share']:.3f} vs "
+         f"{res[lib][0]['registered_share']:.3f}, keyframes {res[one][0].get('keyframes')} vs {res[lib][0].get('keyframes')}."),
         "",
         "| stage (ms/frame) | blas_threads=1 | library default | default / capped |",
         "|---|---|---|---|",
@@ -118,10 +112,10 @@ def main() -> None:
     lines.append(f"| total frames/s | {fps(one):.1f} | {fps(lib):.1f} | {fps(one) / fps(lib):.2f} (speed-up) |")
     m1, m0 = statistics.median(micro_ms[one]), statistics.median(micro_ms[lib])
     lines.append(f"| one 120x120 descriptor matching (ms) | {m1:.3f} | {m0:.3f} | {m0 / m1:.2f} |")
-    text = "\n".join(lines) + "\n"
+    report = Report(__file__, "SLAM runtime: BLAS capped at one thread vs the library default")
+    text = report.render(lines)
     if a.report:
-        a.report.parent.mkdir(parents=True, exist_ok=True)
-        a.report.write_text(text)
+        report.write(a.report, text)
     print(text)
 
 

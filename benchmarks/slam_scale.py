@@ -10,27 +10,26 @@ global optimisations; the table goes to benchmarks/results/slam_scale.md. ``--pa
 restores the literal rules (match all keyframes, optimise the whole component after every
 loop) for comparison on short runs.
 
-    python benchmarks/slam_scale.py --frames 20000 --base-frames 120 --size 64 --every 1000
+    python -m benchmarks.slam_scale --frames 20000 --base-frames 120 --size 64 --every 1000
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from c3f_slam.io import Sequence, write_tum  # noqa: E402
-from c3f_slam.pipeline import PAPER_RULES, SlamConfig, run_slam  # noqa: E402
-from c3f_slam.pipeline.evaluation import evaluate_run  # noqa: E402
-from c3f_slam.pipeline.slam import FragmentSlam  # noqa: E402
-from datamodules.synthetic.fixture import make_tiny_sequence  # noqa: E402
+from benchmarks.common import RESULTS
+from benchmarks.common.report import Report
+from c3f_slam.io import Sequence, write_tum
+from c3f_slam.pipeline import PAPER_RULES, SlamConfig, run_slam
+from c3f_slam.pipeline.run_evaluation import evaluate_run
+from c3f_slam.pipeline.slam import FragmentSlam
+from datamodules.synthetic.fixture import make_tiny_sequence
 
 
 def rss_mb() -> float:
@@ -58,7 +57,70 @@ def ping_pong(src: Path, dst: Path, n: int) -> Path:
     return dst
 
 
-def main() -> None:
+STAGES = ("io", "depth", "keypoints", "matching", "posegraph", "fusion")
+
+
+class Probe(FragmentSlam):
+    """The full system, sampling its time, memory and counters every ``every`` frames into
+    ``samples`` and timing the final optimisation into ``final`` (see :func:`probe_class`)."""
+
+    every: ClassVar[int] = 500
+    samples: ClassVar[list[dict]] = []
+    final: ClassVar[dict] = {}
+
+    def __init__(self, *a, **k):
+        super().__init__(*a, **k)
+        self._t = time.perf_counter()
+        self._cpu = time.process_time()
+        self._n = 0
+        self._stages = dict.fromkeys(STAGES, 0.0)
+        self._frag = self._pairs = self._opts = self._win = 0
+
+    def _tick(self) -> None:
+        self._n += 1
+        if self._n % self.every == 0:
+            now, cpu = time.perf_counter(), time.process_time()
+            sec = {st: self.t.seconds.get(st, 0.0) for st in STAGES}
+            new_frag = self.counts.fragments - self._frag
+            self.samples.append({
+                "frames": self._n, "ms": 1000 * (now - self._t) / self.every, "cpu_ms": 1000 * (cpu - self._cpu) / self.every,
+                "rss": rss_mb(), "kf": len(self.keyframes),
+                "kf_mb": self.keyframe_memory_bytes() / 2**20, "kf_disk_mb": self.keyframes.disk_bytes / 2**20,
+                "edges": self.graph.n_edges, "edge_mb": self.graph.edge_nbytes() / 2**20,
+                "stage_ms": {st: 1000 * (sec[st] - self._stages[st]) / self.every for st in STAGES},
+                "pairs": (self.counts.candidates_matched - self._pairs) / max(new_frag, 1),
+                "opts": self.schedule.counts.optimizations - self._opts, "win": self.schedule.counts.windowed - self._win,
+            })
+            self._t, self._cpu, self._stages, self._frag = now, cpu, sec, self.counts.fragments
+            self._pairs, self._opts, self._win = self.counts.candidates_matched, self.schedule.counts.optimizations, \
+                self.schedule.counts.windowed
+            r = self.samples[-1]
+            print(f"{r['frames']} frames: {r['ms']:.1f} ms/frame (CPU {r['cpu_ms']:.1f}), RSS {r['rss']:.0f} MB, {r['kf']} keyframes, "
+                  f"{r['pairs']:.1f} pairs/fragment, {r['opts']} opt ({r['win']} windowed), "
+                  + " ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()), flush=True)
+
+    def add(self, feat, depth):
+        out = super().add(feat, depth)
+        self._tick()
+        return out
+
+    def skip(self, index, stamp):
+        super().skip(index, stamp)
+        self._tick()
+
+    def finish(self):
+        t0 = time.perf_counter()
+        n0 = self.schedule.counts.optimizations
+        super().finish()
+        self.final.update(seconds=time.perf_counter() - t0, optimizations=self.schedule.counts.optimizations - n0)
+
+
+def probe_class(every: int) -> type[Probe]:
+    """A :class:`Probe` subclass of its own (fresh ``samples`` and ``final``) sampling every ``every`` frames."""
+    return type("Probe", (Probe,), {"every": every, "samples": [], "final": {}})
+
+
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--frames", type=int, default=20000)
     ap.add_argument("--base-frames", type=int, default=120)
@@ -75,104 +137,37 @@ def main() -> None:
     ap.add_argument("--reuse-keyframes", action=argparse.BooleanOptionalAction, default=None,
                     help="SlamConfig.keyframes.reuse (revisits hang off mapped keyframes); default: the config's")
     ap.add_argument("--out", type=Path, default=Path("/tmp/slam_scale"))
-    ap.add_argument("--report", type=Path, default=ROOT / "benchmarks" / "results" / "slam_scale.md")
-    args = ap.parse_args()
+    ap.add_argument("--report", type=Path, default=RESULTS / "slam_scale.md")
+    return ap.parse_args()
 
-    base = args.out / f"base_{args.base_frames}_{args.size}"
-    if not (base / "camera.json").is_file():
-        make_tiny_sequence(base, frames=args.base_frames, size=args.size, seed=5)
-    long_seq = ping_pong(base, args.out / f"long_{args.frames}", args.frames)
 
-    samples: list[dict] = []
-    STAGES = ("io", "depth", "keypoints", "matching", "posegraph", "fusion")
-    final: dict = {}
-
-    class Probe(FragmentSlam):
-        def __init__(self, *a, **k):
-            super().__init__(*a, **k)
-            self._t = time.perf_counter()
-            self._cpu = time.process_time()
-            self._n = 0
-            self._stages = dict.fromkeys(STAGES, 0.0)
-            self._frag = self._pairs = self._opts = self._win = 0
-
-        def _tick(self) -> None:
-            self._n += 1
-            if self._n % args.every == 0:
-                now, cpu = time.perf_counter(), time.process_time()
-                sec = {st: self.t.seconds.get(st, 0.0) for st in STAGES}
-                new_frag = self.counts.fragments - self._frag
-                samples.append(dict(
-                    frames=self._n, ms=1000 * (now - self._t) / args.every, cpu_ms=1000 * (cpu - self._cpu) / args.every,
-                    rss=rss_mb(), kf=len(self.keyframes),
-                    kf_mb=self.keyframe_memory_bytes() / 2**20, kf_disk_mb=self.keyframes.disk_bytes / 2**20,
-                    edges=self.graph.n_edges, edge_mb=self.graph.edge_nbytes() / 2**20,
-                    stage_ms={st: 1000 * (sec[st] - self._stages[st]) / args.every for st in STAGES},
-                    pairs=(self.counts.candidates_matched - self._pairs) / max(new_frag, 1),
-                    opts=self.schedule.counts.optimizations - self._opts, win=self.schedule.counts.windowed - self._win,
-                ))
-                self._t, self._cpu, self._stages, self._frag = now, cpu, sec, self.counts.fragments
-                self._pairs, self._opts, self._win = self.counts.candidates_matched, self.schedule.counts.optimizations, \
-                    self.schedule.counts.windowed
-                r = samples[-1]
-                print(f"{r['frames']} frames: {r['ms']:.1f} ms/frame (CPU {r['cpu_ms']:.1f}), RSS {r['rss']:.0f} MB, {r['kf']} keyframes, "
-                      f"{r['pairs']:.1f} pairs/fragment, {r['opts']} opt ({r['win']} windowed), "
-                      + " ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()), flush=True)
-
-        def add(self, feat, depth):
-            out = super().add(feat, depth)
-            self._tick()
-            return out
-
-        def skip(self, index, stamp):
-            super().skip(index, stamp)
-            self._tick()
-
-        def finish(self):
-            t0 = time.perf_counter()
-            n0 = self.schedule.counts.optimizations
-            super().finish()
-            final.update(seconds=time.perf_counter() - t0, optimizations=self.schedule.counts.optimizations - n0)
-
+def slam_config(args: argparse.Namespace) -> SlamConfig:
+    """The colon preset with the run's options."""
     over: dict = {part: dict(fields) for part, fields in PAPER_RULES.items()} if args.paper_rules else {}
     over.setdefault("keyframes", {})
     if args.keyframes_in_ram:
         over["keyframes"]["cache"] = False
     if args.reuse_keyframes is not None:
         over["keyframes"]["reuse"] = args.reuse_keyframes
-    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": args.min_correspondences},
-                                   fusion={"enabled": args.mesh}, **over)
-    t = time.perf_counter()
-    error = ""
-    try:
-        s = run_slam(long_seq, args.out / "run", cfg, progress=False, slam_factory=Probe)
-    except Exception as exc:
-        error, s = str(exc), {}
-    wall = time.perf_counter() - t
-    ev = {}
-    if s:
-        try:
-            ev = evaluate_run(args.out / "run", long_seq)
-        except Exception as exc:  # report, do not lose the table
-            ev = {"error": str(exc)}
+    return SlamConfig.preset_config("colon", fragments={"min_correspondences": args.min_correspondences},
+                                    fusion={"enabled": args.mesh}, **over)
+
+
+def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], wall: float, s: dict, ev: dict,
+                error: str) -> list[str]:
+    """Stream, settings and totals, then one table row per sample (times in ms, memory in MB)."""
+    final = probe.final
     rows = [
         f"| {r['frames']} | {r['ms']:.1f} | {r['cpu_ms']:.1f} | " + " | ".join(f"{r['stage_ms'][k]:.1f}" for k in
                                                          ("keypoints", "matching", "posegraph"))
         + f" | {r['rss']:.0f} | {r['kf']} | {r['kf_mb']:.2f} | {r['kf_disk_mb']:.2f} | {r['edges']} | {r['edge_mb']:.1f} | {r['pairs']:.1f} | {r['opts']} ({r['win']}) |"
-        for r in samples]
-    cmd = (f"python benchmarks/slam_scale.py --frames {args.frames} --base-frames {args.base_frames} "
-           f"--size {args.size} --every {args.every} --min-correspondences {args.min_correspondences}"
-           + (" --mesh" if args.mesh else "") + (" --paper-rules" if args.paper_rules else "")
-           + (" --keyframes-in-ram" if args.keyframes_in_ram else "")
-           + ("" if args.reuse_keyframes is None else
-              " --reuse-keyframes" if args.reuse_keyframes else " --no-reuse-keyframes"))
+        for r in probe.samples]
     keys = ("max_keyframe_candidates", "max_loop_edges_per_keyframe", "recent_keyframe_candidates", "spatial_keyframe_candidates", "spatial_radius",
             "optimize_growth", "optimize_small_map", "max_optimize_nodes", "final_optimize_nodes", "reuse_keyframes")
-    text = "\n".join([
-        "# SLAM scaling over a long RGB-D stream", "", f"Command: `{cmd}`", "",
-        f"- Stream: a {args.base_frames}-frame simulator sequence ({args.size} px, 15 cm colon) played forward "
-        f"and backward (ping-pong, symbolic links) to {args.frames} frames; ground-truth depth, SIFT; "
-        "2 CPU cores shared with other jobs.",
+    return [
+        (f"- Stream: a {args.base_frames}-frame simulator sequence ({args.size} px, 15 cm colon) played forward "
+         f"and backward (ping-pong, symbolic links) to {args.frames} frames; ground-truth depth, SIFT; "
+         "2 CPU cores shared with other jobs."),
         "- Settings: " + ", ".join(f"{k}={getattr(cfg, k)}" for k in keys) + ".",
         f"- Wall time {wall:.0f} s (final optimisation {final.get('seconds', float('nan')):.1f} s, "
         f"{final.get('optimizations', 0)} runs); registered share {s.get('registered_share', float('nan')):.3f}; "
@@ -188,20 +183,45 @@ def main() -> None:
         f"accepted keyframe matches by source {s.get('keyframe_matches_by_source')} "
         f"(of them discarded by the loop-edge cap: {s.get('keyframe_matches_capped')}); "
         f"mesh {'on' if args.mesh else 'off'}." + (f" Error: {error}" if error else ""),
-        "- Per interval of the last frames: wall-clock ms per frame (total, then the process's CPU time, "
-        "which other jobs on the shared cores disturb less, then the wall-clock keypoint, matching and "
-        "pose-graph stages), resident memory of the process, keyframes so far, RAM held by the stored keyframe features "
-        "(incl. global descriptors; with the keyframe cache: per-keyframe records and an LRU of 64 keyframes), "
-        "their bytes in the keyframe cache file (OUT/.keyframe_cache), global graph edges and the memory of their arrays (at capacity), "
-        "keyframe pairs matched per new fragment (each new fragment's first frame is matched against the "
-        "keyframe candidates, then becomes a keyframe or, with reuse_keyframes, hangs off one), global "
-        "optimisations (of them windowed).", "",
-        "| frames | ms/frame | CPU ms/frame | keypoints | matching | posegraph | RSS MB | keyframes "
-        "| keyframe RAM MB | keyframe disk MB | edges | edge MB | pairs/fragment | optimisations |",
+        ("- Per interval of the last frames: wall-clock ms per frame (total, then the process's CPU time, "
+         "which other jobs on the shared cores disturb less, then the wall-clock keypoint, matching and "
+         "pose-graph stages), resident memory of the process, keyframes so far, RAM held by the stored keyframe features "
+         "(incl. global descriptors; with the keyframe cache: per-keyframe records and an LRU of 64 keyframes), "
+         "their bytes in the keyframe cache file (OUT/.keyframe_cache), global graph edges and the memory of their arrays (at capacity), "
+         "keyframe pairs matched per new fragment (each new fragment's first frame is matched against the "
+         "keyframe candidates, then becomes a keyframe or, with reuse_keyframes, hangs off one), global "
+         "optimisations (of them windowed)."), "",
+        ("| frames | ms/frame | CPU ms/frame | keypoints | matching | posegraph | RSS MB | keyframes "
+         "| keyframe RAM MB | keyframe disk MB | edges | edge MB | pairs/fragment | optimisations |"),
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-        *rows, ""])
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    args.report.write_text(text)
+        *rows
+    ]
+
+
+def main() -> None:
+    args = parse_args()
+    base = args.out / f"base_{args.base_frames}_{args.size}"
+    if not (base / "camera.json").is_file():
+        make_tiny_sequence(base, frames=args.base_frames, size=args.size, seed=5)
+    long_seq = ping_pong(base, args.out / f"long_{args.frames}", args.frames)
+    cfg = slam_config(args)
+    probe = probe_class(args.every)
+    t = time.perf_counter()
+    error = ""
+    try:
+        s = run_slam(long_seq, args.out / "run", cfg, progress=False, slam_factory=probe)
+    except Exception as exc:  # noqa: BLE001 -- a failed run is a result: report it
+        error, s = str(exc), {}
+    wall = time.perf_counter() - t
+    ev = {}
+    if s:
+        try:
+            ev = evaluate_run(args.out / "run", long_seq)
+        except Exception as exc:  # noqa: BLE001 -- report, do not lose the table
+            ev = {"error": str(exc)}
+    report = Report(__file__, "SLAM scaling over a long RGB-D stream")
+    text = report.render(report_body(args, cfg, probe, wall, s, ev, error))
+    report.write(args.report, text)
     print(text)
 
 

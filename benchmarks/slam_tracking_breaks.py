@@ -11,7 +11,7 @@ runtime's pair matching (:func:`c3f_slam.pipeline.frontend.explain_match`, defau
 - for each, the ground-truth motion between the two frames (poses.txt) and, for simulator
   sequences, the event the frames belong to (frames.csv: closeup, burst, occluded, roll).
 
-    python benchmarks/slam_tracking_breaks.py /work/slam_ate4500/seq1_s1 --report /tmp/breaks.md
+    python -m benchmarks.slam_tracking_breaks /work/slam_ate4500/seq1_s1 --report /tmp/breaks.md
 
 Writes a Markdown report (the command line, a summary by event and the broken pairs).
 """
@@ -19,21 +19,18 @@ Writes a Markdown report (the command line, a summary by event and the broken pa
 from __future__ import annotations
 
 import argparse
-import sys
 from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from c3f_slam.evaluate import relative_motion  # noqa: E402
-from c3f_slam.io import Sequence  # noqa: E402
-from c3f_slam.pipeline import SlamConfig  # noqa: E402
-from c3f_slam.pipeline.frontend import Frontend, SiftDescriptors, explain_match  # noqa: E402
-from c3f_slam.stream import FrameStream  # noqa: E402
-from datamodules.synthetic.generate import read_event_labels  # noqa: E402
+from benchmarks.common.report import Report
+from c3f_slam.geometry import relative_motion
+from c3f_slam.io import Sequence
+from c3f_slam.pipeline import SlamConfig
+from c3f_slam.pipeline.frontend import Frontend, SiftDescriptors, explain_match
+from c3f_slam.stream import FrameStream
+from datamodules.synthetic.generate import read_event_labels
 
 
 def events_of(seq: Path, n: int) -> list[str]:
@@ -92,18 +89,16 @@ def main() -> None:
         return f"{np.median([r[key] for r in rs]):.2f}" if rs and have_motion else "-"
 
     lines = [
-        "# Consecutive-frame tracking breaks", "",
-        f"Command: `python benchmarks/slam_tracking_breaks.py {' '.join(sys.argv[1:])}`", "",
-        f"- {n_frames} frames, {len(rows)} consecutive pairs; SIFT (max {cfg.frontend.max_keypoints} keypoints, contrast "
-        f"threshold {cfg.frontend.sift_contrast_threshold}), ratio {cfg.frontend.ratio}, match filter defaults (>= "
-        f"{cfg.match_filter.min_matches} correspondences, residual {1e3 * cfg.match_filter.max_residual:g} mm).",
-        f"- Broken pairs (no accepted match): {len(broken)}; accepted but under {a.min_correspondences} "
-        f"correspondences: {len(weak)}; median correspondences of all pairs: {np.median([r['n'] for r in rows]):.0f}.",
+        (f"- {n_frames} frames, {len(rows)} consecutive pairs; SIFT (max {cfg.frontend.max_keypoints} keypoints, contrast "
+         f"threshold {cfg.frontend.sift_contrast_threshold}), ratio {cfg.frontend.ratio}, match filter defaults (>= "
+         f"{cfg.match_filter.min_matches} correspondences, residual {1e3 * cfg.match_filter.max_residual:g} mm)."),
+        (f"- Broken pairs (no accepted match): {len(broken)}; accepted but under {a.min_correspondences} "
+         f"correspondences: {len(weak)}; median correspondences of all pairs: {np.median([r['n'] for r in rows]):.0f}."),
         "- Reasons of the broken pairs: " + (", ".join(f"{k} {v}" for k, v in
                                                      Counter(reason_kind(r["reason"]) for r in broken).most_common())
                                              or "-") + ".", "",
-        "| event | pairs | broken | under threshold | median rotation deg/frame | median translation mm/frame "
-        "| median rotation of broken pairs | median translation of broken pairs |",
+        ("| event | pairs | broken | under threshold | median rotation deg/frame | median translation mm/frame "
+         "| median rotation of broken pairs | median translation of broken pairs |"),
         "|---|---|---|---|---|---|---|---|",
     ]
     for ev in sorted(by_event, key=lambda e: (e != "none", e)):
@@ -114,18 +109,18 @@ def main() -> None:
                      f"{med(br, 'rot_deg')} | {med(br, 'trans_mm')} |")
     if a.list and broken:
         lines += ["", "Broken pairs (frame i-1 -> i):", "",
-                  "| frame i | event | keypoints | descriptor matches | filter survivors | rotation deg | "
-                  "translation mm | reason |", "|---|---|---|---|---|---|---|---|"]
+                  ("| frame i | event | keypoints | descriptor matches | filter survivors | rotation deg | "
+                   "translation mm | reason |"), "|---|---|---|---|---|---|---|---|"]
         for r in broken[: a.list]:
             lines.append(f"| {r['i']} | {r['event'] or '-'} | {r['kp']} | {r['candidates']} | {r['filtered']} | "
                          + (f"{r['rot_deg']:.1f} | {r['trans_mm']:.2f}" if have_motion else "- | -")
                          + f" | {r['reason']} |")
         if len(broken) > a.list:
             lines.append(f"\n({len(broken) - a.list} more not listed)")
-    text = "\n".join(lines) + "\n"
+    report = Report(__file__, "Consecutive-frame tracking breaks")
+    text = report.render(lines)
     if a.report:
-        a.report.parent.mkdir(parents=True, exist_ok=True)
-        a.report.write_text(text)
+        report.write(a.report, text)
     print(text)
 
 

@@ -20,7 +20,7 @@ processes) before dividing. Where the precision goes: ``{m}_near_precision`` (a 
 within 3 x ``pixel_radius`` of the true position counts as right), ``{m}_near_miss_share``
 (near misses / wrong matches) and ``{m}_no_counterpart_share`` (near misses where j had no
 keypoint within ``pixel_radius`` at all / wrong matches); see
-:mod:`c3f_slam.matching.evaluation`. With a TensorBoard logger, validation also writes a few match
+:mod:`c3f_slam.matching.match_accuracy`. With a TensorBoard logger, validation also writes a few match
 images (CDF matches; green = correct, yellow = near miss, red = other wrong).
 """
 
@@ -44,7 +44,7 @@ from c3f_models.contrafeat.pairs import (
 )
 from c3f_slam.errors import InputError
 from c3f_slam.matching import MatchCounts, MatchFilterConfig
-from c3f_slam.matching.evaluation import match_and_evaluate, near_misses
+from c3f_slam.matching.match_accuracy import match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches
 
 METHODS = ("sift", "sift_kpf", "cdf", "cdf_kpf")
@@ -252,7 +252,7 @@ class ContraFeat(L.LightningModule):
             c = MatchCounts.from_array(row)
             self.log(f"{stage}/{m}_recall", c.recall, sync_dist=False)
             self.log(f"{stage}/{m}_precision", c.precision, sync_dist=False)
-            # where precision goes (c3f_slam.matching.evaluation): near misses vs gross errors
+            # where precision goes (c3f_slam.matching.match_accuracy): near misses vs gross errors
             for name in ("near_precision", "near_miss_share", "no_counterpart_share"):
                 self.log(f"{stage}/{m}_{name}", getattr(c, name), sync_dist=False)
             if m.endswith("_kpf"):

@@ -137,7 +137,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from c3f_slam.pipeline.evaluation import evaluate_run, format_report
+    from c3f_slam.pipeline.run_evaluation import evaluate_run, format_report
 
     res = evaluate_run(args.out, args.gt)
     print(format_report(res))

@@ -5,7 +5,9 @@ Conventions, used everywhere in the project:
   to world coordinates: p_w = T_wc @ p_c. Trajectories store camera-to-world poses.
 - ``T_ij`` maps coordinates of frame j into frame i: p_i = T_ij @ p_j, and
   T_ij = inv(T_wi) @ T_wj.
-- Angles are radians. Axis-angle vectors have the rotation angle as their norm.
+- Angles are radians. Axis-angle vectors have the rotation angle as their norm. The
+  motion magnitudes at the end (:func:`motion_magnitudes`, :func:`relative_motion`) report
+  degrees, as every metric and report of the project prints rotations.
 - Quaternions are (qx, qy, qz, qw), the TUM order, unit norm.
 - Camera frame: x right, y down, z forward (OpenCV). Depth is z in metres.
 
@@ -203,3 +205,26 @@ def project(points: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     uv = np.stack([u, v], axis=-1)
     uv[z <= 0] = np.nan
     return uv, z
+
+
+# ---------------------------------------------------------------------- motion between poses
+
+
+def motion_magnitudes(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation length (m) and rotation angle (degrees) of each rigid transform of (N, 4, 4) ``T``."""
+    T = np.asarray(T, dtype=np.float64).reshape(-1, 4, 4)
+    trans = np.linalg.norm(T[:, :3, 3], axis=1)
+    rot = np.degrees([np.linalg.norm(matrix_to_axis_angle(M[:3, :3])) for M in T]).reshape(-1)
+    return trans, rot
+
+
+def relative_motion(poses: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair of camera-to-world poses (i, i + ``delta``): the camera's translation (m) and
+    rotation (degrees) between them, (N - delta,) each;
+    :func:`c3f_slam.trajectory_metrics.frame_motion` summarises them."""
+    P = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    if delta < 1:
+        raise ValueError(f"delta must be >= 1, got {delta}")
+    if len(P) <= delta:
+        return np.zeros(0), np.zeros(0)
+    return motion_magnitudes(relative_pose(P[:-delta], P[delta:]))

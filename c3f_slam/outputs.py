@@ -8,7 +8,7 @@ Layout of an output folder (:class:`RunOutputs`)::
       keyframe_graph.json   keyframes (frame, timestamp, position, fragment, lone) and edges
       keyframe_graph.png    top view (x vs z, cm) of the keyframe graph
       mesh.ply              fused mesh (written with c3f_slam.fusion.write_mesh)
-      trajectory.png        estimate vs ground truth (c3f_slam.evaluate.plot_trajectories)
+      trajectory.png        estimate vs ground truth (c3f_slam.trajectory_plot.plot_trajectories)
       coverage.ply          ground-truth mesh painted seen / unseen
 """
 

@@ -1,16 +1,24 @@
 """Every benchmark script at least parses its command line (imports and module-level code
-run): benchmarks run outside CI, so a broken script would otherwise go unnoticed."""
+run): benchmarks run outside CI, so a broken script would otherwise go unnoticed. Scripts run
+from the repository root as modules (``python -m benchmarks.NAME``), as benchmarks/README.md says."""
 
 from __future__ import annotations
 
+import importlib
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from benchmarks.common.report import END, Report
+
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = sorted((ROOT / "benchmarks").glob("*.py"))
+SCRIPTS = sorted(p for p in (ROOT / "benchmarks").glob("*.py") if p.stem != "__init__")
+
+
+def _module(script: Path) -> list[str]:
+    return [sys.executable, "-m", f"benchmarks.{script.stem}"]
 
 
 def test_there_are_benchmarks():
@@ -19,7 +27,8 @@ def test_there_are_benchmarks():
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=[s.stem for s in SCRIPTS])
 def test_help(script: Path):
-    r = subprocess.run([sys.executable, str(script), "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    r = subprocess.run([*_module(script), "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                       check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "usage:" in r.stdout
 
@@ -36,8 +45,8 @@ def test_tracking_breaks_reports_a_black_frame(tmp_path):
     frame = sorted((seq / "rgb").iterdir())[10]
     cv2.imwrite(str(frame), np.zeros((128, 128, 3), np.uint8))
     report = tmp_path / "breaks.md"
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "slam_tracking_breaks.py"), str(seq),
-                        "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = subprocess.run([*_module(ROOT / "benchmarks" / "slam_tracking_breaks.py"), str(seq),
+                        "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     text = report.read_text()
     assert "Broken pairs (no accepted match): 2;" in text, text
@@ -48,11 +57,7 @@ def test_depth_motion_measures_a_known_scale(tmp_path):
     """benchmarks/depth_motion.py on a "network" that predicts a quarter of the true depth:
     scale 0.25, depth changes that follow the true ones, translations a quarter of the true
     ones in the right direction; the true-depth control recovers the motion."""
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        import depth_motion
-    finally:
-        sys.path.pop(0)
+    from benchmarks import depth_motion
     from c3f_slam.io import Sequence
     from datamodules.synthetic.fixture import make_tiny_sequence
 
@@ -74,11 +79,7 @@ def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp
     import cv2
     import torch
 
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        from contrafeat_pr import SMALL_MODEL
-    finally:
-        sys.path.pop(0)
+    from benchmarks.common.contrafeat import SMALL_MODEL
     from c3f_models.contrafeat_module import ContraFeat
 
     ckpts = []
@@ -87,10 +88,10 @@ def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp
         ckpts.append(tmp_path / f"m{k}.ckpt")
         torch.save({"state_dict": ContraFeat(**SMALL_MODEL).state_dict(), "global_step": 0}, ckpts[-1])
     out = tmp_path / "img" / "matches.png"
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "contrafeat_match_image.py"), "--data",
+    r = subprocess.run([*_module(ROOT / "benchmarks" / "contrafeat_match_image.py"), "--data",
                         str(plane_dataset), "--seq", "plane0", "--gap", "1", "--size", "48", "--pair", "0",
                         "--checkpoint", str(ckpts[0]), "--checkpoint", str(ckpts[1]), "--out", str(out)],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+                       cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     img = cv2.imread(str(out))
     assert img.shape[:2] == (2 * 2 * 48, 2 * 2 * 48)  # two rows of two 48-px frames, scaled 2x
@@ -102,12 +103,8 @@ def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp
     table and the wrong-match split; the kpf threshold changes only the +kpf columns."""
     import torch
 
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        import contrafeat_eval
-        from contrafeat_pr import SMALL_MODEL
-    finally:
-        sys.path.pop(0)
+    from benchmarks import contrafeat_eval
+    from benchmarks.common.contrafeat import SMALL_MODEL
     from c3f_models.contrafeat_module import ContraFeat
 
     torch.manual_seed(0)
@@ -134,11 +131,7 @@ def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp
 
 
 def _import_benchmark(name: str):
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        return __import__(name)
-    finally:
-        sys.path.pop(0)
+    return importlib.import_module(f"benchmarks.{name}")
 
 
 def test_ttt_schedule_keeps_the_papers_fractions():
@@ -171,3 +164,27 @@ def test_ttt_benchmark_end_to_end(tmp_path, monkeypatch):
     _import_benchmark("depthnet_ttt").main()
     text = out.read_text()
     assert text.count("| base (before TTT) |") == 2 and text.count("| after TTT") == 2
+
+
+def test_report_rewrites_only_its_generated_section(tmp_path):
+    """benchmarks.common.report: the command line as typed from the repository root, the date,
+    and a generated section that a rerun replaces while findings written by hand stay."""
+    report = Report(str(ROOT / "benchmarks" / "slam_ate.py"), "Title", ["--presets", "seq1", "--set", "a b"])
+    assert report.command == "python -m benchmarks.slam_ate --presets seq1 --set 'a b'"
+    first = report.render(["| table | 1 |"])
+    assert first.startswith("# Title\n\nCommand: `python -m benchmarks.slam_ate --presets seq1 --set 'a b'`\n\nDate: ")
+    out = tmp_path / "r.md"
+    report.write(out, first)
+    out.write_text("Findings above, by hand.\n\n" + out.read_text() + "\nFindings below.\n")
+    report.write(out, report.render(["| table | 2 |"]))
+    text = out.read_text()
+    assert text.startswith("Findings above, by hand.\n\n<!-- generated by python -m benchmarks.slam_ate")
+    assert "| table | 2 |" in text and "| table | 1 |" not in text and text.endswith(f"{END}\n\nFindings below.\n")
+
+    plain = tmp_path / "plain.md"  # a file without a generated section gets one appended
+    plain.write_text("Notes.\n")
+    report.write(plain, first)
+    assert plain.read_text().startswith("Notes.\n\n<!-- generated by") and plain.read_text().count(END) == 1
+    plain.write_text(plain.read_text() * 2)
+    with pytest.raises(SystemExit, match="plain.md: holds 2 generated report sections"):
+        report.write(plain, first)

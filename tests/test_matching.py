@@ -18,8 +18,8 @@ from c3f_slam.matching import (
     project_keypoints,
     sample_depth,
 )
-from c3f_slam.matching.evaluation import MatchCounts, evaluate_matches, match_and_evaluate, near_misses
 from c3f_slam.matching.filters import spanned_area
+from c3f_slam.matching.match_accuracy import MatchCounts, evaluate_matches, match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches
 from tests.scenes import plane_texture, render_plane
 

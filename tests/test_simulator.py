@@ -16,17 +16,18 @@ import pytest
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
-from c3f_slam.evaluate import relative_motion
+from c3f_slam.geometry import relative_motion
 from c3f_slam.io import Sequence
 from c3f_slam.preprocess import specular_mask
 from datamodules.synthetic import generate_sequence, get_preset, make_tiny_sequence, tiny_params
 from datamodules.synthetic.__main__ import main as cli_main
 from datamodules.synthetic.camera_path import plan_path
 from datamodules.synthetic.colon import build_colon
-from datamodules.synthetic.generate import build_scene, read_event_labels, render_frames
+from datamodules.synthetic.generate import read_event_labels
 from datamodules.synthetic.noise import stream
 from datamodules.synthetic.params import PAPER_TABLE, PRESETS, ColonParams, SimParams, apply_overrides
 from datamodules.synthetic.render import cast_depth, make_scene
+from datamodules.synthetic.scene import build_scene, render_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 

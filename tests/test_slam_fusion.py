@@ -14,8 +14,8 @@ import pytest
 
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.evaluate import coverage_mesh, distance_to_mesh, sample_surface, surface_coverage
 from c3f_slam.fusion import TSDF_PRESETS, FragmentFusion, TSDFConfig, TSDFVolume, write_mesh
+from c3f_slam.surface_metrics import coverage_mesh, distance_to_mesh, sample_surface, surface_coverage
 from tests.scenes import plane_texture, render_plane
 
 RADIUS = 0.02

@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 
 from c3f_slam.errors import InputError
-from c3f_slam.evaluate import evaluate_trajectory
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import make_pose
 from c3f_slam.io import Sequence, read_tum, write_tum
+from c3f_slam.matching import MatchFilterConfig
 from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.fragments import CORRESPONDENCES, OVERLAP, SIZE, Fragment, new_fragment_reason
-from c3f_slam.matching import MatchFilterConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, explain_match, match_frames
 from c3f_slam.pipeline.odometry import OdometrySlam
 from c3f_slam.pipeline.slam import FragmentSlam
+from c3f_slam.trajectory_metrics import evaluate_trajectory
 from datamodules.synthetic.fixture import make_tiny_sequence
 
 FRAMES, SIZE_PX = 36, 128

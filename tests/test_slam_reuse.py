@@ -238,7 +238,7 @@ def test_ping_pong_run_stops_adding_keyframes(tmp_path_factory):
     import json
 
     from c3f_slam.pipeline import run_slam
-    from c3f_slam.pipeline.evaluation import evaluate_run
+    from c3f_slam.pipeline.run_evaluation import evaluate_run
     from datamodules.synthetic.fixture import make_tiny_sequence
 
     root = tmp_path_factory.mktemp("reuse")

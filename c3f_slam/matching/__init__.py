@@ -15,16 +15,16 @@ arrays are (M, 2) int64 index pairs (index into frame i's keypoints, index into 
   and bilinear sampling of a dense descriptor map at keypoints;
 - :mod:`.kabsch`: weighted Kabsch rigid fit;
 - :mod:`.filters`: keypoint correspondence filter + surface area filter (BundleFusion);
-- :mod:`.evaluation`: precision / recall of found matches against the ground truth;
+- :mod:`.match_accuracy`: precision / recall of found matches against the ground truth;
 - :mod:`.visual`: match images (correct green, wrong red).
 """
 
 from c3f_slam.matching.descriptors import mutual_nearest_neighbours, sample_descriptor_map
-from c3f_slam.matching.evaluation import MatchCounts, classify_matches, evaluate_matches, near_misses
 from c3f_slam.matching.filters import FilterResult, MatchFilterConfig, filter_matches
 from c3f_slam.matching.ground_truth import Projection, ground_truth_matches, project_keypoints
 from c3f_slam.matching.kabsch import kabsch
 from c3f_slam.matching.keypoints import Keypoints, detect_sift, to_gray_uint8
+from c3f_slam.matching.match_accuracy import MatchCounts, classify_matches, evaluate_matches, near_misses
 from c3f_slam.matching.points import lift_keypoints, sample_depth
 
 __all__ = [

@@ -1,5 +1,5 @@
 """Match visualisation: two frames side by side; correct matches green, near misses yellow,
-other wrong ones red (near misses: :func:`c3f_slam.matching.evaluation.near_misses`)."""
+other wrong ones red (near misses: :func:`c3f_slam.matching.match_accuracy.near_misses`)."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@
 - :mod:`.odometry`: the frame-to-frame baseline back-end;
 - :mod:`.fusion_frames`: where fusion re-reads frames (sequence files, or the predicted-depth cache);
 - :mod:`.run`: :func:`run_slam` and the :class:`SlamRun` that owns a run's resources;
-- :mod:`.evaluation`: the ``evaluate`` command's metrics and files.
+- :mod:`.run_evaluation`: the ``evaluate`` command: a run folder against ground truth (metrics and files).
 """
 
 from c3f_slam.pipeline.config import PAPER_RULES, SlamConfig

@@ -109,14 +109,6 @@ class Colon:
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         return c, t, n, np.cross(t, n)
 
-    def point_at(self, s: float) -> np.ndarray:
-        """Centreline point at ``s``, extrapolated along the end tangents beyond the tube."""
-        if s < 0:
-            return self.centre[0] + s * self.tangent[0]
-        if s > self.length:
-            return self.centre[-1] + (s - self.length) * self.tangent[-1]
-        return self.frame_at(s)[0]
-
     def to_legacy_mesh(self):
         """Open3D legacy ``TriangleMesh`` (the ground-truth mesh written to mesh.ply)."""
         import open3d as o3d

@@ -24,94 +24,20 @@ import json
 import shutil
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 import numpy as np
 import open3d as o3d
 
-from c3f_slam.camera import PinholeCamera
 from c3f_slam.io import SequenceWriter
 from c3f_slam.io.atomic import move_into_place, staging_dir
-from datamodules.synthetic import noise
-from datamodules.synthetic.camera_path import CameraPath, plan_path
-from datamodules.synthetic.colon import Colon, build_colon
-from datamodules.synthetic.params import LAYOUTS, PAPER_COMMON, PAPER_TABLE, SimParams, check_layout, check_output
-from datamodules.synthetic.render import Renderer, make_scene
-from datamodules.synthetic.texture import TextureAtlas, build_atlas
+from datamodules.synthetic.layouts import layout_writer
+from datamodules.synthetic.params import PAPER_COMMON, PAPER_TABLE, SimParams, check_layout, check_output
+from datamodules.synthetic.scene import SimScene, build_scene, render_frames
 
 FORMAT_VERSION = 1
-__all__ = ["LAYOUTS", "SimScene", "build_scene", "check_output", "generate_sequence", "read_event_labels",
-           "render_frames"]
-
-
-@dataclass
-class SimScene:
-    """Everything needed to render the frames of one parameter set."""
-
-    params: SimParams
-    colon: Colon
-    atlas: TextureAtlas
-    raycaster: o3d.t.geometry.RaycastingScene
-    path: CameraPath
-    camera: PinholeCamera
-    renderer: Renderer
-
-
-def make_camera(params: SimParams) -> PinholeCamera:
-    c = params.camera
-    return PinholeCamera.from_fov(c.width, c.height, c.fov, depth_scale=c.depth_scale)
-
-
-def build_scene(params: SimParams) -> SimScene:
-    """Validate ``params`` and build colon, texture and path (deterministic in the seed)."""
-    params.validate()
-    seed = params.seed
-    colon = build_colon(params.colon, noise.stream(seed, noise.GEOMETRY))
-    raycaster = make_scene(colon)
-    path = plan_path(colon, params.path, noise.stream(seed, noise.PATH), raycaster)
-    atlas = build_atlas(colon, params.appearance, noise.stream(seed, noise.TEXTURE))
-    camera = make_camera(params)
-    renderer = Renderer(colon, atlas, camera, params.appearance, scene=raycaster)
-    return SimScene(params, colon, atlas, raycaster, path, camera, renderer)
-
-
-def _blur_poses(scene: SimScene, i: int) -> list[np.ndarray]:
-    """Poses inside the shutter interval before frame i (motion blur), none when off."""
-    a = scene.params.appearance
-    if a.motion_blur <= 0 or i == 0:
-        return []
-    path = scene.path
-    T0, T1 = path.poses[i - 1], path.poses[i]
-    step = np.linalg.norm(T1[:3, 3] - T0[:3, 3])
-    cos = np.clip((np.trace(T0[:3, :3].T @ T1[:3, :3]) - 1) / 2, -1, 1)
-    # rough motion in pixels: translation over ~2 cm of depth plus rotation
-    px = a.motion_blur * scene.camera.fx * (step / 0.02 + float(np.arccos(cos)))
-    k = int(min(8, np.ceil(px / 1.5)))
-    if k <= 1:
-        return []
-    return [path.pose_at(i - a.motion_blur * j / k) for j in range(1, k)]
-
-
-def render_frames(scene: SimScene,
-                  renderer: Renderer | None = None) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
-    """Yield (index, rgb uint8 (H, W, 3), depth float32 metres (H, W)) for every frame.
-
-    ``renderer``: another camera's renderer of the same scene (default ``scene.renderer``).
-    The rays of frame i+1 are cast in a worker thread (Open3D releases the GIL) while
-    frame i is shaded; the result does not depend on this overlap.
-    """
-    seed = scene.params.seed
-    r = scene.renderer if renderer is None else renderer
-    poses = scene.path.poses
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        nxt = pool.submit(r.trace, poses[0]) if len(poses) else None
-        for i, T in enumerate(poses):
-            hits = nxt.result()
-            nxt = pool.submit(r.trace, poses[i + 1]) if i + 1 < len(poses) else None
-            rgb, depth = r.render(T, noise.stream(seed, noise.FRAME, i), _blur_poses(scene, i), hits=hits)
-            yield i, rgb, depth
+__all__ = ["generate_sequence", "read_event_labels"]
 
 
 def params_record(scene: SimScene) -> dict:
@@ -168,8 +94,6 @@ def _write_all(scene: SimScene, root: Path, layout: str, progress: bool, on_fram
     writer = SequenceWriter(root, scene.camera)
     extra = None
     if layout != "c3f":
-        from datamodules.synthetic.layouts import layout_writer
-
         extra = layout_writer(layout, root / layout, scene)
     pending: deque[Future] = deque()
     with ThreadPoolExecutor(max_workers=1) as pool:  # PNG encoding overlaps the next frame's rendering

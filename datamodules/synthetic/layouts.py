@@ -49,7 +49,6 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -60,9 +59,8 @@ from c3f_slam.geometry import invert_pose
 from datamodules.formats import c3vd, simcol3d, uts
 from datamodules.formats.omnicam import C3VD_CALIBRATION
 from datamodules.formats.unity import pose_to_unity
-
-if TYPE_CHECKING:
-    from datamodules.synthetic.generate import SimScene
+from datamodules.synthetic.render import Renderer
+from datamodules.synthetic.scene import SimScene, render_frames
 
 C3VD_MAX_ANGLE_DEG = 85.0  # fisheye pixels further off the axis are masked (black, no depth)
 
@@ -77,7 +75,7 @@ def _imwrite(path: Path, img: np.ndarray) -> None:
 
 
 class _Layout:
-    def __init__(self, root: Path, scene: "SimScene") -> None:
+    def __init__(self, root: Path, scene: SimScene) -> None:
         self.root, self.scene = root, scene
         self.poses = scene.path.poses
 
@@ -89,7 +87,7 @@ class _Layout:
 
 
 class UTSLayout(_Layout):
-    def __init__(self, root: Path, scene: "SimScene") -> None:
+    def __init__(self, root: Path, scene: SimScene) -> None:
         super().__init__(root, scene)
         os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # OpenCV writes EXR only when asked to
         self.case = root / "Case0001"
@@ -113,7 +111,7 @@ class UTSLayout(_Layout):
 
 
 class SimColLayout(_Layout):
-    def __init__(self, root: Path, scene: "SimScene") -> None:
+    def __init__(self, root: Path, scene: SimScene) -> None:
         super().__init__(root, scene)
         self.scene_dir = root / "SyntheticColon_C3F"
         self.frames = self.scene_dir / "Frames_S1"
@@ -147,11 +145,8 @@ class SimColLayout(_Layout):
 
 
 class C3VDLayout(_Layout):
-    def __init__(self, root: Path, scene: "SimScene") -> None:
+    def __init__(self, root: Path, scene: SimScene) -> None:
         super().__init__(root, scene)
-        from datamodules.synthetic.generate import render_frames
-        from datamodules.synthetic.render import Renderer
-
         cam = scene.camera
         try:
             self.omni = C3VD_CALIBRATION.scaled(cam.width, cam.height)
@@ -203,7 +198,7 @@ class C3VDLayout(_Layout):
 
 
 class Colon10KLayout(_Layout):
-    def __init__(self, root: Path, scene: "SimScene") -> None:
+    def __init__(self, root: Path, scene: SimScene) -> None:
         super().__init__(root, scene)
         self.images = root / "c3f_sim" / "image"
         self.images.mkdir(parents=True, exist_ok=True)
@@ -220,6 +215,6 @@ class Colon10KLayout(_Layout):
 _WRITERS = {"uts": UTSLayout, "simcol3d": SimColLayout, "c3vd": C3VDLayout, "colon10k": Colon10KLayout}
 
 
-def layout_writer(name: str, root: Path, scene: "SimScene") -> _Layout:
+def layout_writer(name: str, root: Path, scene: SimScene) -> _Layout:
     """Writer of layout ``name`` (``uts``, ``simcol3d``, ``c3vd`` or ``colon10k``) into the folder ``root``."""
     return _WRITERS[name](Path(root), scene)

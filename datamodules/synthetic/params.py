@@ -290,10 +290,6 @@ def _check(cond: bool, msg: str) -> None:
         raise InputError(msg)
 
 
-def _finite(x: float) -> bool:
-    return isinstance(x, (int, float)) and math.isfinite(x)
-
-
 def _validate(p: SimParams) -> None:
     _check(isinstance(p.seed, int) and 0 <= p.seed < 2**63, f"seed: must be a non-negative integer, got {p.seed!r}")
     c, a, cam, path = p.colon, p.appearance, p.camera, p.path

@@ -41,7 +41,7 @@ class MatchCounts:
     near_misses: int = 0
     near_misses_without_counterpart: int = 0
 
-    def __add__(self, other: "MatchCounts") -> "MatchCounts":
+    def __add__(self, other: MatchCounts) -> MatchCounts:
         return MatchCounts(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
 
     @property
@@ -80,7 +80,7 @@ class MatchCounts:
         return np.array([getattr(self, f.name) for f in fields(self)], np.int64)
 
     @classmethod
-    def from_array(cls, a) -> "MatchCounts":
+    def from_array(cls, a) -> MatchCounts:
         return cls(*(int(x) for x in np.asarray(a).reshape(-1)))
 
 

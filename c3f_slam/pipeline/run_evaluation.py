@@ -15,11 +15,12 @@ import numpy as np
 import open3d as o3d
 
 from c3f_slam.errors import InputError
-from c3f_slam.evaluate import associate, ate, coverage_mesh, plot_trajectories, surface_coverage
-from c3f_slam.evaluate import evaluate_trajectory
 from c3f_slam.fusion import write_mesh
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.outputs import RunOutputs, write_json
+from c3f_slam.surface_metrics import coverage_mesh, surface_coverage
+from c3f_slam.trajectory_metrics import associate, ate, evaluate_trajectory
+from c3f_slam.trajectory_plot import plot_trajectories
 
 
 def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000) -> dict:
@@ -61,8 +62,8 @@ def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000
 
 def format_report(res: dict) -> str:
     """Lines for the terminal, lengths in cm."""
-    lines = [f"registered: {100 * res.get('registered_share', 0):.1f} % "
-             f"({res.get('n_estimated', 0)} poses, {res.get('n_associated', 0)} with ground truth)"]
+    lines = [(f"registered: {100 * res.get('registered_share', 0):.1f} % "
+              f"({res.get('n_estimated', 0)} poses, {res.get('n_associated', 0)} with ground truth)")]
     if "error" in res:
         return "\n".join(lines + [f"error: {res['error']}"])
     for key in ("ate_sim3", "ate_se3"):

@@ -1,12 +1,11 @@
-"""Trajectory and reconstruction metrics (SPEC §4.4).
+"""Trajectory metrics (SPEC §4.4).
 
 - :func:`associate`: pair estimated and ground-truth frames by timestamp.
 - :func:`umeyama`: least-squares similarity (or rigid) fit between point sets.
 - :func:`ate`: absolute trajectory error after Sim(3) (scale, monocular) or SE(3) alignment.
 - :func:`rpe`: relative pose error over a fixed frame delta.
-- :func:`surface_coverage` / :func:`coverage_mesh`: share of the ground-truth surface that
-  the reconstruction reaches, and a copy of the ground-truth mesh painted seen / unseen.
-- :func:`plot_trajectories`: PNG of estimated vs ground-truth positions (top and side view).
+- :func:`frame_motion`: the camera motion per frame of a trajectory (how hard a sequence is).
+- :func:`evaluate_trajectory`: all of the above for one run, as a JSON-ready dict.
 
 Poses are camera-to-world 4x4 matrices; all lengths are metres (callers print cm or mm);
 rotation errors are reported in degrees where the field name says ``deg``.
@@ -15,13 +14,10 @@ rotation errors are reported in degrees where the field name says ``deg``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 
-from c3f_slam.geometry import invert_pose, matrix_to_axis_angle
-from c3f_slam.io.atomic import atomic_write
+from c3f_slam.geometry import motion_magnitudes, relative_motion, relative_pose
 from c3f_slam.matching.kabsch import kabsch
 
 # ---------------------------------------------------------------------- association
@@ -106,7 +102,7 @@ class ErrorStats:
     n: int
 
     @classmethod
-    def of(cls, e: np.ndarray) -> "ErrorStats":
+    def of(cls, e: np.ndarray) -> ErrorStats:
         e = np.asarray(e, dtype=np.float64)
         if len(e) == 0:
             nan = float("nan")
@@ -190,29 +186,10 @@ def rpe(est_poses: np.ndarray, gt_poses: np.ndarray, delta: int = 1, scale: floa
     n = len(est) - delta
     if n <= 0:
         return RPEResult(delta, ErrorStats.of(np.zeros(0)), ErrorStats.of(np.zeros(0)))
-    d_est = invert_pose(est[:-delta]) @ est[delta:]
-    d_gt = invert_pose(gt[:-delta]) @ gt[delta:]
-    trans, rot = motion_magnitudes(invert_pose(d_gt) @ d_est)
+    d_est = relative_pose(est[:-delta], est[delta:])
+    d_gt = relative_pose(gt[:-delta], gt[delta:])
+    trans, rot = motion_magnitudes(relative_pose(d_gt, d_est))
     return RPEResult(delta, ErrorStats.of(trans), ErrorStats.of(rot))
-
-
-def motion_magnitudes(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translation length (m) and rotation angle (degrees) of each rigid transform of (N, 4, 4) ``T``."""
-    T = np.asarray(T, dtype=np.float64).reshape(-1, 4, 4)
-    trans = np.linalg.norm(T[:, :3, 3], axis=1)
-    rot = np.degrees([np.linalg.norm(matrix_to_axis_angle(M[:3, :3])) for M in T]).reshape(-1)
-    return trans, rot
-
-
-def relative_motion(poses: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Per pair of camera-to-world poses (i, i + ``delta``): the camera's translation (m) and
-    rotation (degrees) between them, (N - delta,) each; :func:`frame_motion` summarises them."""
-    P = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-    if delta < 1:
-        raise ValueError(f"delta must be >= 1, got {delta}")
-    if len(P) <= delta:
-        return np.zeros(0), np.zeros(0)
-    return motion_magnitudes(invert_pose(P[:-delta]) @ P[delta:])
 
 
 def frame_motion(poses: np.ndarray, delta: int = 1) -> RPEResult:
@@ -248,7 +225,7 @@ def evaluate_trajectory(
     """
     ie, ig = associate(est_stamps, gt_stamps, max_dt)
     total = len(gt_stamps) if n_frames is None else n_frames
-    out: dict = {"n_associated": int(len(ie)), "n_estimated": int(len(est_stamps)),
+    out: dict = {"n_associated": len(ie), "n_estimated": len(est_stamps),
                  "registered_share": registered_share(len(est_stamps), total)}
     if len(ie) < 3:
         out["error"] = f"only {len(ie)} poses associated with the ground truth (need 3)"
@@ -262,126 +239,20 @@ def evaluate_trajectory(
     return out
 
 
-# ---------------------------------------------------------------------- plots
+def common_frames_ate(
+    tracks: dict[str, tuple[np.ndarray, np.ndarray]], gt_stamps: np.ndarray, gt_poses: np.ndarray
+) -> tuple[dict[str, float | None], int]:
+    """ATE Sim(3) RMSE (metres) of each estimated trajectory over the frames that all of them
+    registered (equal timestamps), each aligned on those frames alone, and the number of those frames.
 
-
-def plot_trajectories(path: str | Path, gt_positions: np.ndarray, est_positions: np.ndarray | None = None,
-                      title: str = "") -> None:
-    """Write a PNG with a top view (x vs z) and a side view (z vs -y) of the trajectories.
-
-    Positions are (N, 3) world coordinates in metres (plotted in cm); the world frame is
-    the first camera's (x right, y down, z forward), so "up" in the side view is -y.
-    Give the estimate already aligned (``ATEResult.aligned[:, :3, 3]``).
+    ``tracks``: name -> (timestamps (N,), camera-to-world poses (N, 4, 4)). A trajectory gets
+    None when fewer than 3 frames are common or too few of them associate with the ground truth.
+    Compares runs that register different parts of a sequence on the same frames.
     """
-    from matplotlib.figure import Figure  # no pyplot: renders with Agg, no display needed
-
-    fig = Figure(figsize=(10, 4.5), dpi=100)
-    views = (("top view", 0, 2, 1.0, "x [cm]", "z [cm]"), ("side view", 2, 1, -1.0, "z [cm]", "-y (up) [cm]"))
-    for k, (name, a, b, sb, la, lb) in enumerate(views):
-        ax = fig.add_subplot(1, 2, k + 1)
-        for pos, label, style in ((gt_positions, "ground truth", "k-"), (est_positions, "estimate", "r-")):
-            if pos is None or len(pos) == 0:
-                continue
-            p = np.asarray(pos) * 100.0
-            ax.plot(p[:, a], sb * p[:, b], style, lw=1.2, label=label)
-            ax.plot(p[0, a], sb * p[0, b], style[0] + "o", ms=4)
-        ax.set_title(name)
-        ax.set_xlabel(la)
-        ax.set_ylabel(lb)
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.grid(True, lw=0.3)
-        ax.legend(loc="best", fontsize=8)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    with atomic_write(Path(path), suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
-
-
-# ---------------------------------------------------------------------- coverage
-
-SEEN_COLOUR = (0.55, 0.75, 0.55)  # grey-green
-UNSEEN_COLOUR = (0.9, 0.1, 0.1)  # red
-
-
-def sample_surface(mesh: o3d.geometry.TriangleMesh, n: int, seed: int = 0) -> tuple[np.ndarray, float]:
-    """(n, 3) points uniformly distributed over the mesh area (deterministic); total area (m^2)."""
-    V = np.asarray(mesh.vertices, dtype=np.float64)
-    F = np.asarray(mesh.triangles, dtype=np.int64)
-    if len(F) == 0:
-        raise ValueError("ground-truth mesh has no triangles")
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    areas = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    total = float(areas.sum())
-    if total <= 0:
-        raise ValueError("ground-truth mesh has zero area")
-    rng = np.random.default_rng(seed)
-    tri = rng.choice(len(F), size=n, p=areas / total)
-    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
-    pts = (1 - r1)[:, None] * a[tri] + (r1 * (1 - r2))[:, None] * b[tri] + (r1 * r2)[:, None] * c[tri]
-    return pts, total
-
-
-def distance_to_mesh(points: np.ndarray, mesh: o3d.geometry.TriangleMesh) -> np.ndarray:
-    """Unsigned distance (m) from each point to the nearest triangle; inf for an empty mesh."""
-    pts = np.asarray(points, dtype=np.float32)
-    if len(mesh.triangles) == 0:
-        return np.full(len(pts), np.inf)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    return scene.compute_distance(o3d.core.Tensor(pts)).numpy().astype(np.float64)
-
-
-@dataclass
-class CoverageResult:
-    """Share of the ground-truth area within ``threshold`` metres of the reconstruction."""
-
-    share: float
-    threshold: float
-    gt_area_m2: float
-    n_samples: int
-
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
-
-
-def surface_coverage(
-    gt_mesh: o3d.geometry.TriangleMesh,
-    recon_mesh: o3d.geometry.TriangleMesh,
-    threshold: float = 0.0025,
-    n_samples: int = 100_000,
-    seed: int = 0,
-) -> CoverageResult:
-    """Coverage: share of points sampled uniformly on the ground-truth surface that lie within
-    ``threshold`` metres (default 2.5 mm, about 2.5 voxels of the colon TSDF) of the
-    reconstructed mesh. Both meshes in the same (ground-truth) frame: align the
-    reconstruction first (e.g. with the ATE's Sim(3))."""
-    pts, area = sample_surface(gt_mesh, n_samples, seed)
-    d = distance_to_mesh(pts, recon_mesh)
-    return CoverageResult(float(np.mean(d <= threshold)), float(threshold), area, int(n_samples))
-
-
-def coverage_mesh(
-    gt_mesh: o3d.geometry.TriangleMesh,
-    recon_mesh: o3d.geometry.TriangleMesh,
-    threshold: float = 0.0025,
-    max_edge: float | None = None,
-) -> o3d.geometry.TriangleMesh:
-    """Copy of the ground-truth mesh with vertices painted seen (grey-green) or unseen (red).
-
-    A vertex is seen when it lies within ``threshold`` of the reconstruction. With
-    ``max_edge`` (metres) the copy is midpoint-subdivided until no edge is longer (at most
-    4 rounds), so that the painting is finer than the ground-truth tessellation.
-    """
-    mesh = o3d.geometry.TriangleMesh(gt_mesh)
-    if max_edge is not None:
-        for _ in range(4):
-            V, F = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-            e = np.linalg.norm(V[F] - V[np.roll(F, 1, axis=1)], axis=2)
-            if len(F) == 0 or e.max() <= max_edge:
-                break
-            mesh = mesh.subdivide_midpoint(1)
-    d = distance_to_mesh(np.asarray(mesh.vertices), recon_mesh)
-    colours = np.where((d <= threshold)[:, None], np.array(SEEN_COLOUR), np.array(UNSEEN_COLOUR))
-    mesh.vertex_colors = o3d.utility.Vector3dVector(colours)
-    return mesh
+    common = set.intersection(*({float(t) for t in stamps} for stamps, _ in tracks.values()))
+    rmse: dict[str, float | None] = {}
+    for name, (stamps, poses) in tracks.items():
+        keep = [k for k, t in enumerate(stamps) if float(t) in common]
+        ev = evaluate_trajectory(stamps[keep], poses[keep], gt_stamps, gt_poses) if len(keep) >= 3 else {}
+        rmse[name] = ev["ate_sim3"]["rmse_m"] if "ate_sim3" in ev else None
+    return rmse, len(common)

@@ -1,4 +1,4 @@
-"""Trajectory metrics: association, Umeyama alignment (cross-checked), ATE, RPE, plots."""
+"""Trajectory metrics: association, Umeyama alignment (cross-checked), ATE, RPE, frame motion, plots."""
 
 from __future__ import annotations
 
@@ -9,19 +9,20 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from c3f_slam import geometry as g
-from c3f_slam.evaluate import (
+from c3f_slam.geometry import relative_motion
+from c3f_slam.trajectory_metrics import (
     ErrorStats,
     apply_sim3,
     associate,
     ate,
-    frame_motion,
+    common_frames_ate,
     evaluate_trajectory,
-    plot_trajectories,
+    frame_motion,
     registered_share,
-    relative_motion,
     rpe,
     umeyama,
 )
+from c3f_slam.trajectory_plot import plot_trajectories
 
 
 def _trajectory(n: int = 60, seed: int = 0) -> np.ndarray:
@@ -167,6 +168,21 @@ def test_evaluate_trajectory_and_plot(tmp_path):
     plot_trajectories(png, gt[:, :3, 3], est[:, :3, 3] * 2, title="test")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["traj.png"]
+
+
+def test_common_frames_ate_compares_runs_on_shared_frames():
+    gt = _trajectory(40)
+    stamps = np.arange(40) * 0.1
+    rng = np.random.default_rng(3)
+    noisy = gt.copy()
+    noisy[:, :3, 3] += rng.normal(0, 0.002, (40, 3))
+    tracks = {"short": (stamps[:20], gt[:20]), "long": (stamps[5:], noisy[5:])}
+    rmse, n = common_frames_ate(tracks, stamps, gt)
+    assert n == 15  # frames 5..19
+    assert rmse["short"] < 1e-9 and rmse["long"] > 1e-4
+    assert rmse["long"] == pytest.approx(evaluate_trajectory(stamps[5:20], noisy[5:20], stamps, gt)["ate_sim3"]["rmse_m"])
+    rmse, n = common_frames_ate({"a": (stamps[:2], gt[:2]), "b": (stamps, gt)}, stamps, gt)
+    assert n == 2 and rmse == {"a": None, "b": None}
 
 
 def test_frame_motion_of_a_constant_step():
