@@ -30,8 +30,8 @@ from c3f_models.contrafeat_module import ContraFeat  # noqa: E402
 
 def load(ckpt: Path, residual_m: float) -> tuple[ContraFeat, int]:
     """The small-configuration model with the checkpoint's weights and the given kpf residual."""
-    model = ContraFeat(**{**SMALL_MODEL, "filter_overrides": {"max_residual": residual_m,
-                                                               "pairwise_tolerance": 2 * residual_m}})
+    overrides = {"max_residual": residual_m, "pairwise_tolerance": 2 * residual_m}
+    model = ContraFeat(**{**SMALL_MODEL, "evaluation": {**SMALL_MODEL["evaluation"], "filter_overrides": overrides}})
     steps = load_weights(model, ckpt)
     return model.eval(), steps
 
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> None:
     lines = ["# ContraFeat checkpoints on held-out sequences", "", f"Command: `{cmd}`", "",
              f"Sequences: {', '.join(seqs)} in `{args.data}`; pairs at gaps {args.eval_gaps} (one "
              f"pair in {args.eval_stride} of each gap), {args.size}x{args.size}, mutual nearest neighbours without ratio test, "
-             f"correctness radius {SMALL_MODEL['pixel_radius']:g} px, kpf on ground-truth depth. "
+             f"correctness radius {SMALL_MODEL['ground_truth']['pixel_radius']:g} px, kpf on ground-truth depth. "
              "Recall/precision %, averaged over the sequences.", ""]
     for ckpt in args.checkpoint:
         for r_mm in args.max_residual_mm:

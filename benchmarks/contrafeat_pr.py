@@ -39,12 +39,16 @@ PAPER = {  # paper table 2, averages of three synthetic sequences (recall / prec
     "sift": (37.9, 21.8), "sift_kpf": (27.0, 99.5), "cdf": (78.2, 86.3), "cdf_kpf": (74.9, 100.0),
 }
 LABELS = {"sift": "SIFT", "sift_kpf": "SIFT+kpf", "cdf": "CDF", "cdf_kpf": "CDF+kpf"}
-SMALL_MODEL = dict(  # configs/contrafeat/small.yaml
-    backbone_layers=18, descriptor_dim=128, fpn_channels=64, stem_channels=16, head_channels=64,
-    lr=1e-3, weight_decay=1e-4, tau=0.01, max_keypoints=256, sift_contrast_threshold=0.005,
-    keypoint_border=2, pixel_radius=2.0, depth_tolerance=0.05, filter_preset="colon", num_visualisations=0,
-    dense_points=512, dense_spacing=4,
-)
+SMALL_MODEL = {  # ContraFeat's groups as in configs/contrafeat/small.yaml
+    "network": {"backbone_layers": 18, "descriptor_dim": 128, "fpn_channels": 64, "stem_channels": 16,
+                "head_channels": 64},
+    "optim": {"lr": 1e-3, "weight_decay": 1e-4},
+    "loss": {"tau": 0.01, "dense_points": 512, "dense_spacing": 4},
+    "keypoints": {"max_keypoints": 256, "contrast_threshold": 0.005, "border": 2},
+    "ground_truth": {"pixel_radius": 2.0, "depth_tolerance": 0.05},
+    "evaluation": {"filter_preset": "colon", "num_visualisations": 0},
+}
+GROUND_TRUTH = SMALL_MODEL["ground_truth"]
 
 
 def load_weights(model: ContraFeat, ckpt: Path, option: str = "--checkpoint") -> int:
@@ -169,14 +173,14 @@ def main() -> None:
     ap.add_argument("--eval-gaps", type=int, nargs="+", default=[1, 2, 4], help="evaluation frame gaps")
     ap.add_argument("--eval-stride", type=int, default=3, help="evaluate every n-th pair of each gap")
     ap.add_argument("--eval-batches", type=int, default=None, help="cap on evaluation batches per sequence")
-    ap.add_argument("--lr", type=float, default=SMALL_MODEL["lr"], help="AdamW learning rate")
-    ap.add_argument("--dense-points", type=int, default=SMALL_MODEL["dense_points"],
+    ap.add_argument("--lr", type=float, default=SMALL_MODEL["optim"]["lr"], help="AdamW learning rate")
+    ap.add_argument("--dense-points", type=int, default=SMALL_MODEL["loss"]["dense_points"],
                     help="dense ground-truth correspondences per training pair added to the InfoNCE "
-                         "(model.dense_points, as in small.yaml; 0 = keypoint matches only, the paper's loss)")
-    ap.add_argument("--dense-spacing", type=int, default=SMALL_MODEL["dense_spacing"],
+                         "(model.loss.dense_points, as in small.yaml; 0 = keypoint matches only, the paper's loss)")
+    ap.add_argument("--dense-spacing", type=int, default=SMALL_MODEL["loss"]["dense_spacing"],
                     help="grid cell of the dense samples, pixels")
     ap.add_argument("--pretrained", type=Path, default=None,
-                    help="model.pretrained_path: a torchvision ResNet18 state dict or a DepthNet checkpoint "
+                    help="model.network.pretrained_path: a torchvision ResNet18 state dict or a DepthNet checkpoint "
                          "(ResNet18, no DCN) whose depth encoder starts the backbone")
     ap.add_argument("--init-weights", type=Path, default=None,
                     help="continue from a checkpoint this script saved (contrafeat_small.ckpt: all weights; "
@@ -207,9 +211,11 @@ def main() -> None:
               for split, names in (("train", train_seqs), ("test", test_seqs))}
     print(f"data ready in {t_data:.0f} s: train {train_seqs}, test {test_seqs}", flush=True)
 
-    model = ContraFeat(**{**SMALL_MODEL, "lr": args.lr, "dense_points": args.dense_points,
-                          "dense_spacing": args.dense_spacing,
-                          "pretrained_path": str(args.pretrained) if args.pretrained else None})
+    model = ContraFeat(**{
+        **SMALL_MODEL, "optim": {**SMALL_MODEL["optim"], "lr": args.lr},
+        "loss": {**SMALL_MODEL["loss"], "dense_points": args.dense_points, "dense_spacing": args.dense_spacing},
+        "network": {**SMALL_MODEL["network"], "pretrained_path": str(args.pretrained) if args.pretrained else None},
+    })
     init_steps = 0 if args.init_weights is None else load_weights(model, args.init_weights, "--init-weights")
     t0 = time.time()
     untrained = evaluate(model, data / "test", test_seqs, args)
@@ -266,17 +272,17 @@ def main() -> None:
            f"backbone started from `{args.pretrained}` (no ImageNet weights)")
         + f", AdamW lr {args.lr:g}, {args.threads} torch thread(s), "
         "InfoNCE tau = 0.01 (symmetric), "
-        f"<= {SMALL_MODEL['max_keypoints']} SIFT keypoints per frame (contrast threshold "
-        f"{SMALL_MODEL['sift_contrast_threshold']}); "
+        f"<= {SMALL_MODEL['keypoints']['max_keypoints']} SIFT keypoints per frame (contrast threshold "
+        f"{SMALL_MODEL['keypoints']['contrast_threshold']}); "
         + ("training loss on the keypoint matches only (the paper's)." if args.dense_points == 0 else
            f"training loss on the keypoint matches plus up to {args.dense_points} dense ground-truth "
-           f"correspondences per pair (jittered {args.dense_spacing}-px grid; `model.dense_points`)."),
+           f"correspondences per pair (jittered {args.dense_spacing}-px grid; `model.loss.dense_points`)."),
         f"- Training: {steps} steps ({steps - init_steps} in this run) of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
         f"{t_train / 60:.1f} min on CPU (limits: {args.steps} steps or {minutes:g} min). Training loss "
         f"{head:.3f} (first 10 % of steps) -> {tail:.3f} (last 10 %).",
         f"- Evaluation: pairs at gaps {args.eval_gaps} (one pair in {args.eval_stride} of each gap), mutual nearest "
         f"neighbours (SIFT L2, CDF cosine), no ratio test; ground truth and correctness radius "
-        f"{SMALL_MODEL['pixel_radius']} px, occlusion tolerance {100 * SMALL_MODEL['depth_tolerance']:.0f} % of depth; "
+        f"{GROUND_TRUTH['pixel_radius']} px, occlusion tolerance {100 * GROUND_TRUTH['depth_tolerance']:.0f} % of depth; "
         f"kpf = `MatchFilterConfig.colon()` on ground-truth depth (>= 10 matches, residual <= 1 mm, pairwise "
         f"tolerance 2 mm + 5 %, condition number < 100, area >= 10 mm^2). Counts summed over the pairs of a "
         f"sequence; the average is over sequences.",
@@ -288,8 +294,8 @@ def main() -> None:
         *table(trained),
         "",
         "Where the precision goes (trained model; wrong matches split as in `c3f_slam.matching.evaluation`: "
-        f"a near miss lands within {3 * SMALL_MODEL['pixel_radius']:g} px of the true position; 'without "
-        f"counterpart' means frame j had no keypoint within {SMALL_MODEL['pixel_radius']:g} px of it, so no "
+        f"a near miss lands within {3 * GROUND_TRUTH['pixel_radius']:g} px of the true position; 'without "
+        f"counterpart' means frame j had no keypoint within {GROUND_TRUTH['pixel_radius']:g} px of it, so no "
         "correct match existed):",
         "",
         *wrong_match_table(trained),
