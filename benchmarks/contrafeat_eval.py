@@ -25,8 +25,9 @@ from c3f_models.contrafeat_module import ContraFeat
 
 def load(ckpt: Path, residual_m: float) -> tuple[ContraFeat, int]:
     """The small-configuration model with the checkpoint's weights and the given kpf residual."""
-    model = ContraFeat(**{**cf.SMALL_MODEL, "filter_overrides": {"max_residual": residual_m,
-                                                               "pairwise_tolerance": 2 * residual_m}})
+    overrides = {"max_residual": residual_m, "pairwise_tolerance": 2 * residual_m}
+    model = ContraFeat(**{**cf.SMALL_MODEL, "evaluation": {**cf.SMALL_MODEL["evaluation"],
+                                                           "filter_overrides": overrides}})
     steps = cf.load_weights(model, ckpt)
     return model.eval(), steps
 
@@ -59,7 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     pairs = cf.PairSelection.from_args(args)
     lines = [(f"Sequences: {', '.join(seqs)} in `{args.data}`; pairs at gaps {args.eval_gaps} (one "
              f"pair in {args.eval_stride} of each gap), {args.size}x{args.size}, mutual nearest neighbours without ratio test, "
-             f"correctness radius {cf.SMALL_MODEL['pixel_radius']:g} px, kpf on ground-truth depth. "
+             f"correctness radius {cf.GROUND_TRUTH['pixel_radius']:g} px, kpf on ground-truth depth. "
              "Recall/precision %, averaged over the sequences."), ""]
     for ckpt in args.checkpoint:
         for r_mm in args.max_residual_mm:

@@ -29,6 +29,7 @@ from lightning.pytorch.callbacks import Callback
 from benchmarks.common import RESULTS
 from benchmarks.common.contrafeat import (
     LABELS,
+    GROUND_TRUTH,
     SMALL_MODEL,
     PairSelection,
     load_weights,
@@ -90,11 +91,11 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--eval-gaps", type=int, nargs="+", default=[1, 2, 4], help="evaluation frame gaps")
     ap.add_argument("--eval-stride", type=int, default=3, help="evaluate every n-th pair of each gap")
     ap.add_argument("--eval-batches", type=int, default=None, help="cap on evaluation batches per sequence")
-    ap.add_argument("--lr", type=float, default=SMALL_MODEL["lr"], help="AdamW learning rate")
-    ap.add_argument("--dense-points", type=int, default=SMALL_MODEL["dense_points"],
+    ap.add_argument("--lr", type=float, default=SMALL_MODEL["optim"]["lr"], help="AdamW learning rate")
+    ap.add_argument("--dense-points", type=int, default=SMALL_MODEL["loss"]["dense_points"],
                     help="dense ground-truth correspondences per training pair added to the InfoNCE "
                          "(model.dense_points, as in small.yaml; 0 = keypoint matches only, the paper's loss)")
-    ap.add_argument("--dense-spacing", type=int, default=SMALL_MODEL["dense_spacing"],
+    ap.add_argument("--dense-spacing", type=int, default=SMALL_MODEL["loss"]["dense_spacing"],
                     help="grid cell of the dense samples, pixels")
     ap.add_argument("--pretrained", type=Path, default=None,
                     help="model.pretrained_path: a torchvision ResNet18 state dict or a DepthNet checkpoint "
@@ -172,9 +173,11 @@ def run(args: argparse.Namespace) -> Run:
               for split, names in (("train", train_seqs), ("test", test_seqs))}
     print(f"data ready in {t_data:.0f} s: train {train_seqs}, test {test_seqs}", flush=True)
 
-    model = ContraFeat(**{**SMALL_MODEL, "lr": args.lr, "dense_points": args.dense_points,
-                          "dense_spacing": args.dense_spacing,
-                          "pretrained_path": str(args.pretrained) if args.pretrained else None})
+    model = ContraFeat(**{
+        **SMALL_MODEL, "optim": {**SMALL_MODEL["optim"], "lr": args.lr},
+        "loss": {**SMALL_MODEL["loss"], "dense_points": args.dense_points, "dense_spacing": args.dense_spacing},
+        "network": {**SMALL_MODEL["network"], "pretrained_path": str(args.pretrained) if args.pretrained else None},
+    })
     init_steps = 0 if args.init_weights is None else load_weights(model, args.init_weights, "--init-weights")
     t0 = time.time()
     pairs = PairSelection.from_args(args)
@@ -215,17 +218,17 @@ def setup_lines(args: argparse.Namespace, res: Run) -> list[str]:
            f"backbone started from `{args.pretrained}` (no ImageNet weights)")
         + f", AdamW lr {args.lr:g}, {args.threads} torch thread(s), "
         "InfoNCE tau = 0.01 (symmetric), "
-        f"<= {SMALL_MODEL['max_keypoints']} SIFT keypoints per frame (contrast threshold "
-        f"{SMALL_MODEL['sift_contrast_threshold']}); "
+        f"<= {SMALL_MODEL['keypoints']['max_keypoints']} SIFT keypoints per frame (contrast threshold "
+        f"{SMALL_MODEL['keypoints']['contrast_threshold']}); "
         + ("training loss on the keypoint matches only (the paper's)." if args.dense_points == 0 else
            f"training loss on the keypoint matches plus up to {args.dense_points} dense ground-truth "
-           f"correspondences per pair (jittered {args.dense_spacing}-px grid; `model.dense_points`)."),
+           f"correspondences per pair (jittered {args.dense_spacing}-px grid; `model.loss.dense_points`)."),
         (f"- Training: {res.steps} steps ({res.steps - res.init_steps} in this run) of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
          f"{res.t_train / 60:.1f} min on CPU (limits: {args.steps} steps or {args.train_minutes:g} min). Training loss "
          f"{head:.3f} (first 10 % of steps) -> {tail:.3f} (last 10 %)."),
         (f"- Evaluation: pairs at gaps {args.eval_gaps} (one pair in {args.eval_stride} of each gap), mutual nearest "
          f"neighbours (SIFT L2, CDF cosine), no ratio test; ground truth and correctness radius "
-         f"{SMALL_MODEL['pixel_radius']} px, occlusion tolerance {100 * SMALL_MODEL['depth_tolerance']:.0f} % of depth; "
+         f"{GROUND_TRUTH['pixel_radius']} px, occlusion tolerance {100 * GROUND_TRUTH['depth_tolerance']:.0f} % of depth; "
          f"kpf = `MatchFilterConfig.colon()` on ground-truth depth (>= 10 matches, residual <= 1 mm, pairwise "
          f"tolerance 2 mm + 5 %, condition number < 100, area >= 10 mm^2). Counts summed over the pairs of a "
          f"sequence; the average is over sequences."),
@@ -242,8 +245,8 @@ def result_lines(args: argparse.Namespace, res: Run) -> list[str]:
         *recall_precision_table(res.trained),
         "",
         ("Where the precision goes (trained model; wrong matches split as in `c3f_slam.matching.match_accuracy`: "
-         f"a near miss lands within {3 * SMALL_MODEL['pixel_radius']:g} px of the true position; 'without "
-         f"counterpart' means frame j had no keypoint within {SMALL_MODEL['pixel_radius']:g} px of it, so no "
+         f"a near miss lands within {3 * GROUND_TRUTH['pixel_radius']:g} px of the true position; 'without "
+         f"counterpart' means frame j had no keypoint within {GROUND_TRUTH['pixel_radius']:g} px of it, so no "
          "correct match existed):"),
         "",
         *wrong_match_table(res.trained),

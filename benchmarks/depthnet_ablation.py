@@ -1,12 +1,12 @@
 """DepthNet ablation: the full C3Fusion objective vs the Monodepth2 baseline, trained identically.
 
 All runs use the same simulator sequences, seed, steps, batch size and network (the small
-CPU variant, configs/depthnet/small*.yaml); only the loss switches differ: the Monodepth2
-baseline (small_monodepth2.yaml), the full objective (small.yaml) and, with --variants, the
+CPU variant, configs/depthnet/small.yaml); only the loss switches differ: the Monodepth2
+baseline (small.yaml + monodepth2.yaml), the full objective (small.yaml) and, with --variants, the
 full objective with one switch off (full-no-dc, full-no-extra, full-no-outlier,
 full-no-specular), the baseline plus outlier removal, or the full objective with the weight of
-L_dc ramped up from 0 (full-dc-warmup, ``model.lambda_dc_warmup_steps``; not in the paper).
-``--model KEY=VALUE`` overrides a model argument of every variant (e.g. ``lambda_dc=0.01``).
+L_dc ramped up from 0 (full-dc-warmup, ``model.loss.lambda_dc_warmup_steps``; not in the paper).
+``--model KEY=VALUE`` overrides a model argument of every variant (e.g. ``loss.lambda_dc=0.01``).
 ``--init CKPT`` starts every variant from the weights of a checkpoint (``model.init_weights``;
 e.g. a baseline run, to test the extra losses on a network that already predicts structure). Each is then tested on held-out
 sequences with the project's metric function (per-image median scaling), next to the score
@@ -65,28 +65,29 @@ def motion_per_frame(data: Path, names: list[str]) -> dict[str, float]:
             "t_rel_p50": float(np.median(rel))}
 
 
-# name -> (config, loss-switch overrides). "full-no-X" is the full objective with one switch off.
+# name -> (configs, loss-switch overrides). "full-no-X" is the full objective with one switch off.
+SMALL, BASELINE = ["configs/depthnet/small.yaml"], ["configs/depthnet/small.yaml", "configs/depthnet/monodepth2.yaml"]
 VARIANTS = {
-    "baseline": ("configs/depthnet/small_monodepth2.yaml", {}),
-    "full": ("configs/depthnet/small.yaml", {}),
-    "full-no-dc": ("configs/depthnet/small.yaml", {"use_depth_consistency": False}),
-    "full-no-extra": ("configs/depthnet/small.yaml", {"use_extra_photometric": False}),
-    "full-no-outlier": ("configs/depthnet/small.yaml", {"use_outlier_mask": False}),
-    "full-no-specular": ("configs/depthnet/small.yaml", {"use_specular_mask": False}),
-    "baseline+outlier": ("configs/depthnet/small_monodepth2.yaml", {"use_outlier_mask": True}),
-    "full-dc-warmup": ("configs/depthnet/small.yaml", {}),  # + lambda_dc_warmup_steps (--dc-warmup-steps)
+    "baseline": (BASELINE, {}),
+    "full": (SMALL, {}),
+    "full-no-dc": (SMALL, {"loss.use_depth_consistency": False}),
+    "full-no-extra": (SMALL, {"loss.use_extra_photometric": False}),
+    "full-no-outlier": (SMALL, {"loss.use_outlier_mask": False}),
+    "full-no-specular": (SMALL, {"loss.use_specular_mask": False}),
+    "baseline+outlier": (BASELINE, {"loss.use_outlier_mask": True}),
+    "full-dc-warmup": (SMALL, {}),  # + loss.lambda_dc_warmup_steps (--dc-warmup-steps)
 }
 LABELS = {"baseline": "Monodepth2 baseline", "full": "C3Fusion (full)"}
 
 
-def run(config: str, overrides: dict, data: Path, train: list[str], test: list[str], steps: int, batch: int, size: int,
+def run(configs: list[str], overrides: dict, data: Path, train: list[str], test: list[str], steps: int, batch: int, size: int,
         root: Path, seed: int = 7) -> dict:
     from c3f_models.cli import main
 
     switches = [a for k, v in overrides.items()
                 for a in (f"--model.init_args.{k}", str(v).lower() if isinstance(v, bool) else str(v))]
     common = [
-        "--config", "configs/trainer/cpu_smoke.yaml", "--config", config, *switches,
+        "--config", "configs/trainer/cpu_smoke.yaml", *[a for c in configs for a in ("--config", c)], *switches,
         "--data.data_dir", str(data), "--data.train", json.dumps(train), "--data.val", "[]",
         "--data.test", json.dumps(test), "--data.size", f"[{size}, {size}]", "--data.batch_size", str(batch),
         "--trainer.default_root_dir", str(root), "--trainer.logger.init_args.save_dir", str(root),
@@ -150,7 +151,7 @@ def parse_args() -> tuple[argparse.Namespace, list[str], dict[str, str]]:
     ap.add_argument("--dc-warmup-steps", type=int, default=None,
                     help="full-dc-warmup: steps over which the weight of L_dc ramps from 0 (default: half of --steps)")
     ap.add_argument("--model", dest="model_overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="model argument for every variant (repeatable), e.g. lambda_dc=0.01")
+                    help="model argument for every variant (repeatable), e.g. loss.lambda_dc=0.01")
     ap.add_argument("--init", type=Path, default=None,
                     help="checkpoint whose weights start every variant (model.init_weights; optimiser not resumed)")
     ap.add_argument("--out", type=Path, default=RESULTS / "depthnet_ablation.md")
@@ -181,7 +182,7 @@ def run_variants(a: argparse.Namespace, variants: list[str], extra: dict[str, st
         cfg, overrides = VARIANTS[v]
         overrides = {**overrides, **extra}
         if v == "full-dc-warmup":
-            overrides["lambda_dc_warmup_steps"] = warmup
+            overrides["loss.lambda_dc_warmup_steps"] = warmup
         if a.init is not None:
             overrides["init_weights"] = str(a.init.resolve())
         root = a.data.parent / (v.replace("+", "_plus_") + tag)

@@ -54,7 +54,7 @@ def main() -> None:
         if name != "random init" and ckpt is None:
             continue
         torch.manual_seed(a.seed)
-        model = DepthNet(encoder_layers=18, dcn=False, num_scales=a.num_scales)
+        model = DepthNet({"encoder_layers": 18, "dcn": False, "num_scales": a.num_scales})
         if ckpt is not None:
             model.load_init_weights(ckpt)
         nets = {"depth": list(model.depth_net.parameters()), "pose": list(model.pose_net.parameters())}

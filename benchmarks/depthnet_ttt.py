@@ -61,7 +61,7 @@ def tune(base_config: Path, ckpt: Path, sequence: Path, epochs: int, root: Path,
     extra = [a for kv in overrides for a in (f"--model.{kv.partition('=')[0]}", kv.partition("=")[2])]
     cli = main(["fit", "--config", str(base_config), "--config", str(ROOT / "configs/depthnet/ttt.yaml"), *extra,
                 "--model.init_weights", str(ckpt), "--data.data_dir", str(sequence),
-                "--trainer.max_epochs", str(epochs), "--model.milestones", json.dumps(scaled_milestones(epochs)),
+                "--trainer.max_epochs", str(epochs), "--model.optim.milestones", json.dumps(scaled_milestones(epochs)),
                 "--trainer.default_root_dir", str(root), "--trainer.logger.init_args.save_dir", str(root),
                 "--trainer.enable_progress_bar", "false", "--seed_everything", str(seed)])
     return Path(cli.trainer.checkpoint_callback.last_model_path), time.perf_counter() - t0
@@ -128,7 +128,7 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--size", type=int, default=128, help="network input size of the base run")
     ap.add_argument("--min-correspondences", type=int, default=15, help="SLAM new-fragment threshold (128 px: 15)")
     ap.add_argument("--model", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="model argument of the test-time training only (repeatable), e.g. use_depth_consistency=false")
+                    help="model argument of the test-time training only (repeatable), e.g. loss.use_depth_consistency=false")
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--work", type=Path, default=Path("/tmp/depthnet_ttt"))

@@ -1,6 +1,36 @@
 """c3f_models: the training side of C3Fusion (LightningModules DepthNet and ContraFeat).
 
-Train with ``python -m c3f_models fit --config configs/...``; see ``c3f_models.cli``.
+Train with ``python -m c3f_models fit --config ...``; see ``c3f_models.cli``.
+``from c3f_models import DepthNet, ContraFeat`` imports a module only when it is asked for,
+so that importing the package (and the CLI's ``--help``) stays fast.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.depthnet import DepthNet
+
 __version__ = "0.1.0"
+
+#: public name -> the module that defines it (imported on first access)
+LAZY_EXPORTS = {"DepthNet": "c3f_models.depthnet", "ContraFeat": "c3f_models.contrafeat_module"}
+
+
+def __getattr__(name: str) -> Any:
+    module = LAZY_EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *LAZY_EXPORTS])
+
+
+__all__ = ["ContraFeat", "DepthNet", "__version__"]

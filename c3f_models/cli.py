@@ -7,10 +7,13 @@ Model and data are chosen by class path in the config (subclass mode), e.g.::
 Subcommands: ``fit``, ``validate``, ``test``, ``predict`` (Lightning's), plus
 :data:`EXTRA_SUBCOMMANDS` (methods of :class:`C3FTrainer`): ``export`` writes ONNX files::
 
-    python -m c3f_models export --config runs/.../config.yaml --ckpt_path .../last.ckpt --output_dir exported The resolved config is
-saved as ``config.yaml`` next to the TensorBoard logs of each run. Bad input
-(:class:`c3f_slam.errors.InputError`) ends the run with a one-line ``error: ...`` and
-exit status 2 instead of a traceback.
+    python -m c3f_models export --config runs/.../config.yaml --ckpt_path .../last.ckpt --output_dir exported
+
+Model settings are nested groups (``--model.loss.lambda_dc 0.1``; see :class:`c3f_models.DepthNet`
+and :class:`c3f_models.ContraFeat`). The resolved config is saved as ``config.yaml`` next to the
+TensorBoard logs of each run. Bad input (:class:`c3f_slam.errors.InputError`, also when raised
+by a constructor inside the parser) ends the run with a one-line ``error: ...`` and exit
+status 2 instead of a traceback; so does a ``--ckpt_path`` saved with options of an older layout.
 """
 
 from __future__ import annotations
@@ -18,12 +21,12 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-
-
+from pathlib import Path
 
 import lightning as L
-from lightning.pytorch.cli import ArgsType, LightningCLI
+from lightning.pytorch.cli import ArgsType, LightningArgumentParser, LightningCLI
 
+from c3f_models.checkpoints import check_saved_options
 from c3f_models.trainer import C3FTrainer
 from c3f_slam.errors import InputError
 
@@ -40,6 +43,27 @@ class C3FCLI(LightningCLI):
     @staticmethod
     def subcommands() -> dict[str, set[str]]:
         return {**LightningCLI.subcommands(), **EXTRA_SUBCOMMANDS}
+
+    def parse_arguments(self, parser: LightningArgumentParser, args: ArgsType) -> None:
+        """Lightning's, then a check of ``--ckpt_path``: LightningCLI applies the checkpoint's saved
+        model options next, and a checkpoint with options of an older layout is refused in one line."""
+        super().parse_arguments(parser, args)
+        subcommand = self.config.get("subcommand")
+        ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
+        if ckpt_path and Path(ckpt_path).is_file():
+            model = self.config[subcommand].get("model")
+            check_saved_options(ckpt_path, getattr(model, "class_path", None))
+
+
+def wrapped_input_error(exc: BaseException) -> InputError | None:
+    """The InputError ``exc`` is or wraps (jsonargparse re-raises a constructor's error as a ValueError)."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, InputError):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def condense_parser_error(message: str) -> str:
@@ -82,8 +106,11 @@ def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
             args=args,
             run=run,
         )
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except ValueError as exc:  # InputError is one
+        cause = wrapped_input_error(exc)
+        if cause is None:
+            raise
+        print(f"error: {cause}", file=sys.stderr)
         raise SystemExit(2) from None
     except argparse.ArgumentError as exc:
         print(f"error: {condense_parser_error(str(exc))} (see --help)", file=sys.stderr)
@@ -92,4 +119,5 @@ def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
         print(f"error: {exc.filename or exc}: file not found", file=sys.stderr)
         raise SystemExit(2) from None
 
-__all__ = ["C3FCLI", "main", "EXTRA_SUBCOMMANDS"]
+
+__all__ = ["C3FCLI", "EXTRA_SUBCOMMANDS", "main", "wrapped_input_error"]

@@ -6,7 +6,7 @@ frame). Per step: SIFT keypoints on CPU (uint8 images, capped per frame, away fr
 highlights), ground-truth matches from depth + poses
 (:func:`c3f_slam.matching.ground_truth_matches`), descriptors sampled from the network's
 full-resolution map, InfoNCE with tau = 0.01 over the matches of each pair. With
-``dense_points > 0`` (off by default, i.e. the paper's loss), training pairs also carry dense
+``loss.dense_points > 0`` (off by default, i.e. the paper's loss), training pairs also carry dense
 ground-truth correspondences (pixels on a jittered grid moved with the true depth and poses);
 they join the pair's matches in the same InfoNCE, as positives and as negatives of every other
 match. Validation and test losses always use the keypoint matches only.
@@ -17,7 +17,7 @@ mutual-nearest-neighbour matches for SIFT descriptors (``sift``) and ContraFeat 
 ground-truth depth): ``test/cdf_recall``, ``test/cdf_precision``, ``test/cdf_kpf_recall``,
 ``test/cdf_kpf_precision``, ``test/sift_recall``, ... Counts are summed over all pairs (and
 processes) before dividing. Where the precision goes: ``{m}_near_precision`` (a wrong match
-within 3 x ``pixel_radius`` of the true position counts as right), ``{m}_near_miss_share``
+within 3 x ``ground_truth.pixel_radius`` of the true position counts as right), ``{m}_near_miss_share``
 (near misses / wrong matches) and ``{m}_no_counterpart_share`` (near misses where j had no
 keypoint within ``pixel_radius`` at all / wrong matches); see
 :mod:`c3f_slam.matching.match_accuracy`. With a TensorBoard logger, validation also writes a few match
@@ -26,13 +26,13 @@ images (CDF matches; green = correct, yellow = near miss, red = other wrong).
 
 from __future__ import annotations
 
-
-import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 
-from c3f_models.contrafeat.loss import TAU, batch_info_nce
+from c3f_models.config import OptimConfig, as_config
+from c3f_models.contrafeat.config import ContraFeatLossConfig, ContraFeatNetworkConfig, MatchEvaluationConfig
+from c3f_models.contrafeat.loss import batch_info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
 from c3f_models.contrafeat.pairs import (
     DenseSettings,
@@ -42,89 +42,64 @@ from c3f_models.contrafeat.pairs import (
     batch_frames,
     make_pairs,
 )
+from c3f_models.module_base import C3FModule
 from c3f_slam.errors import InputError
-from c3f_slam.matching import MatchCounts, MatchFilterConfig
+from c3f_slam.matching import MatchCounts
 from c3f_slam.matching.match_accuracy import match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches
 
 METHODS = ("sift", "sift_kpf", "cdf", "cdf_kpf")
 
+# the defaults of ContraFeat's groups (frozen, so one instance serves every module)
+DEFAULT_NETWORK, DEFAULT_LOSS = ContraFeatNetworkConfig(), ContraFeatLossConfig()
+DEFAULT_OPTIM = OptimConfig(lr=3e-4, weight_decay=1e-4, milestones=())
+DEFAULT_KEYPOINTS, DEFAULT_GROUND_TRUTH = KeypointSettings(), GroundTruthSettings()
+DEFAULT_EVALUATION = MatchEvaluationConfig()
 
-class ContraFeat(L.LightningModule):
+
+class ContraFeat(C3FModule):
     """Contrastive dense descriptors for SIFT keypoints.
 
+    Each group is a settings dataclass (or a dict of its fields); in a config they are nested
+    under ``model.init_args`` (``loss: {dense_points: 512}``; ``--model.loss.dense_points 512``).
+
     Args:
-        backbone_layers, descriptor_dim, fpn_channels, stem_channels, head_channels, pretrained_path:
-            the network (:class:`c3f_models.contrafeat.network.ContraFeatNet`); the paper's
-            is ResNet18, c = 128; ``pretrained_path`` is a local torchvision ResNet state dict
-            (ImageNet) or a DepthNet checkpoint without DCN (its depth encoder).
-        lr, weight_decay: AdamW (betas 0.9, 0.999).
-        lr_milestones: epochs at which the learning rate is halved (empty = constant).
-        tau: InfoNCE temperature (paper: 0.01).
-        symmetric_loss: average the i->j and j->i InfoNCE directions.
-        max_keypoints: SIFT keypoints kept per frame (strongest by response).
-        sift_contrast_threshold: OpenCV SIFT contrast threshold (lower = more keypoints).
-        keypoint_border: drop keypoints this close (pixels) to the border.
-        mask_specular: no keypoints on specular highlights.
-        pixel_radius: ground-truth and correctness radius, pixels.
-        depth_tolerance: relative depth agreement for visibility (occlusion test).
-        cdf_ratio, sift_ratio: optional ratio tests of the mutual-NN matching (evaluation).
-        dense_points: dense ground-truth correspondences sampled per training pair and added
-            to its InfoNCE (0 = keypoint matches only, the paper's loss).
-        dense_spacing: grid cell of the dense samples, pixels (samples >= spacing / 2 apart).
-        filter_preset: ``colon`` or ``room`` keypoint-filter thresholds
-            (:class:`c3f_slam.matching.MatchFilterConfig`); ``filter_overrides`` changes fields.
-        num_visualisations: validation batches that log a match image (TensorBoard only).
+        network: the descriptor network (ResNet18 + FPN, c = 128 in the paper).
+        loss: InfoNCE temperature and direction, dense correspondences.
+        optim: AdamW and its MultiStepLR schedule (default: lr 3e-4, constant).
+        keypoints: SIFT keypoints per frame.
+        ground_truth: ground-truth matching radius (pixels) and occlusion test.
+        evaluation: keypoint filter, ratio tests and match images of validation and test.
+        init_weights: checkpoint whose weights start ``fit`` (optimiser and epoch not resumed).
     """
+
+    weights_hint = "check model.network"
 
     def __init__(
         self,
-        backbone_layers: int = 18,
-        descriptor_dim: int = 128,
-        fpn_channels: int = 128,
-        stem_channels: int = 32,
-        head_channels: int | None = None,
-        pretrained_path: str | None = None,
-        lr: float = 3e-4,
-        weight_decay: float = 1e-4,
-        lr_milestones: list[int] = [],  # noqa: B006 (jsonargparse needs a literal default)
-        tau: float = TAU,
-        symmetric_loss: bool = True,
-        max_keypoints: int = 1024,
-        sift_contrast_threshold: float = 0.04,
-        keypoint_border: int = 2,
-        mask_specular: bool = True,
-        pixel_radius: float = 2.0,
-        depth_tolerance: float = 0.05,
-        cdf_ratio: float | None = None,
-        sift_ratio: float | None = None,
-        dense_points: int = 0,
-        dense_spacing: int = 4,
-        filter_preset: str = "colon",
-        filter_overrides: dict | None = None,
-        num_visualisations: int = 4,
+        network: ContraFeatNetworkConfig = DEFAULT_NETWORK,
+        loss: ContraFeatLossConfig = DEFAULT_LOSS,
+        optim: OptimConfig = DEFAULT_OPTIM,
+        keypoints: KeypointSettings = DEFAULT_KEYPOINTS,
+        ground_truth: GroundTruthSettings = DEFAULT_GROUND_TRUTH,
+        evaluation: MatchEvaluationConfig = DEFAULT_EVALUATION,
+        init_weights: str | None = None,
     ) -> None:
-        super().__init__()
+        network = as_config(network, DEFAULT_NETWORK, "model.network")
+        loss = as_config(loss, DEFAULT_LOSS, "model.loss")
+        keypoints = as_config(keypoints, DEFAULT_KEYPOINTS, "model.keypoints")
+        ground_truth = as_config(ground_truth, DEFAULT_GROUND_TRUTH, "model.ground_truth")
+        evaluation = as_config(evaluation, DEFAULT_EVALUATION, "model.evaluation")
+        super().__init__(as_config(optim, DEFAULT_OPTIM, "model.optim"), init_weights)
         self.save_hyperparameters()
-        if tau <= 0:
-            raise InputError(f"model.tau must be positive, got {tau}")
-        if max_keypoints < 2:
-            raise InputError(f"model.max_keypoints must be >= 2, got {max_keypoints}")
-        if pixel_radius <= 0 or depth_tolerance <= 0:
-            raise InputError("model.pixel_radius and model.depth_tolerance must be positive")
-        if dense_points < 0 or dense_spacing < 1:
-            raise InputError(f"model.dense_points must be >= 0 and model.dense_spacing >= 1, got {dense_points}, "
-                             f"{dense_spacing}")
-        try:
-            self.filter_cfg = MatchFilterConfig.preset(filter_preset, **(filter_overrides or {}))
-        except TypeError as exc:
-            raise InputError(f"model.filter_overrides: {exc}") from None
+        self.network_config, self.loss_config, self.evaluation_config = network, loss, evaluation
+        self.filter_cfg = evaluation.match_filter()
         self.net = ContraFeatNet(
-            backbone_layers, descriptor_dim, fpn_channels, stem_channels, pretrained_path, head_channels
+            network.backbone_layers, network.descriptor_dim, network.fpn_channels, network.stem_channels,
+            network.pretrained_path, network.head_channels,
         )
-        self.kp_settings = KeypointSettings(max_keypoints, sift_contrast_threshold, keypoint_border, mask_specular)
-        self.gt_settings = GroundTruthSettings(pixel_radius, depth_tolerance)
-        self.dense_settings = DenseSettings(dense_points, dense_spacing, keypoint_border)
+        self.kp_settings, self.gt_settings = keypoints, ground_truth
+        self.dense_settings = DenseSettings(loss.dense_points, loss.dense_spacing, keypoints.border)
         self._counts: dict[str, MatchCounts] = {}
         self._visuals: list[np.ndarray] = []
 
@@ -173,7 +148,8 @@ class ContraFeat(L.LightningModule):
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, ()))) if use_dense else None  # follows the seed
         pairs = make_pairs(frames, self.kp_settings, self.gt_settings, sift_descriptors,
                            self.dense_settings if use_dense else None, rng)
-        loss, _ = batch_info_nce(self._matched_descriptors(maps, pairs), self.hparams.tau, self.hparams.symmetric_loss)
+        loss, _ = batch_info_nce(self._matched_descriptors(maps, pairs), self.loss_config.tau,
+                                 self.loss_config.symmetric)
         if loss is None:  # no pair with two matches: a zero loss keeps every process in step
             loss = maps.sum() * 0.0
         stats = {
@@ -200,23 +176,24 @@ class ContraFeat(L.LightningModule):
         self, maps: torch.Tensor, frames: list, pairs: list[PairData]
     ) -> tuple[dict[str, MatchCounts], list]:
         """Match counts of SIFT and ContraFeat descriptors (without / with kpf) over the pairs."""
-        hp = self.hparams
+        ev_cfg, radius = self.evaluation_config, self.gt_settings.pixel_radius
         counts = {m: MatchCounts() for m in METHODS}
         details = []
         for p in pairs:
             fi, fj = frames[p.b][p.i], frames[p.b][p.j]
-            common = dict(
-                kp_i=p.kp_i.xy, kp_j=p.kp_j.xy, depth_i=fi.depth, depth_j=fj.depth, K=fi.K,
-                gt_matches=p.gt, projection=p.projection, filter_cfg=self.filter_cfg, pixel_radius=hp.pixel_radius,
-            )
+            common = {
+                "kp_i": p.kp_i.xy, "kp_j": p.kp_j.xy, "depth_i": fi.depth, "depth_j": fj.depth, "K": fi.K,
+                "gt_matches": p.gt, "projection": p.projection, "filter_cfg": self.filter_cfg, "pixel_radius": radius,
+            }
             with torch.no_grad():
                 xy_i = torch.as_tensor(p.kp_i.xy, dtype=torch.float32, device=maps.device)
                 xy_j = torch.as_tensor(p.kp_j.xy, dtype=torch.float32, device=maps.device)
                 da = sample_descriptors(maps[p.b, p.i].float(), xy_i)
                 db = sample_descriptors(maps[p.b, p.j].float(), xy_j)
-            cdf = match_and_evaluate(da.cpu().numpy(), db.cpu().numpy(), metric="cosine", ratio=hp.cdf_ratio, **common)
+            cdf = match_and_evaluate(da.cpu().numpy(), db.cpu().numpy(), metric="cosine", ratio=ev_cfg.cdf_ratio,
+                                     **common)
             sift = match_and_evaluate(
-                p.kp_i.descriptors, p.kp_j.descriptors, metric="l2", ratio=hp.sift_ratio, **common
+                p.kp_i.descriptors, p.kp_j.descriptors, metric="l2", ratio=ev_cfg.sift_ratio, **common
             )
             for name, ev in (("cdf", cdf), ("sift", sift)):
                 counts[name] = counts[name] + ev.counts
@@ -232,14 +209,14 @@ class ContraFeat(L.LightningModule):
         counts, details = self.evaluate_pairs(maps.detach(), stats["frames"], pairs)
         for k, c in counts.items():
             self._counts[k] = self._counts.get(k, MatchCounts()) + c
-        if stage == "val" and batch_idx < self.hparams.num_visualisations and details:
+        if stage == "val" and batch_idx < self.evaluation_config.num_visualisations and details:
             p, ev = details[0]
             fi, fj = stats["frames"][p.b][p.i], stats["frames"][p.b][p.j]
             scale = max(1, 256 // fi.image.shape[0])
             self._visuals.append(
                 draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, ev.correct, scale=scale,
                              near=near_misses(ev.matches, p.kp_j.xy, p.projection, ev.correct,
-                                              self.hparams.pixel_radius)[0])
+                                              self.gt_settings.pixel_radius)[0])
             )
 
     def _eval_epoch_end(self, stage: str) -> None:
@@ -281,14 +258,5 @@ class ContraFeat(L.LightningModule):
     def on_test_epoch_end(self) -> None:
         self._eval_epoch_end("test")
 
-    # ------------------------------------------------------------------ optimiser
-    def configure_optimizers(self):
-        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, betas=(0.9, 0.999),
-                                weight_decay=self.hparams.weight_decay)
-        if not self.hparams.lr_milestones:
-            return opt
-        sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(self.hparams.lr_milestones), gamma=0.5)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
 
-
-__all__ = ["ContraFeat", "METHODS"]
+__all__ = ["METHODS", "ContraFeat"]

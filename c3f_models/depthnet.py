@@ -4,164 +4,68 @@ Batches come from :mod:`datamodules.base` with frame triplets (t-1, t, t+1): ``i
 (B, 3, 3, H, W) in [0, 1], ``specular`` (B, 3, 1, H, W), ``K`` (B, 3, 3), optional ``depth``.
 The module predicts depth (metres) for t (and t-1, t+1 when the extra losses need them), the
 adjacent poses with PoseNet, and minimises :class:`c3f_models.depth.objective.SelfSupervisedLoss`.
-The same code is the Monodepth2 baseline with ``use_extra_photometric``,
-``use_depth_consistency``, ``use_outlier_mask`` and ``use_specular_mask`` off.
+The same code is the Monodepth2 baseline with ``loss.use_extra_photometric``,
+``use_depth_consistency``, ``use_outlier_mask`` and ``use_specular_mask`` off
+(``configs/depthnet/monodepth2.yaml``).
 """
 
 from __future__ import annotations
 
-import re
-import zipfile
-from collections.abc import Sequence
-from pathlib import Path
-
-import lightning as L
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 
+from c3f_models.config import OptimConfig, as_config
+from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
 from c3f_models.depth.objective import LossConfig, LossTerms, SelfSupervisedLoss, compose_triplet_poses
 from c3f_models.depth.visual import colorize_depth, mask_to_rgb, panel
 from c3f_models.metrics import METRIC_NAMES, depth_metrics
+from c3f_models.module_base import C3FModule
 from c3f_slam.errors import InputError
 
-
-def read_checkpoint_weights(path: str | Path, option: str = "model.init_weights") -> dict[str, torch.Tensor]:
-    """Model weights from a Lightning checkpoint (``state_dict`` key) or a plain state dict file.
-
-    Only the safe unpickler reads it (``torch.load(weights_only=True)``): tensors, numbers,
-    strings and containers. A file that needs more (pickled objects, possibly code) is refused
-    with an InputError; nothing in it runs.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{option}: file not found: {path}")
-    if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
-        raise InputError(f"{option}: {path} is not a torch checkpoint")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        found = re.search(r"Unsupported global: GLOBAL (\S+)", str(exc))
-        what = f" (it pickles {found.group(1)})" if found else f" ({type(exc).__name__})"
-        raise InputError(f"{option}: {path} needs more than the safe loader (weights_only=True) reads{what}; "
-                         "refused, nothing in it ran") from None
-    state = ckpt.get("state_dict", ckpt) if isinstance(ckpt, dict) else None
-    if not isinstance(state, dict) or not state or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise InputError(f"{option}: {path} holds no model weights")
-    return state
+# the defaults of DepthNet's groups (frozen, so one instance serves every module)
+DEFAULT_NETWORK, DEFAULT_LOSS, DEFAULT_OPTIM = DepthNetworkConfig(), LossConfig(), OptimConfig()
+DEFAULT_EVALUATION = DepthEvaluationConfig()
 
 
-def load_weights(
-    module: torch.nn.Module, state: dict[str, torch.Tensor], path: str | Path, option: str,
-    what: str = "the model", hint: str = "",
-) -> None:
-    """Load ``state`` into ``module`` strictly; InputError naming ``option`` and ``path`` with
-    the numbers of missing, unexpected and wrong-shaped keys when it does not fit."""
-    own = module.state_dict()
-    missing = [k for k in own if k not in state]
-    unexpected = [k for k in state if k not in own]
-    wrong = [k for k in own if k in state and state[k].shape != own[k].shape]
-    if missing or unexpected or wrong:
-        example = (missing or unexpected or wrong)[0]
-        raise InputError(
-            f"{option}: {path} does not fit {what} ({len(missing)} missing, {len(unexpected)} unexpected, "
-            f"{len(wrong)} wrong-shaped keys, e.g. {example})" + (f"; {hint}" if hint else "")
-        )
-    module.load_state_dict(state)
-
-
-class DepthNet(L.LightningModule):
+class DepthNet(C3FModule):
     """Self-supervised DepthNet + PoseNet (Monodepth2 architecture, C3Fusion losses).
 
+    Each group is a settings dataclass (or a dict of its fields); in a config they are nested
+    under ``model.init_args`` (``loss: {lambda_dc: 0.1}``; ``--model.loss.lambda_dc 0.1``).
+
     Args:
-        encoder_layers: depth encoder ResNet depth (18 for CPU, 50 in the paper).
-        dcn: deformable convolutions in the depth encoder's conv3-conv5.
-        pose_encoder_layers: PoseNet ResNet depth (18 in the paper).
-        pretrained_path, pose_pretrained_path: local torchvision ResNet state dicts (ImageNet)
-            for the depth / pose encoder; None trains from scratch.
-        pose_translation_scale: metres per unit of PoseNet's raw translation output.
-            Monodepth2 uses 0.01 with depths starting near 0.2 m; here depths start near
-            2 * min_depth = 2 mm, and 0.001 keeps the first warps' pixel motion in the same
-            range (with 0.01 a tiny model often starts with every warp worse than no motion).
-        min_depth, max_depth: metres; the sigmoid disparity maps to this depth range.
-        num_scales: decoder scales used by the loss (1-4, Monodepth2 uses 4).
-        use_automask, use_extra_photometric, use_depth_consistency, use_outlier_mask,
-            use_specular_mask: loss switches (all True = C3Fusion; the last four False =
-            Monodepth2 without its smoothness term).
-        lambda_ph_extra, lambda_dc: weights of L_ph-extra and L_dc.
-        lambda_dc_warmup_steps: training steps over which the weight of L_dc ramps linearly
-            from 0 to ``lambda_dc`` (0 = constant from the start, as the paper). Not in the
-            paper: a guard for training from scratch, where L_dc pulls the depth flat while
-            PoseNet is still far off (benchmarks/results/depthnet_diagnosis.md). Validation
-            and test losses always use ``lambda_dc``.
-        ssim_alpha: SSIM weight in the photometric error.
-        outlier_percentile: quantile above which pixels are outliers (0.8).
-        lr, weight_decay: AdamW (betas 0.9, 0.999).
-        milestones, gamma: MultiStepLR (epochs, factor).
-        init_weights: checkpoint whose weights initialise the model at the start of ``fit``
-            (optimiser and epoch not resumed; for test-time training). Ignored when a run is
-            resumed with ``ckpt_path`` or the module comes from a checkpoint.
-        eval_min_depth, eval_max_depth: ground-truth range (metres) for the metrics
-            (default: min_depth, max_depth).
-        log_images: samples shown in TensorBoard per validation epoch (0 = none).
+        network: encoders, DCN, pretrained weights, depth range (metres), decoder scales, pose scale.
+        loss: switches and weights of the objective (all extras off = Monodepth2), L_dc warm-up.
+        optim: AdamW and its MultiStepLR schedule (epochs).
+        evaluation: ground-truth range of the metrics, TensorBoard images.
+        init_weights: checkpoint whose weights start ``fit`` (optimiser and epoch not resumed;
+            for test-time training); ignored when resuming with ``ckpt_path``.
     """
+
+    weights_hint = "check model.network.encoder_layers, dcn and pose_encoder_layers"
 
     def __init__(
         self,
-        encoder_layers: int = 18,
-        dcn: bool = False,
-        pose_encoder_layers: int = 18,
-        pretrained_path: str | None = None,
-        pose_pretrained_path: str | None = None,
-        pose_translation_scale: float = 1e-3,
-        min_depth: float = 1e-3,
-        max_depth: float = 0.3,
-        num_scales: int = 4,
-        use_automask: bool = True,
-        use_extra_photometric: bool = True,
-        use_depth_consistency: bool = True,
-        use_outlier_mask: bool = True,
-        use_specular_mask: bool = True,
-        lambda_ph_extra: float = 0.1,
-        lambda_dc: float = 0.1,
-        lambda_dc_warmup_steps: int = 0,
-        ssim_alpha: float = 0.85,
-        outlier_percentile: float = 0.8,
-        lr: float = 1e-4,
-        weight_decay: float = 1e-2,
-        milestones: Sequence[int] = (16, 24, 32),
-        gamma: float = 0.5,
+        network: DepthNetworkConfig = DEFAULT_NETWORK,
+        loss: LossConfig = DEFAULT_LOSS,
+        optim: OptimConfig = DEFAULT_OPTIM,
+        evaluation: DepthEvaluationConfig = DEFAULT_EVALUATION,
         init_weights: str | None = None,
-        eval_min_depth: float | None = None,
-        eval_max_depth: float | None = None,
-        log_images: int = 4,
     ) -> None:
-        super().__init__()
-        if not 0 < min_depth < max_depth:
-            raise InputError(f"model.min_depth/max_depth: need 0 < min_depth < max_depth, got {min_depth}, {max_depth}")
-        if not 1 <= num_scales <= 4:
-            raise InputError(f"model.num_scales must be 1..4, got {num_scales}")
-        if not 0 < outlier_percentile <= 1:
-            raise InputError(f"model.outlier_percentile must be in (0, 1], got {outlier_percentile}")
-        if lambda_dc_warmup_steps < 0:
-            raise InputError(f"model.lambda_dc_warmup_steps must be >= 0, got {lambda_dc_warmup_steps}")
+        network = as_config(network, DEFAULT_NETWORK, "model.network")
+        loss = as_config(loss, DEFAULT_LOSS, "model.loss")
+        optim = as_config(optim, DEFAULT_OPTIM, "model.optim")
+        evaluation = as_config(evaluation, DEFAULT_EVALUATION, "model.evaluation")
+        super().__init__(optim, init_weights)
         self.save_hyperparameters()
-        self.depth_net = DepthNetwork(encoder_layers, dcn, num_scales, min_depth, max_depth, pretrained_path)
-        self.pose_net = PoseNetwork(pose_encoder_layers, pose_pretrained_path, pose_translation_scale)
-        self.loss_config = LossConfig(
-            use_automask=use_automask,
-            use_extra_photometric=use_extra_photometric,
-            use_depth_consistency=use_depth_consistency,
-            use_outlier_mask=use_outlier_mask,
-            use_specular_mask=use_specular_mask,
-            lambda_ph_extra=lambda_ph_extra,
-            lambda_dc=lambda_dc,
-            alpha=ssim_alpha,
-            outlier_percentile=outlier_percentile,
-        )
-        self.objective = SelfSupervisedLoss(self.loss_config)
-        self.eval_range = (eval_min_depth or min_depth, eval_max_depth or max_depth)
-        self._init_weights_done = False
+        self.network_config, self.loss_config, self.evaluation_config = network, loss, evaluation
+        self.depth_net = DepthNetwork(network.encoder_layers, network.dcn, network.num_scales, network.min_depth,
+                                      network.max_depth, network.pretrained_path)
+        self.pose_net = PoseNetwork(network.pose_encoder_layers, network.pose_pretrained_path,
+                                    network.pose_translation_scale)
+        self.objective = SelfSupervisedLoss(loss)
+        self.eval_range = (evaluation.min_depth or network.min_depth, evaluation.max_depth or network.max_depth)
 
     # ------------------------------------------------------------------ inference
     def forward(self, image: torch.Tensor) -> torch.Tensor:
@@ -188,9 +92,10 @@ class DepthNet(L.LightningModule):
             spec = torch.zeros_like(image[:, :, :1], dtype=torch.bool)
         return list(image.unbind(1)), list(spec.bool().unbind(1)), batch["K"]
 
-    def compute_loss(self, batch: dict) -> tuple[LossTerms, dict[int, list[torch.Tensor]]]:
+    def compute_loss(self, batch: dict, step: int | None = None) -> tuple[LossTerms, dict[int, list[torch.Tensor]]]:
         """Predict depths and poses for a triplet batch and score them.
 
+        ``step``: the optimiser step of a training batch (the warm-up of L_dc), None otherwise.
         Returns the loss terms and the disparities (frame index -> per-scale list).
         """
         images, specular, K = self._unpack(batch)
@@ -203,7 +108,7 @@ class DepthNet(L.LightningModule):
         with torch.autocast(images[0].device.type, enabled=False):
             images = [im.float() for im in images]
             poses = compose_triplet_poses(T[:b].float(), T[b:].float())  # T_10 (t-1 -> t), T_21 (t -> t+1)
-            terms = self.objective(images, specular, disparities, self.depth_net.to_depth, poses, K.float())
+            terms = self.objective(images, specular, disparities, self.depth_net.to_depth, poses, K.float(), step)
         return terms, disparities
 
     def _log_terms(self, stage: str, terms: LossTerms, batch_size: int) -> None:
@@ -226,23 +131,14 @@ class DepthNet(L.LightningModule):
         self.log(f"{stage}/depth_cv", cv, on_step=on_step, on_epoch=not on_step, batch_size=depth.shape[0],
                  sync_dist=not on_step)
 
-    def dc_weight(self, step: int) -> float:
-        """Weight of L_dc in the training loss at optimiser step ``step`` (the warm-up ramp of
-        ``lambda_dc_warmup_steps``, then ``lambda_dc``)."""
-        n = self.hparams.lambda_dc_warmup_steps
-        return self.loss_config.lambda_dc * (1.0 if n <= 0 else min(1.0, step / n))
-
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        terms, disparities = self.compute_loss(batch)
+        terms, disparities = self.compute_loss(batch, step=self.global_step)
         self._log_terms("train", terms, batch["image"].shape[0])
         self._log_depth_spread("train", self.depth_net.to_depth(disparities[1][0]))
-        loss = terms.loss
-        if terms.dc is not None and self.hparams.lambda_dc_warmup_steps > 0:
-            w = self.dc_weight(self.global_step)
-            # the objective added lambda_dc * L_dc (mean over scales, linear): swap in w
-            loss = loss - (self.loss_config.lambda_dc - w) * terms.dc
-            self.log("train/lambda_dc", w, on_step=True, on_epoch=False, batch_size=batch["image"].shape[0])
-        return loss
+        if self.loss_config.warms_up_dc:
+            self.log("train/lambda_dc", self.loss_config.dc_weight(self.global_step), on_step=True, on_epoch=False,
+                     batch_size=batch["image"].shape[0])
+        return terms.training_loss
 
     # ------------------------------------------------------------------ evaluation
     def _evaluate(self, stage: str, batch: dict, batch_idx: int) -> dict[str, float] | None:
@@ -274,7 +170,7 @@ class DepthNet(L.LightningModule):
 
     def _log_images(self, batch: dict, pred: torch.Tensor, terms: LossTerms) -> None:
         """Input, predicted depth, ground truth (if any), kept pixels (auto-mask) and specular mask."""
-        n = self.hparams.log_images
+        n = self.evaluation_config.log_images
         loggers = [lg for lg in self.loggers if isinstance(lg, TensorBoardLogger)]
         if n <= 0 or not loggers or self.trainer.sanity_checking or self.global_rank != 0:
             return
@@ -289,24 +185,3 @@ class DepthNet(L.LightningModule):
         for lg in loggers:
             lg.experiment.add_image("val/samples", grid, self.global_step, dataformats="CHW")
             lg.experiment.add_text("val/samples_columns", title, self.global_step)
-
-    # ------------------------------------------------------------------ optimiser and init
-    def configure_optimizers(self):
-        hp = self.hparams
-        opt = torch.optim.AdamW(self.parameters(), lr=hp.lr, betas=(0.9, 0.999), weight_decay=hp.weight_decay)
-        sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(hp.milestones), gamma=hp.gamma)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
-
-    def load_init_weights(self, path: str | Path) -> None:
-        """Copy model weights from a checkpoint (strict); InputError if the file or keys do not fit."""
-        load_weights(self, read_checkpoint_weights(path), path, "model.init_weights", "this DepthNet",
-                     "check encoder_layers, dcn and pose_encoder_layers")
-        self._init_weights_done = True
-
-    def setup(self, stage: str) -> None:
-        # Runs before Lightning restores a ``ckpt_path``, so a resumed run keeps its own weights.
-        if stage == "fit" and self.hparams.init_weights and not self._init_weights_done:
-            self.load_init_weights(self.hparams.init_weights)
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        self._init_weights_done = True

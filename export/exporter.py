@@ -20,8 +20,9 @@ import onnx
 import torch
 
 from c3f_models import __version__
+from c3f_models.checkpoints import load_weights, read_checkpoint_weights
 from c3f_models.contrafeat_module import ContraFeat
-from c3f_models.depthnet import DepthNet, load_weights, read_checkpoint_weights
+from c3f_models.depthnet import DepthNet
 from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write_text
 from c3f_slam.models.metadata import ModelMetadata, Preprocessing
@@ -141,7 +142,7 @@ def export_model(
         tolerance: largest accepted |onnxruntime - PyTorch| of any output element.
         dynamic_size: export height/width as dynamic axes.
         weights_only: accepted for the run's saved ``config.yaml``; checkpoints are always read with
-            the safe unpickler (:func:`c3f_models.depthnet.read_checkpoint_weights`), and False is refused.
+            the safe unpickler (:func:`c3f_models.checkpoints.read_checkpoint_weights`), and False is refused.
     """
     if ckpt_path is None:
         raise InputError("--ckpt_path: give the checkpoint to export")

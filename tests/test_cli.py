@@ -64,3 +64,41 @@ def test_condense_keeps_innermost_reason():
         "    - Expected a <class 'NoneType'>\n  Given value type: <class 'dict'>\n"
     )
     assert condense_parser_error(msg) == 'Parser key "data": Option \'x\' is not accepted (in a.B)'
+
+
+def test_models_are_exported_lazily():
+    """``from c3f_models import DepthNet, ContraFeat`` works, but importing the package (and the
+    CLI's --help) loads neither module, nor torch for the bare package."""
+    code = (
+        "import sys\n"
+        "import c3f_models\n"
+        "assert 'torch' not in sys.modules and 'c3f_models.depthnet' not in sys.modules\n"
+        "from c3f_models.cli import main\n"
+        "try:\n"
+        "    main(['fit', '--help'])\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "loaded = [m for m in ('c3f_models.depthnet', 'c3f_models.contrafeat_module') if m in sys.modules]\n"
+        "assert not loaded, loaded\n"
+        "from c3f_models import ContraFeat, DepthNet\n"
+        "from c3f_models.contrafeat_module import ContraFeat as C\n"
+        "from c3f_models.depthnet import DepthNet as D\n"
+        "assert DepthNet is D and ContraFeat is C and 'DepthNet' in dir(c3f_models)\n"
+        "try:\n"
+        "    c3f_models.NoSuchModel\n"
+        "except AttributeError:\n"
+        "    print('lazy ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                         check=False)
+    assert out.returncode == 0 and out.stdout.strip().endswith("lazy ok"), out.stderr[-2000:]
+
+
+def test_model_option_error_is_one_line(tmp_path, capsys):
+    """A group's validation error, raised while the parser builds the model, ends in one line."""
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", "--config", str(ROOT / "configs/depthnet/small.yaml"), "--model.network.min_depth", "0.5",
+              "--data.data_dir", str(tmp_path), "--trainer.logger", "false"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: model.network.min_depth/max_depth: need 0 < min_depth < max_depth, got 0.5, 0.3"]

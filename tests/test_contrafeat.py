@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-
 import sys
 from pathlib import Path
 
@@ -14,13 +13,16 @@ import torch
 import torchvision
 
 from c3f_models.cli import main
+from c3f_models.config import OptimConfig
+from c3f_models.contrafeat.config import ContraFeatLossConfig, MatchEvaluationConfig
 from c3f_models.contrafeat.data import ContraFeatDataModule, GapPairDataset
 from c3f_models.contrafeat.loss import batch_info_nce, info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
+from c3f_models.contrafeat.pairs import GroundTruthSettings, KeypointSettings
 from c3f_models.contrafeat_module import METHODS, ContraFeat
 from c3f_slam.errors import InputError
-from c3f_slam.matching import sample_descriptor_map
 from c3f_slam.io import Sequence
+from c3f_slam.matching import sample_descriptor_map
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = dict(fpn_channels=16, stem_channels=8, head_channels=32)
@@ -95,7 +97,7 @@ def test_pretrained_from_depthnet_checkpoint(tmp_path, dcn):
     """A DepthNet checkpoint's depth encoder starts ContraFeat (a DCN encoder does not fit)."""
     from c3f_models.depthnet import DepthNet
 
-    depth = DepthNet(encoder_layers=18, dcn=dcn, pose_encoder_layers=18)
+    depth = DepthNet({"encoder_layers": 18, "dcn": dcn, "pose_encoder_layers": 18})
     ckpt = tmp_path / "depthnet.ckpt"
     torch.save({"state_dict": depth.state_dict(), "global_step": 3}, ckpt)
     if dcn:
@@ -124,8 +126,10 @@ def test_gap_pairs(plane_dataset):
         GapPairDataset(seqs, [6], random_gap=True)
 
 
-def _module(**kw) -> ContraFeat:
-    return ContraFeat(max_keypoints=96, sift_contrast_threshold=0.01, num_visualisations=1, **TINY, **kw)
+def _module(**groups) -> ContraFeat:
+    small = {"network": TINY, "keypoints": KeypointSettings(max_keypoints=96, contrast_threshold=0.01),
+             "evaluation": MatchEvaluationConfig(num_visualisations=1)}
+    return ContraFeat(**{**small, **groups})
 
 
 def test_module_fit_and_test_in_process(plane_dataset, tmp_path):
@@ -158,12 +162,31 @@ def test_module_fit_and_test_in_process(plane_dataset, tmp_path):
 
 
 def test_module_rejects_bad_options():
-    with pytest.raises(InputError):
-        _module(filter_preset="galaxy")
-    with pytest.raises(InputError):
-        _module(filter_overrides={"no_such": 1})
-    with pytest.raises(InputError):
-        _module(tau=0.0)
+    with pytest.raises(InputError, match="'galaxy'"):
+        MatchEvaluationConfig(filter_preset="galaxy")
+    with pytest.raises(InputError, match="model.evaluation.filter_overrides: .*no_such"):
+        _module(evaluation={"filter_overrides": {"no_such": 1}})
+    with pytest.raises(InputError, match="model.loss.tau must be positive"):
+        _module(loss={"tau": 0.0})
+    with pytest.raises(InputError, match="model.keypoints.max_keypoints must be >= 2"):
+        KeypointSettings(max_keypoints=1)
+    with pytest.raises(InputError, match="model.ground_truth.pixel_radius"):
+        GroundTruthSettings(pixel_radius=0)
+    with pytest.raises(InputError, match="model.loss.dense_points must be >= 0"):
+        ContraFeatLossConfig(dense_points=-1)
+    with pytest.raises(InputError, match="model.network: .*unexpected keyword argument 'max_keypoints'"):
+        _module(network={"max_keypoints": 3})
+
+
+def test_groups_default_to_the_modules_defaults():
+    """A partly given group (a dict) keeps the module's defaults for the rest, as the CLI does;
+    the optimiser's default is ContraFeat's own (lr 3e-4, constant), not DepthNet's."""
+    model = ContraFeat(network=TINY, optim={"lr": 1e-3})
+    assert model.optim_config == OptimConfig(lr=1e-3, weight_decay=1e-4, milestones=())
+    assert isinstance(model.configure_optimizers(), torch.optim.AdamW)  # no milestones: no scheduler
+    assert model.kp_settings == KeypointSettings() and model.loss_config.tau == 0.01
+    assert model.dense_settings.border == model.kp_settings.border
+    assert model.hparams["optim"]["lr"] == 1e-3 and isinstance(model.hparams["keypoints"], dict)
 
 
 def test_cli_smoke_fit_small_config(plane_dataset, tmp_path, monkeypatch):
@@ -183,7 +206,10 @@ def test_configs_parse(name, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["c3f_models"])
     cli = main(["--config", str(ROOT / f"configs/contrafeat/{name}.yaml"), "--trainer.logger", "false"], run=False)
     assert isinstance(cli.model, ContraFeat) and isinstance(cli.datamodule, ContraFeatDataModule)
-    assert cli.model.hparams.descriptor_dim == 128 and cli.model.hparams.tau == 0.01
+    assert cli.model.network_config.descriptor_dim == 128 and cli.model.loss_config.tau == 0.01
+    assert cli.model.hparams["network"]["descriptor_dim"] == 128  # saved as plain values
+    assert cli.model.loss_config.dense_points == (512 if name == "small" else 0)
+    assert list(cli.model.optim_config.milestones) == ([] if name == "small" else [16, 24, 32])
 
 
 def _plane_frames(tx: float = 0.0, depth_j_scale: float = 1.0):
@@ -236,7 +262,7 @@ def test_module_dense_points_join_the_training_loss(plane_dataset):
     dm = ContraFeatDataModule(str(plane_dataset), gaps=[1, 2], size=(48, 48), batch_size=2)
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
-    plain, dense = _module(), _module(dense_points=64)
+    plain, dense = _module(), _module(loss=ContraFeatLossConfig(dense_points=64))
     dense.load_state_dict(plain.state_dict())
     torch.manual_seed(1)
     loss_kp, _, pairs_kp, _ = plain._loss(batch, sift_descriptors=False, dense=True)
@@ -250,6 +276,6 @@ def test_module_dense_points_join_the_training_loss(plane_dataset):
     loss_d.backward()
     assert dense.net.head[0].weight.grad.abs().sum() > 0
     with pytest.raises(InputError, match="dense_points"):
-        _module(dense_points=-1)
+        _module(loss={"dense_points": -1})
     with pytest.raises(InputError, match="dense_spacing"):
-        _module(dense_spacing=0)
+        _module(loss={"dense_spacing": 0})

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import sys
 from pathlib import Path
 
 import lightning as L
@@ -12,13 +13,16 @@ import torch
 import yaml
 from lightning.pytorch.loggers import TensorBoardLogger
 
+from c3f_models.config import OptimConfig
+from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
+from c3f_models.depth.objective import LossConfig
 from c3f_models.depthnet import DepthNet
 from c3f_slam.errors import InputError
 from datamodules.sequence import C3FSequenceDataModule
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs" / "depthnet"
-TINY = dict(encoder_layers=18, dcn=False, num_scales=2)
+TINY = DepthNetworkConfig(encoder_layers=18, dcn=False, num_scales=2)
 MONODEPTH2 = dict(use_extra_photometric=False, use_depth_consistency=False, use_outlier_mask=False,
                   use_specular_mask=False)
 
@@ -37,7 +41,7 @@ def trainer(tmp_path: Path, **kw) -> L.Trainer:
 @pytest.mark.parametrize("switches", [{}, MONODEPTH2], ids=["c3fusion", "monodepth2"])
 def test_fast_dev_run_on_planes(plane_dataset, tmp_path, switches):
     L.seed_everything(0)
-    model = DepthNet(**TINY, **switches)
+    model = DepthNet(TINY, LossConfig(**switches))
     tr = trainer(tmp_path, fast_dev_run=2)
     tr.fit(model, datamodule=datamodule(plane_dataset))
     m = tr.callback_metrics
@@ -57,7 +61,7 @@ def _overfit(root: Path, steps: int, **switches) -> list[float]:
     dm = datamodule(root, size=32, batch_size=4)
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
-    model = DepthNet(encoder_layers=18, num_scales=1, **switches)
+    model = DepthNet(DepthNetworkConfig(encoder_layers=18, num_scales=1), LossConfig(**switches))
     opt = model.configure_optimizers()["optimizer"]
     losses = []
     for _ in range(steps):
@@ -84,34 +88,59 @@ def test_training_reduces_the_loss_in_30_steps(plane_dataset, switches):
 
 
 def test_depth_consistency_warmup(plane_dataset, tmp_path):
-    """lambda_dc_warmup_steps ramps the weight of L_dc in the training loss from 0 (step 0)
+    """loss.lambda_dc_warmup_steps ramps the weight of L_dc in the training loss from 0 (step 0)
     to lambda_dc (from step N on); without it the training loss is the objective's."""
     torch.manual_seed(0)
     dm = datamodule(plane_dataset, size=32, batch_size=2)
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
-    model = DepthNet(**TINY, lambda_dc=0.1, lambda_dc_warmup_steps=4)
-    assert [model.dc_weight(s) for s in (0, 2, 4, 9)] == pytest.approx([0.0, 0.05, 0.1, 0.1])
+    model = DepthNet(TINY, LossConfig(lambda_dc=0.1, lambda_dc_warmup_steps=4))
+    assert [model.loss_config.dc_weight(s) for s in (0, 2, 4, 9)] == pytest.approx([0.0, 0.05, 0.1, 0.1])
     torch.manual_seed(1)
     terms, _ = model.compute_loss(batch)
-    assert float(terms.dc.detach()) > 0
+    assert float(terms.dc.detach()) > 0 and terms.training_loss is terms.loss  # no step: no warm-up
     torch.manual_seed(1)
     at_start = model.training_step(batch, 0)  # no trainer: global_step 0
     assert float(at_start.detach()) == pytest.approx(float(terms.ph + 0.1 * terms.ph_extra), rel=1e-5)
-    plain = DepthNet(**TINY, lambda_dc=0.1)
+    plain = DepthNet(TINY, LossConfig(lambda_dc=0.1))
     plain.load_state_dict(model.state_dict())
     torch.manual_seed(1)
     assert float(plain.training_step(batch, 0)) == pytest.approx(float(terms.loss), rel=1e-5)
-    with pytest.raises(InputError, match="lambda_dc_warmup_steps"):
-        DepthNet(**TINY, lambda_dc_warmup_steps=-1)
+    with pytest.raises(InputError, match="model.loss.lambda_dc_warmup_steps"):
+        DepthNet(TINY, LossConfig(lambda_dc_warmup_steps=-1))
     # in a fit, the ramp follows the trainer's step and is logged
     tr = trainer(tmp_path, max_steps=3, limit_val_batches=0, log_every_n_steps=1)
     tr.fit(model, datamodule=datamodule(plane_dataset))
     assert float(tr.callback_metrics["train/lambda_dc"]) == pytest.approx(0.05)
 
 
+@pytest.mark.parametrize("step", [0, 2, 4])
+def test_warmup_inside_the_objective_matches_subtracting_afterwards(plane_dataset, step):
+    """The warm-up weight inside the objective gives the loss and gradients of the former way:
+    the full objective minus (lambda_dc - w) * L_dc; the logged terms are unchanged."""
+    dm = datamodule(plane_dataset, size=32, batch_size=2)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    torch.manual_seed(0)
+    model = DepthNet(TINY, LossConfig(lambda_dc=0.1, lambda_dc_warmup_steps=4))
+    params = [p for p in model.parameters() if p.requires_grad]
+    terms, _ = model.compute_loss(batch)
+    w = model.loss_config.dc_weight(step)
+    before = terms.loss - (0.1 - w) * terms.dc
+    old_grads = torch.autograd.grad(before, params, allow_unused=True)
+    ramped, _ = model.compute_loss(batch, step=step)
+    new_grads = torch.autograd.grad(ramped.training_loss, params, allow_unused=True)
+    torch.testing.assert_close(ramped.training_loss, before, rtol=1e-6, atol=1e-9)
+    for name in ("loss", "ph", "ph_extra", "dc"):  # what is logged: bit for bit the same
+        assert torch.equal(getattr(ramped, name), getattr(terms, name)), name
+    for a, b in zip(old_grads, new_grads):
+        assert (a is None) == (b is None)
+        if a is not None:
+            torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-9)
+
+
 def test_forward_and_predict_give_metric_depth():
-    model = DepthNet(**TINY, min_depth=0.002, max_depth=0.2).eval()
+    model = DepthNet({"encoder_layers": 18, "num_scales": 2, "min_depth": 0.002, "max_depth": 0.2}).eval()  # a dict
     with torch.no_grad():
         depth = model(torch.rand(2, 3, 32, 40))
         pred = model.predict_step({"image": torch.rand(2, 3, 3, 32, 40)}, 0)
@@ -122,7 +151,7 @@ def test_forward_and_predict_give_metric_depth():
 
 
 def test_optimiser_and_schedule():
-    model = DepthNet(**TINY)
+    model = DepthNet(TINY)
     conf = model.configure_optimizers()
     opt, sched = conf["optimizer"], conf["lr_scheduler"]["scheduler"]
     assert isinstance(opt, torch.optim.AdamW) and opt.defaults["betas"] == (0.9, 0.999)
@@ -134,13 +163,17 @@ def test_optimiser_and_schedule():
         sched.step()
     assert lrs[15] == pytest.approx(1e-4) and lrs[16] == pytest.approx(5e-5)
     assert lrs[24] == pytest.approx(2.5e-5) and lrs[33] == pytest.approx(1.25e-5)
-    with pytest.raises(InputError, match="min_depth"):
-        DepthNet(**TINY, min_depth=0.5, max_depth=0.3)
+    with pytest.raises(InputError, match="model.network.min_depth"):
+        DepthNet({"min_depth": 0.5, "max_depth": 0.3})
+    with pytest.raises(InputError, match="model.optim: .*unexpected keyword argument 'lr_milestones'"):
+        DepthNet(TINY, optim={"lr_milestones": [1]})
+    constant = DepthNet(TINY, optim=OptimConfig(milestones=())).configure_optimizers()
+    assert isinstance(constant, torch.optim.AdamW)  # no milestones: no scheduler
 
 
 def test_tensorboard_images_metrics_and_init_weights(plane_dataset, tmp_path):
     L.seed_everything(0)
-    model = DepthNet(**TINY, log_images=2)
+    model = DepthNet(TINY, evaluation=DepthEvaluationConfig(log_images=2))
     logger = TensorBoardLogger(tmp_path, name="tb")
     tr = trainer(tmp_path, logger=logger, max_epochs=1, limit_train_batches=1, limit_val_batches=1,
                  num_sanity_val_steps=0, log_every_n_steps=1)
@@ -164,7 +197,7 @@ def test_tensorboard_images_metrics_and_init_weights(plane_dataset, tmp_path):
     assert tested["test/gt_to_pred_scale"] > 0  # metres per unit of prediction (SLAM --depth-scale)
 
     # init_weights: loaded when fitting starts, not when the module is made
-    fresh = DepthNet(**TINY, init_weights=str(ckpt))
+    fresh = DepthNet(TINY, init_weights=str(ckpt))
     trained = model.state_dict()
     key = "depth_net.encoder.layer1.0.conv1.weight"
     assert not torch.equal(fresh.state_dict()[key], trained[key])
@@ -176,21 +209,22 @@ def test_tensorboard_images_metrics_and_init_weights(plane_dataset, tmp_path):
     assert restored._init_weights_done
     # a run with init_weights starts from them (optimiser and epoch fresh)
     tr2 = trainer(tmp_path, max_steps=1, limit_val_batches=0)
-    tr2.fit(DepthNet(**TINY, init_weights=str(ckpt)), datamodule=dm)
+    tr2.fit(DepthNet(TINY, init_weights=str(ckpt)), datamodule=dm)
     assert tr2.global_step == 1
 
 
 def test_init_weights_errors(tmp_path):
     with pytest.raises(InputError, match="model.init_weights: file not found"):
-        DepthNet(**TINY, init_weights=str(tmp_path / "nope.ckpt")).setup("fit")
+        DepthNet(TINY, init_weights=str(tmp_path / "nope.ckpt")).setup("fit")
     junk = tmp_path / "junk.ckpt"
     junk.write_text("not a checkpoint")
     with pytest.raises(InputError, match="junk.ckpt is not a torch checkpoint"):
-        DepthNet(**TINY, init_weights=str(junk)).setup("fit")
+        DepthNet(TINY, init_weights=str(junk)).setup("fit")
     other = tmp_path / "other.ckpt"
-    torch.save({"state_dict": DepthNet(encoder_layers=18, dcn=True, num_scales=1).state_dict()}, other)
-    with pytest.raises(InputError, match="does not fit this DepthNet.*dcn"):
-        DepthNet(**TINY, init_weights=str(other)).setup("fit")
+    torch.save({"state_dict": DepthNet(DepthNetworkConfig(encoder_layers=18, dcn=True, num_scales=1)).state_dict()},
+               other)
+    with pytest.raises(InputError, match="does not fit this DepthNet.*model.network.encoder_layers, dcn"):
+        DepthNet(TINY, init_weights=str(other)).setup("fit")
 
 
 class _Payload:
@@ -209,12 +243,12 @@ def test_a_checkpoint_cannot_run_code(tmp_path):
 
     marker = tmp_path / "payload_ran"
     crafted = tmp_path / "crafted.ckpt"
-    torch.save({"state_dict": DepthNet(**TINY).state_dict(), "hyper_parameters": _Payload(marker)}, crafted)
+    torch.save({"state_dict": DepthNet(TINY).state_dict(), "hyper_parameters": _Payload(marker)}, crafted)
     with pytest.raises(InputError, match=r"crafted.ckpt needs more than the safe loader \(weights_only=True\) reads "
                                          r"\(it pickles \S+\); refused, nothing in it ran"):
-        DepthNet(**TINY, init_weights=str(crafted)).setup("fit")
+        DepthNet(TINY, init_weights=str(crafted)).setup("fit")
     with pytest.raises(InputError, match="--ckpt_path: .*crafted.ckpt needs more than the safe loader"):
-        load_checkpoint(DepthNet(**TINY), crafted)
+        load_checkpoint(DepthNet(TINY), crafted)
     assert not marker.exists(), "the payload ran"
     fn, args = _Payload(marker).__reduce__()  # the control: what an unpickler would call does touch it
     fn(*args)
@@ -231,33 +265,53 @@ def _instantiate(spec: dict):
     return getattr(importlib.import_module(module), cls)(**spec.get("init_args", {}))
 
 
-@pytest.mark.parametrize("name", ["small.yaml", "small_monodepth2.yaml", "full.yaml", "monodepth2.yaml"])
+#: the loss group of the former copies monodepth2.yaml / small_monodepth2.yaml (the default weights)
+MONODEPTH2_LOSS = LossConfig(use_automask=True, use_extra_photometric=False, use_depth_consistency=False,
+                             use_outlier_mask=False, use_specular_mask=False, lambda_ph_extra=0.1, lambda_dc=0.1,
+                             ssim_alpha=0.85, outlier_percentile=0.8)
+GROUPS = {"network": DepthNetworkConfig, "loss": LossConfig, "optim": OptimConfig, "evaluation": DepthEvaluationConfig}
+
+
+@pytest.mark.parametrize("name", ["small.yaml", "full.yaml"])
 def test_configs_instantiate(name):
+    from dataclasses import fields
+
     cfg = _load(name)
     assert set(cfg) == {"trainer", "model", "data"} and set(cfg["trainer"]) == {"max_epochs"}
     data = _instantiate(cfg["data"])
     assert isinstance(data, C3FSequenceDataModule)
+    args = cfg["model"]["init_args"]
+    assert set(args) <= {*GROUPS, "init_weights"}
+    for group, cls in GROUPS.items():  # nested groups, each with fields of its settings class only
+        assert set(args.get(group, {})) <= {f.name for f in fields(cls)}, group
     if name.startswith("small"):
         model = _instantiate(cfg["model"])
         assert isinstance(model, DepthNet)
-    else:  # building ResNet50+DCN takes a while: check the arguments against the signature instead
-        import inspect
-
-        params = inspect.signature(DepthNet.__init__).parameters
-        assert set(cfg["model"]["init_args"]) <= set(params)
-        assert cfg["model"]["init_args"]["encoder_layers"] == 50 and cfg["model"]["init_args"]["dcn"] is True
+    else:  # building ResNet50+DCN takes a while: check the groups instead
+        assert args["network"]["encoder_layers"] == 50 and args["network"]["dcn"] is True
         assert cfg["data"]["init_args"]["size"] == [224, 224] and cfg["data"]["init_args"]["batch_size"] == 16
         assert cfg["trainer"]["max_epochs"] == 40
 
 
-@pytest.mark.parametrize("full, baseline", [("full.yaml", "monodepth2.yaml"), ("small.yaml", "small_monodepth2.yaml")])
-def test_monodepth2_configs_differ_only_in_loss_switches(full, baseline):
-    a, b = _load(full), _load(baseline)
-    assert a["data"] == b["data"] and a["trainer"] == b["trainer"]
-    diff = {k for k in a["model"]["init_args"] if a["model"]["init_args"][k] != b["model"]["init_args"].get(k)}
-    assert diff == set(MONODEPTH2)
-    assert all(a["model"]["init_args"][k] for k in MONODEPTH2)
-    assert not any(b["model"]["init_args"][k] for k in MONODEPTH2)
+@pytest.mark.parametrize("base", ["small.yaml", "full.yaml"])
+def test_monodepth2_override_composes_the_baseline(base, monkeypatch):
+    """monodepth2.yaml after full.yaml / small.yaml gives the Monodepth2 loss switches (those of the
+    former copies) and changes nothing else: networks, optimiser, evaluation and data stay."""
+    from c3f_models.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["c3f_models"])
+    assert set(_load("monodepth2.yaml")) == {"model"} and set(_load("monodepth2.yaml")["model"]["init_args"]) == {"loss"}
+    common = ["--config", str(CONFIGS / base), "--trainer.logger", "false"]
+    plain = main(common, run=False)
+    baseline = main([*common, "--config", str(CONFIGS / "monodepth2.yaml")], run=False)
+    assert baseline.model.loss_config == MONODEPTH2_LOSS
+    assert plain.model.loss_config == LossConfig()  # the full objective
+    for attr in ("network_config", "optim_config", "evaluation_config", "init_weights"):
+        assert getattr(baseline.model, attr) == getattr(plain.model, attr), attr
+    assert {k: v for k, v in baseline.model.hparams.items() if k != "loss"} == \
+        {k: v for k, v in plain.model.hparams.items() if k != "loss"}
+    assert baseline.datamodule.hparams == plain.datamodule.hparams
+    assert baseline.trainer.max_epochs == plain.trainer.max_epochs == 40
 
 
 def test_colorize_depth_for_tensorboard():

@@ -129,7 +129,7 @@ def test_pretrained_errors_are_clear(tmp_path, resnet18_file):
         ResnetEncoder(50, pretrained_path=path)  # ResNet18 weights into a ResNet50
     other = tmp_path / "other.pth"
     torch.save({"weight": torch.zeros(3)}, other)
-    with pytest.raises(InputError, match="model.pretrained_path: .*other.pth does not fit"):
+    with pytest.raises(InputError, match="model.network.pretrained_path: .*other.pth does not fit"):
         DepthNetwork(18, pretrained_path=other)
     with pytest.raises(InputError, match="encoder_layers must be one of"):
         ResnetEncoder(20)

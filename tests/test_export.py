@@ -12,9 +12,10 @@ import onnxruntime as ort
 import pytest
 import torch
 
+from c3f_models import ContraFeat, DepthNet
 from c3f_models.cli import main
-from c3f_models.contrafeat_module import ContraFeat
-from c3f_models.depthnet import DepthNet
+from c3f_models.contrafeat.config import ContraFeatNetworkConfig
+from c3f_models.depth.config import DepthNetworkConfig
 from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.models.metadata import SCHEMA_VERSION, ModelMetadata
@@ -25,6 +26,8 @@ from export import exporter as exporter_mod
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = 64
 TOL = 1e-4
+ONE_SCALE = DepthNetworkConfig(num_scales=1)
+CONTRA_16 = ContraFeatNetworkConfig(descriptor_dim=16, fpn_channels=16, stem_channels=8, head_channels=16)
 
 
 def _session(path: Path) -> ort.InferenceSession:
@@ -70,13 +73,34 @@ def test_cli_export_writes_files_with_metadata(depth_export):
     assert depth.preprocessing.size == (SIZE, SIZE) and depth.preprocessing.specular_inpaint
     assert depth.outputs[0]["name"] == "depth" and depth.outputs[0]["units"] == "m"
     assert depth.depth["min_depth"] == pytest.approx(0.001) and depth.depth["max_depth"] == pytest.approx(0.3)
-    assert depth.training_config["model"]["init_args"]["encoder_layers"] == 18
+    assert depth.training_config["model"]["init_args"]["network"]["encoder_layers"] == 18
     assert depth.training_config["data"]["init_args"]["size"] == [SIZE, SIZE]
     assert depth.checkpoint["sha256"] == exporter_mod.sha256(run / "checkpoints" / "last.ckpt")
     assert 0 <= depth.parity["max_abs_diff"] <= TOL and depth.parity["frames"] >= 2
     model = onnx.load(str(out / "depthnet.onnx"))
     assert model.producer_name == "c3fusion"
     assert not any(t.data_location == onnx.TensorProto.EXTERNAL for t in model.graph.initializer)
+
+
+@pytest.mark.parametrize("subcommand", ["export", "test"])
+def test_checkpoint_with_flat_options_is_refused(depth_export, tmp_path, capsys, subcommand):
+    """A checkpoint saved before the model options were grouped (flat hyper-parameters) is refused
+    with one line naming the file, before LightningCLI would apply its options."""
+    run, _ = depth_export
+    new = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert {"network", "loss", "optim", "evaluation"} <= set(new["hyper_parameters"])  # the grouped form
+    old = tmp_path / "flat.ckpt"
+    flat = {"_class_path": "c3f_models.depthnet.DepthNet", "encoder_layers": 18, "dcn": False, "lambda_dc": 0.1,
+            "lr": 1e-4, "_instantiator": "lightning.pytorch.cli.instantiate_module"}
+    torch.save({"state_dict": new["state_dict"], "hyper_parameters": flat, "global_step": 1}, old)
+    args = ["--output_dir", str(tmp_path / "out")] if subcommand == "export" else ["--trainer.logger", "false"]
+    with pytest.raises(SystemExit) as exc:
+        main([subcommand, "--config", str(run / "config.yaml"), "--ckpt_path", str(old), *args])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: --ckpt_path: {old} holds model options DepthNet no longer "
+                                               "takes (dcn, encoder_layers, lambda_dc, lr; saved before")
+    assert not (tmp_path / "out").exists()
 
 
 def test_depth_parity_on_unseen_frames_and_sizes(depth_export, sim_dataset):
@@ -111,30 +135,30 @@ def test_pose_graph_is_rigid_and_matches_torch(depth_export, sim_dataset):
 
 def test_export_rejects_wrong_kind_and_wrong_architecture(tmp_path, tiny_sequence):
     contra = tmp_path / "contrafeat.ckpt"
-    torch.save({"state_dict": ContraFeat(descriptor_dim=8, fpn_channels=8, stem_channels=4).state_dict()}, contra)
+    torch.save({"state_dict": ContraFeat({"descriptor_dim": 8, "fpn_channels": 8, "stem_channels": 4}).state_dict()}, contra)
     with pytest.raises(InputError, match=r"--ckpt_path: .*contrafeat.ckpt is a ContraFeat checkpoint, but the config's model is DepthNet"):
-        export_model(DepthNet(num_scales=1), contra, tmp_path / "out", frames=tiny_sequence)
+        export_model(DepthNet(ONE_SCALE), contra, tmp_path / "out", frames=tiny_sequence)
     r34 = tmp_path / "r34.ckpt"
-    torch.save({"state_dict": DepthNet(encoder_layers=34, num_scales=1).state_dict()}, r34)
+    torch.save({"state_dict": DepthNet(DepthNetworkConfig(encoder_layers=34, num_scales=1)).state_dict()}, r34)
     with pytest.raises(InputError, match="does not fit the model in the config"):
-        export_model(DepthNet(encoder_layers=18, num_scales=1), r34, tmp_path / "out", frames=tiny_sequence)
+        export_model(DepthNet(DepthNetworkConfig(encoder_layers=18, num_scales=1)), r34, tmp_path / "out", frames=tiny_sequence)
     with pytest.raises(InputError, match="--ckpt_path: file not found"):
-        export_model(DepthNet(num_scales=1), tmp_path / "missing.ckpt", tmp_path / "out", frames=tiny_sequence)
+        export_model(DepthNet(ONE_SCALE), tmp_path / "missing.ckpt", tmp_path / "out", frames=tiny_sequence)
     garbage = tmp_path / "garbage.ckpt"
     garbage.write_bytes(b"not a checkpoint")
     with pytest.raises(InputError, match="is not a torch checkpoint"):
-        export_model(DepthNet(num_scales=1), garbage, tmp_path / "out", frames=tiny_sequence)
+        export_model(DepthNet(ONE_SCALE), garbage, tmp_path / "out", frames=tiny_sequence)
     with pytest.raises(InputError, match="--frames: sequence folder not found"):
-        export_model(DepthNet(num_scales=1), r34, tmp_path / "out", frames=tmp_path / "nowhere")
+        export_model(DepthNet(ONE_SCALE), r34, tmp_path / "out", frames=tmp_path / "nowhere")
     assert not (tmp_path / "out").exists()
 
 
 def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
     torch.manual_seed(0)
-    model = ContraFeat(descriptor_dim=16, fpn_channels=16, stem_channels=8, head_channels=16)
+    model = ContraFeat(CONTRA_16)
     ckpt = tmp_path / "cf.ckpt"
     torch.save({"state_dict": model.state_dict()}, ckpt)
-    fresh = ContraFeat(descriptor_dim=16, fpn_channels=16, stem_channels=8, head_channels=16)
+    fresh = ContraFeat(CONTRA_16)
     (path,) = export_model(fresh, ckpt, tmp_path / "out", frames=tiny_sequence, num_frames=2)
     meta = _metadata(path)
     assert (path.name, meta.kind, meta.descriptor_dim) == ("contrafeat.onnx", "descriptors", 16)
@@ -148,14 +172,14 @@ def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
 
 def test_dcn_depth_exports_with_opset_19_and_runs(tmp_path, tiny_sequence):
     torch.manual_seed(0)
-    model = DepthNet(dcn=True, num_scales=1)
+    model = DepthNet(DepthNetworkConfig(dcn=True, num_scales=1))
     with torch.no_grad():  # non-zero offsets, so the deformable sampling is really exercised
         for m in model.depth_net.modules():
             if type(m).__name__ == "DeformConv":
                 m.offset.weight.normal_(0, 0.01)
     ckpt = tmp_path / "dcn.ckpt"
     torch.save({"state_dict": model.state_dict()}, ckpt)
-    written = export_model(DepthNet(dcn=True, num_scales=1), ckpt, tmp_path / "out", frames=tiny_sequence,
+    written = export_model(DepthNet(DepthNetworkConfig(dcn=True, num_scales=1)), ckpt, tmp_path / "out", frames=tiny_sequence,
                            num_frames=2, dynamic_size=False)
     depth = next(p for p in written if p.name == "depthnet.onnx")
     assert _metadata(depth).opset == 19 and not _metadata(depth).dynamic_size
@@ -168,7 +192,7 @@ def test_dcn_depth_exports_with_opset_19_and_runs(tmp_path, tiny_sequence):
 
 def test_failed_parity_writes_nothing_and_keeps_earlier_files(tmp_path, tiny_sequence, monkeypatch):
     ckpt = tmp_path / "d.ckpt"
-    torch.save({"state_dict": DepthNet(num_scales=1).state_dict()}, ckpt)
+    torch.save({"state_dict": DepthNet(ONE_SCALE).state_dict()}, ckpt)
     out = tmp_path / "out"
     out.mkdir()
     (out / "depthnet.onnx").write_bytes(b"earlier export")
@@ -179,7 +203,7 @@ def test_failed_parity_writes_nothing_and_keeps_earlier_files(tmp_path, tiny_seq
     monkeypatch.setattr(exporter_mod, "to_onnx", lambda *a, **k: onnx.ModelProto())  # the export itself is tested above
     monkeypatch.setattr(exporter_mod, "check_parity", bad_parity)
     with pytest.raises(ParityError, match="depthnet.onnx: onnxruntime differs"):
-        export_model(DepthNet(num_scales=1), ckpt, out, frames=tiny_sequence, num_frames=2)
+        export_model(DepthNet(ONE_SCALE), ckpt, out, frames=tiny_sequence, num_frames=2)
     assert (out / "depthnet.onnx").read_bytes() == b"earlier export"
     assert sorted(p.name for p in out.iterdir()) == ["depthnet.onnx"]
 

@@ -94,8 +94,8 @@ def test_data_set_configs_compose_with_the_paper_model(published, model, data, m
     assert type(cli.datamodule).__name__ == cfg["class_path"].rsplit(".", 1)[1]
     assert cfg["init_args"]["size"] == [224, 224] and cfg["init_args"]["crop"] == PAPER_CROPS[layout]
     if model.startswith("depthnet"):
-        hp = cli.model.hparams
-        assert (hp.encoder_layers, hp.dcn, hp.lr, list(hp.milestones)) == (50, True, 1e-4, [16, 24, 32])
+        net, optim = cli.model.network_config, cli.model.optim_config
+        assert (net.encoder_layers, net.dcn, optim.lr, list(optim.milestones)) == (50, True, 1e-4, [16, 24, 32])
         assert cfg["init_args"]["batch_size"] == 16
     assert cli.datamodule.split()["train"]
 
@@ -121,7 +121,7 @@ def test_test_time_training_smoke(published, tmp_path, monkeypatch):
                 str(tmp_path / "ttt"), "--trainer.enable_progress_bar", "false"])
     assert [p.name for p in cli.datamodule.split()["train"]] == ["sim"]  # the whole sequence, no held-out part
     assert cli.datamodule.split()["val"] == [] and cli.datamodule.split()["test"] == []
-    assert list(cli.model.hparams.milestones) == [80, 120, 170] and cli.trainer.max_epochs == 1
+    assert list(cli.model.optim_config.milestones) == [80, 120, 170] and cli.trainer.max_epochs == 1
     ckpt = torch.load(tmp_path / "ttt" / "tb" / "version_0" / "checkpoints" / "last.ckpt", map_location="cpu",
                       weights_only=True)
     steps = len(cli.datamodule.datasets["train"]) // 2 + len(cli.datamodule.datasets["train"]) % 2

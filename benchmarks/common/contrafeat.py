@@ -18,12 +18,16 @@ from c3f_models.contrafeat.data import ContraFeatDataModule
 from c3f_models.contrafeat_module import METHODS, ContraFeat
 
 LABELS = {"sift": "SIFT", "sift_kpf": "SIFT+kpf", "cdf": "CDF", "cdf_kpf": "CDF+kpf"}
-SMALL_MODEL = {  # configs/contrafeat/small.yaml
-    "backbone_layers": 18, "descriptor_dim": 128, "fpn_channels": 64, "stem_channels": 16, "head_channels": 64,
-    "lr": 1e-3, "weight_decay": 1e-4, "tau": 0.01, "max_keypoints": 256, "sift_contrast_threshold": 0.005,
-    "keypoint_border": 2, "pixel_radius": 2.0, "depth_tolerance": 0.05, "filter_preset": "colon", "num_visualisations": 0,
-    "dense_points": 512, "dense_spacing": 4,
+SMALL_MODEL = {  # ContraFeat's groups as in configs/contrafeat/small.yaml
+    "network": {"backbone_layers": 18, "descriptor_dim": 128, "fpn_channels": 64, "stem_channels": 16,
+                "head_channels": 64},
+    "optim": {"lr": 1e-3, "weight_decay": 1e-4},
+    "loss": {"tau": 0.01, "dense_points": 512, "dense_spacing": 4},
+    "keypoints": {"max_keypoints": 256, "contrast_threshold": 0.005, "border": 2},
+    "ground_truth": {"pixel_radius": 2.0, "depth_tolerance": 0.05},
+    "evaluation": {"filter_preset": "colon", "num_visualisations": 0},
 }
+GROUND_TRUTH = SMALL_MODEL["ground_truth"]
 
 
 def load_weights(model: ContraFeat, ckpt: Path, option: str = "--checkpoint") -> int:

@@ -21,7 +21,6 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torchvision import models
 from torchvision.ops import FeaturePyramidNetwork
 
 from c3f_models.depth.resnet import IMAGENET_MEAN, IMAGENET_STD, build_resnet, load_pretrained
@@ -54,13 +53,14 @@ class ContraFeatNet(nn.Module):
     ) -> None:
         super().__init__()
         if backbone_layers not in BACKBONES:
-            raise InputError(f"model.backbone_layers must be one of {list(BACKBONES)}, got {backbone_layers}")
+            raise InputError(f"model.network.backbone_layers must be one of {list(BACKBONES)}, got {backbone_layers}")
         head_channels = head_channels or descriptor_dim
         if min(descriptor_dim, fpn_channels, stem_channels, head_channels) < 1:
-            raise InputError("model.descriptor_dim, fpn_channels, stem_channels and head_channels must be positive")
-        net = build_resnet(backbone_layers, "model.backbone_layers")
+            raise InputError("model.network.descriptor_dim, fpn_channels, stem_channels and head_channels must be "
+                             "positive")
+        net = build_resnet(backbone_layers, "model.network.backbone_layers")
         if pretrained_path:
-            load_pretrained(net, pretrained_path, option="model.pretrained_path")
+            load_pretrained(net, pretrained_path, option="model.network.pretrained_path")
         self.conv1, self.bn1, self.relu, self.maxpool = net.conv1, net.bn1, net.relu, net.maxpool
         self.layer1, self.layer2, self.layer3, self.layer4 = net.layer1, net.layer2, net.layer3, net.layer4
         self.fpn = FeaturePyramidNetwork([64, 64, 128, 256, 512], fpn_channels)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from c3f_slam.errors import InputError
 from c3f_slam.matching import Keypoints, Projection, detect_sift, ground_truth_matches
 from c3f_slam.matching.ground_truth import project_keypoints
 
@@ -48,20 +49,40 @@ class PairData:
 
 @dataclass(frozen=True)
 class KeypointSettings:
-    """SIFT settings of ContraFeat (see :func:`c3f_slam.matching.detect_sift`)."""
+    """SIFT settings of ContraFeat (see :func:`c3f_slam.matching.detect_sift`); ContraFeat's ``keypoints``.
+
+    Attributes:
+        max_keypoints: SIFT keypoints kept per frame (strongest by response).
+        contrast_threshold: OpenCV SIFT contrast threshold (lower = more keypoints).
+        border: drop keypoints (and dense samples) this close to the border, pixels.
+        mask_specular: no keypoints on specular highlights.
+    """
 
     max_keypoints: int = 1024
     contrast_threshold: float = 0.04
     border: int = 2
     mask_specular: bool = True
 
+    def __post_init__(self) -> None:
+        if self.max_keypoints < 2:
+            raise InputError(f"model.keypoints.max_keypoints must be >= 2, got {self.max_keypoints}")
+
 
 @dataclass(frozen=True)
 class GroundTruthSettings:
-    """Ground-truth matching (pixels, relative depth tolerance)."""
+    """Ground-truth matching; ContraFeat's ``ground_truth``.
+
+    Attributes:
+        pixel_radius: ground-truth and correctness radius, pixels.
+        depth_tolerance: relative depth agreement for visibility (occlusion test).
+    """
 
     pixel_radius: float = 2.0
     depth_tolerance: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.pixel_radius <= 0 or self.depth_tolerance <= 0:
+            raise InputError("model.ground_truth.pixel_radius and model.ground_truth.depth_tolerance must be positive")
 
 
 @dataclass(frozen=True)

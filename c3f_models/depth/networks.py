@@ -33,7 +33,7 @@ class DepthNetwork(nn.Module):
         pretrained_path: str | Path | None = None,
     ) -> None:
         super().__init__()
-        self.encoder = ResnetEncoder(num_layers, dcn, 1, pretrained_path, option="model.pretrained_path")
+        self.encoder = ResnetEncoder(num_layers, dcn, 1, pretrained_path, option="model.network.pretrained_path")
         self.decoder = DepthDecoder(self.encoder.num_ch_enc, scales=range(num_scales))
         self.min_depth, self.max_depth = float(min_depth), float(max_depth)
 
@@ -88,7 +88,7 @@ class PoseNetwork(nn.Module):
         self, num_layers: int = 18, pretrained_path: str | Path | None = None, translation_scale: float = 0.01
     ) -> None:
         super().__init__()
-        self.encoder = ResnetEncoder(num_layers, False, 2, pretrained_path, option="model.pose_pretrained_path")
+        self.encoder = ResnetEncoder(num_layers, False, 2, pretrained_path, option="model.network.pose_pretrained_path")
         self.decoder = PoseDecoder(self.encoder.num_ch_enc[-1], translation_scale=translation_scale)
 
     def forward(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

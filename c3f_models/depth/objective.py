@@ -21,6 +21,8 @@ pixels into j, where I_j (and D_j) are sampled.
 - Outliers: pixels above the 80th percentile (per image, per pair) of each term's error are
   dropped from that term.
 - L = L_ph + lambda_ph_extra * mean_S L_ph-extra + lambda_dc * mean_S L_dc (no smoothness).
+  With a warm-up (``lambda_dc_warmup_steps``), training steps minimise the same sum with the
+  ramped weight of L_dc instead (``LossTerms.training_loss``).
 
 Poses: PoseNet gives T_10 (t-1 into t) and T_21 (t into t+1) for adjacent frames; the rest
 are composed: T_01 = T_10^-1, T_12 = T_21^-1, T_20 = T_21 T_10, T_02 = T_20^-1.
@@ -42,6 +44,7 @@ from c3f_models.depth.losses import (
     photometric_error,
 )
 from c3f_models.geometry import invert_pose, warp
+from c3f_slam.errors import InputError
 
 PH_PAIRS = ((1, 0), (1, 2))  # (target, source) for L_ph: t from t-1 and t+1
 EXTRA_PAIRS = ((0, 1), (0, 2), (2, 0), (2, 1))  # S as (i, j) = (target, source)
@@ -49,7 +52,21 @@ EXTRA_PAIRS = ((0, 1), (0, 2), (2, 0), (2, 1))  # S as (i, j) = (target, source)
 
 @dataclass(frozen=True)
 class LossConfig:
-    """Switches and weights of the objective; the Monodepth2 baseline turns the extras off."""
+    """Switches and weights of the objective; the Monodepth2 baseline turns the four extras off.
+
+    Attributes:
+        use_automask: Monodepth2 auto-masking in L_ph and L_ph-extra.
+        use_extra_photometric: the extra photometric term L_ph-extra over the pairs S.
+        use_depth_consistency: the depth-consistency term L_dc over the pairs S.
+        use_outlier_mask: drop pixels above ``outlier_percentile`` of each term's error.
+        use_specular_mask: exclude specular pixels from the losses.
+        lambda_ph_extra: weight of L_ph-extra.
+        lambda_dc: weight of L_dc.
+        lambda_dc_warmup_steps: training steps over which the weight of L_dc ramps linearly from 0
+            to lambda_dc (0 = constant, as the paper; validation and test always use lambda_dc).
+        ssim_alpha: SSIM weight in the photometric error (1 - alpha goes to L1).
+        outlier_percentile: quantile in (0, 1] above which pixels are outliers.
+    """
 
     use_automask: bool = True
     use_extra_photometric: bool = True
@@ -58,19 +75,40 @@ class LossConfig:
     use_specular_mask: bool = True
     lambda_ph_extra: float = 0.1
     lambda_dc: float = 0.1
-    alpha: float = 0.85
+    lambda_dc_warmup_steps: int = 0
+    ssim_alpha: float = 0.85
     outlier_percentile: float = 0.8
+
+    def __post_init__(self) -> None:
+        if not 0 < self.outlier_percentile <= 1:
+            raise InputError(f"model.loss.outlier_percentile must be in (0, 1], got {self.outlier_percentile}")
+        if self.lambda_dc_warmup_steps < 0:
+            raise InputError(f"model.loss.lambda_dc_warmup_steps must be >= 0, got {self.lambda_dc_warmup_steps}")
 
     @property
     def needs_source_depth(self) -> bool:
         """Whether depth must be predicted for t-1 and t+1 as well."""
         return self.use_extra_photometric or self.use_depth_consistency
 
+    @property
+    def warms_up_dc(self) -> bool:
+        """Whether the training weight of L_dc ramps up (L_dc on and a warm-up set)."""
+        return self.use_depth_consistency and self.lambda_dc_warmup_steps > 0
+
+    def dc_weight(self, step: int) -> float:
+        """Weight of L_dc in the training loss at optimiser step ``step``: the linear ramp over
+        ``lambda_dc_warmup_steps``, then ``lambda_dc``."""
+        n = self.lambda_dc_warmup_steps
+        return self.lambda_dc * (1.0 if n <= 0 else min(1.0, step / n))
+
 
 @dataclass
 class LossTerms:
     """The loss and its terms (scalars; None when switched off) plus masks for logging.
 
+    ``loss``: the objective with the configured weights (what is logged, and the validation
+    and test loss). ``training_loss``: what a training step minimises, ``loss`` with L_dc
+    weighted by the warm-up (:meth:`LossConfig.dc_weight`); ``loss`` itself without a warm-up.
     ``automask``: (B, 1, H, W) bool, the auto-mask mu of frame t at the finest scale: pixels
     where a warped source beat the unwarped ones and that survived the specular and outlier
     masks (the pixels whose L_ph drives depth and pose).
@@ -81,6 +119,7 @@ class LossTerms:
     ph_extra: torch.Tensor | None
     dc: torch.Tensor | None
     automask: torch.Tensor
+    training_loss: torch.Tensor
 
 
 def compose_triplet_poses(T_10: torch.Tensor, T_21: torch.Tensor) -> dict[tuple[int, int], torch.Tensor]:
@@ -131,8 +170,8 @@ class SelfSupervisedLoss:
         out = warp(source, _stack(depths, tgt), T, K.repeat(n, 1, 1), source_depth)
         target = _stack(images, tgt)
         res = {
-            "pe": photometric_error(out.image[:, :3], target, self.cfg.alpha),
-            "identity": photometric_error(_stack(images, src), target, self.cfg.alpha),
+            "pe": photometric_error(out.image[:, :3], target, self.cfg.ssim_alpha),
+            "identity": photometric_error(_stack(images, src), target, self.cfg.ssim_alpha),
             "reproj_ok": out.valid,
             "identity_ok": torch.ones_like(out.valid),
             "target_ok": torch.ones_like(out.valid),
@@ -178,8 +217,10 @@ class SelfSupervisedLoss:
         depths: dict[int, torch.Tensor],
         poses: dict[tuple[int, int], torch.Tensor],
         K: torch.Tensor,
+        dc_weight: float | None = None,
     ) -> LossTerms:
-        """Terms for one set of full-resolution depths (frame index -> (B, 1, H, W) metres)."""
+        """Terms for one set of full-resolution depths (frame index -> (B, 1, H, W) metres);
+        ``dc_weight``: the training weight of L_dc when it differs from ``lambda_dc`` (warm-up)."""
         cfg = self.cfg
         dl = [depths.get(k) for k in range(3)]
         w = self._warp_pairs(PH_PAIRS, images, specular, dl, poses, K, False)
@@ -199,10 +240,15 @@ class SelfSupervisedLoss:
                 err_dc = depth_consistency_error(w["projected"], w["sampled"])
                 keep_dc = self._outliers(err_dc, w["reproj_ok"] & w["target_ok"])
                 dc = masked_mean(err_dc, keep_dc, dims=(1, 2, 3, 4)).mean()
+        loss = self._weighted_sum(ph, ph_extra, dc, cfg.lambda_dc)
+        training = loss if dc_weight is None or dc is None else self._weighted_sum(ph, ph_extra, dc, dc_weight)
+        return LossTerms(loss, ph, ph_extra, dc, mu & keep, training)
+
+    def _weighted_sum(self, ph, ph_extra, dc, dc_weight: float) -> torch.Tensor:
+        """L_ph + lambda_ph_extra * L_ph-extra + dc_weight * L_dc (terms that are off are None)."""
         loss = ph
-        loss = loss + cfg.lambda_ph_extra * ph_extra if ph_extra is not None else loss
-        loss = loss + cfg.lambda_dc * dc if dc is not None else loss
-        return LossTerms(loss, ph, ph_extra, dc, mu & keep)
+        loss = loss + self.cfg.lambda_ph_extra * ph_extra if ph_extra is not None else loss
+        return loss + dc_weight * dc if dc is not None else loss
 
     def __call__(
         self,
@@ -212,12 +258,17 @@ class SelfSupervisedLoss:
         to_depth,
         poses: dict[tuple[int, int], torch.Tensor],
         K: torch.Tensor,
+        step: int | None = None,
     ) -> LossTerms:
         """Multi-scale objective: each scale's disparity is upsampled (bilinear) to full
         resolution, turned into depth with ``to_depth`` and scored; terms are averaged over scales.
 
         ``disparities``: frame index -> list of per-scale sigmoid disparities (finest first).
+        ``step``: the optimiser step of a training batch, for the warm-up of L_dc (None:
+        validation or test, ``training_loss`` is ``loss``).
         """
+        ramped = step is not None and self.cfg.warms_up_dc
+        dc_weight = self.cfg.dc_weight(step) if ramped else None
         size = images[0].shape[-2:]
         n_scales = len(next(iter(disparities.values())))
         per_scale = []
@@ -228,10 +279,12 @@ class SelfSupervisedLoss:
                 if d.shape[-2:] != size:
                     d = F.interpolate(d, size=size, mode="bilinear", align_corners=False)
                 depths[k] = to_depth(d)
-            per_scale.append(self.single_scale(images, specular, depths, poses, K))
+            per_scale.append(self.single_scale(images, specular, depths, poses, K, dc_weight))
 
         def mean(name: str) -> torch.Tensor | None:
             vals = [getattr(t, name) for t in per_scale]
             return None if vals[0] is None else torch.stack(vals).mean()
 
-        return LossTerms(mean("loss"), mean("ph"), mean("ph_extra"), mean("dc"), per_scale[0].automask)
+        loss = mean("loss")
+        training = mean("training_loss") if ramped else loss
+        return LossTerms(loss, mean("ph"), mean("ph_extra"), mean("dc"), per_scale[0].automask, training)

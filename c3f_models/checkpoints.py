@@ -1,0 +1,94 @@
+"""Reading checkpoints safely: weights for ``init_weights`` and export, hyper-parameters for the CLI.
+
+Every file is read with the safe unpickler only (``torch.load(weights_only=True)``):
+tensors, numbers, strings and containers. A file that needs more (pickled objects, possibly
+code) is refused with an InputError; nothing in it runs.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import re
+import zipfile
+from pathlib import Path
+
+import torch
+
+from c3f_slam.errors import InputError
+
+
+def read_checkpoint(path: str | Path, option: str, mmap: bool = False) -> dict:
+    """The whole checkpoint (or plain state dict) at ``path`` as the safe unpickler reads it
+    (``mmap``: map the tensors instead of reading them, for a look at the other entries)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{option}: file not found: {path}")
+    if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
+        raise InputError(f"{option}: {path} is not a torch checkpoint")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
+    except Exception as exc:  # noqa: BLE001 (unpickling, zip and format errors all mean: refused)
+        found = re.search(r"Unsupported global: GLOBAL (\S+)", str(exc))
+        what = f" (it pickles {found.group(1)})" if found else f" ({type(exc).__name__})"
+        raise InputError(f"{option}: {path} needs more than the safe loader (weights_only=True) reads{what}; "
+                         "refused, nothing in it ran") from None
+    return ckpt if isinstance(ckpt, dict) else {}
+
+
+def read_checkpoint_weights(path: str | Path, option: str = "model.init_weights") -> dict[str, torch.Tensor]:
+    """Model weights from a Lightning checkpoint (``state_dict`` key) or a plain state dict file."""
+    ckpt = read_checkpoint(path, option)
+    state = ckpt.get("state_dict", ckpt)
+    if not isinstance(state, dict) or not state or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise InputError(f"{option}: {path} holds no model weights")
+    return state
+
+
+def load_weights(
+    module: torch.nn.Module, state: dict[str, torch.Tensor], path: str | Path, option: str,
+    what: str = "the model", hint: str = "",
+) -> None:
+    """Load ``state`` into ``module`` strictly; InputError naming ``option`` and ``path`` with
+    the numbers of missing, unexpected and wrong-shaped keys when it does not fit."""
+    own = module.state_dict()
+    missing = [k for k in own if k not in state]
+    unexpected = [k for k in state if k not in own]
+    wrong = [k for k in own if k in state and state[k].shape != own[k].shape]
+    if missing or unexpected or wrong:
+        example = (missing or unexpected or wrong)[0]
+        raise InputError(
+            f"{option}: {path} does not fit {what} ({len(missing)} missing, {len(unexpected)} unexpected, "
+            f"{len(wrong)} wrong-shaped keys, e.g. {example})" + (f"; {hint}" if hint else "")
+        )
+    module.load_state_dict(state)
+
+
+def check_saved_options(path: str | Path, class_path: str | None, option: str = "--ckpt_path") -> None:
+    """InputError unless every hyper-parameter saved in the checkpoint is an argument of its model class.
+
+    LightningCLI re-applies a checkpoint's hyper-parameters to the model (``test``, ``export``
+    and resumed ``fit`` with ``--ckpt_path``). A checkpoint saved before the options were
+    grouped (flat ``encoder_layers``, ``lambda_dc``, ``max_keypoints``, ...) is refused here
+    with one line instead of failing inside the parser. The class is the checkpoint's own
+    (``_class_path``, saved by the CLI) or else ``class_path`` (the config's); one that cannot
+    be imported is left to Lightning.
+    """
+    saved = read_checkpoint(path, option, mmap=True).get("hyper_parameters") or {}
+    module_name, _, name = str(saved.get("_class_path") or class_path or "").rpartition(".")
+    try:
+        model_class = getattr(importlib.import_module(module_name), name)
+    except (ImportError, AttributeError, ValueError):
+        return
+    accepted = set(inspect.signature(model_class.__init__).parameters) - {"self"}
+    unknown = sorted(k for k in saved if not str(k).startswith("_") and k not in accepted)
+    if unknown:
+        shown = ", ".join(unknown[:4]) + (", ..." if len(unknown) > 4 else "")
+        raise InputError(
+            f"{option}: {path} holds model options {name} no longer takes ({shown}; saved before "
+            f"the options were grouped into {', '.join(sorted(accepted))}); refused: retrain, or start from its "
+            "weights with --model.init_weights"
+        )
+
+
+__all__ = ["check_saved_options", "load_weights", "read_checkpoint", "read_checkpoint_weights"]

@@ -1,0 +1,89 @@
+"""ContraFeat's settings groups besides the optimiser (:class:`c3f_models.config.OptimConfig`) and
+the keypoint / ground-truth settings (:class:`c3f_models.contrafeat.pairs.KeypointSettings`,
+:class:`~c3f_models.contrafeat.pairs.GroundTruthSettings`). Pixels are of the network input."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from c3f_models.contrafeat.loss import TAU
+from c3f_slam.errors import InputError
+from c3f_slam.matching import MatchFilterConfig
+
+
+@dataclass(frozen=True)
+class ContraFeatNetworkConfig:
+    """The descriptor network (:class:`c3f_models.contrafeat.network.ContraFeatNet`, which checks the values).
+
+    Attributes:
+        backbone_layers: ResNet depth of the bottom-up stream (18 in the paper; 34 also accepted).
+        descriptor_dim: descriptor channels c (128 in the paper).
+        fpn_channels: channels of the FPN levels.
+        stem_channels: channels of the full-resolution stem that restores pixel detail.
+        head_channels: hidden channels of the full-resolution 1x1 head; null = descriptor_dim.
+        pretrained_path: local torchvision ResNet state dict (ImageNet) or a DepthNet checkpoint without DCN.
+    """
+
+    backbone_layers: int = 18
+    descriptor_dim: int = 128
+    fpn_channels: int = 128
+    stem_channels: int = 32
+    head_channels: int | None = None
+    pretrained_path: str | None = None
+
+
+@dataclass(frozen=True)
+class ContraFeatLossConfig:
+    """InfoNCE over the ground-truth matches of each pair, optionally with dense correspondences.
+
+    Attributes:
+        tau: InfoNCE temperature (paper: 0.01).
+        symmetric: average the i->j and j->i directions.
+        dense_points: dense ground-truth correspondences per training pair added to its InfoNCE
+            (0 = keypoint matches only, the paper's loss; validation and test never use them).
+        dense_spacing: grid cell of the dense samples, pixels (samples >= spacing / 2 apart).
+    """
+
+    tau: float = TAU
+    symmetric: bool = True
+    dense_points: int = 0
+    dense_spacing: int = 4
+
+    def __post_init__(self) -> None:
+        if self.tau <= 0:
+            raise InputError(f"model.loss.tau must be positive, got {self.tau}")
+        if self.dense_points < 0 or self.dense_spacing < 1:
+            raise InputError(f"model.loss.dense_points must be >= 0 and model.loss.dense_spacing >= 1, got "
+                             f"{self.dense_points}, {self.dense_spacing}")
+
+
+@dataclass(frozen=True)
+class MatchEvaluationConfig:
+    """Validation and test matching: the keypoint filter, ratio tests and match images.
+
+    Attributes:
+        filter_preset: ``colon`` or ``room`` thresholds of the keypoint filter (MatchFilterConfig).
+        filter_overrides: preset fields to change, e.g. ``{max_residual: 0.001}`` (metres).
+        cdf_ratio: ratio test of the mutual-NN matching of ContraFeat descriptors; null = none.
+        sift_ratio: ratio test of the mutual-NN matching of SIFT descriptors; null = none.
+        num_visualisations: validation batches that log a match image (TensorBoard only).
+    """
+
+    filter_preset: str = "colon"
+    filter_overrides: dict | None = None
+    cdf_ratio: float | None = None
+    sift_ratio: float | None = None
+    num_visualisations: int = 4
+
+    def __post_init__(self) -> None:
+        self.match_filter()
+
+    def match_filter(self) -> MatchFilterConfig:
+        """The keypoint filter's thresholds: the preset with the overrides."""
+        try:
+            return MatchFilterConfig.preset(self.filter_preset, **(self.filter_overrides or {}))
+        except TypeError as exc:
+            raise InputError(f"model.evaluation.filter_overrides: {exc}") from None
+
+
+__all__ = ["ContraFeatLossConfig", "ContraFeatNetworkConfig", "MatchEvaluationConfig"]

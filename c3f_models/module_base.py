@@ -1,0 +1,69 @@
+"""What DepthNet and ContraFeat share: the optimiser and schedule, ``init_weights``, plain hyper-parameters."""
+
+from __future__ import annotations
+
+from collections.abc import MutableMapping
+from dataclasses import asdict, is_dataclass
+from pathlib import Path
+
+import lightning as L
+import torch
+
+from c3f_models.checkpoints import load_weights, read_checkpoint_weights
+from c3f_models.config import ADAM_BETAS, OptimConfig
+
+INIT_WEIGHTS_OPTION = "model.init_weights"
+
+
+class C3FModule(L.LightningModule):
+    """LightningModule base: AdamW + MultiStepLR from an :class:`OptimConfig`, start weights from a checkpoint.
+
+    Args:
+        optim: optimiser and learning-rate schedule.
+        init_weights: checkpoint whose weights initialise the model at the start of ``fit``
+            (strict; optimiser and epoch not resumed; for test-time training). Ignored when a
+            run is resumed with ``ckpt_path`` or the module comes from a checkpoint.
+
+    Hyper-parameters are kept as plain values, a settings group as a dict (as LightningCLI
+    saves them), so that checkpoints stay readable by the safe unpickler.
+    """
+
+    #: appended to the error when ``init_weights`` does not fit (which options decide the shapes)
+    weights_hint: str = ""
+
+    def __init__(self, optim: OptimConfig, init_weights: str | None) -> None:
+        super().__init__()
+        self.optim_config = optim
+        self.init_weights = init_weights
+        self._init_weights_done = False
+
+    def _set_hparams(self, hp: MutableMapping) -> None:
+        """Settings groups (dataclasses) saved as dicts: a checkpoint then holds no pickled classes."""
+        if isinstance(hp, MutableMapping):
+            hp = {k: asdict(v) if is_dataclass(v) else v for k, v in hp.items()}
+        super()._set_hparams(hp)
+
+    def configure_optimizers(self):
+        cfg = self.optim_config
+        opt = torch.optim.AdamW(self.parameters(), lr=cfg.lr, betas=ADAM_BETAS, weight_decay=cfg.weight_decay)
+        if not cfg.milestones:
+            return opt
+        sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(cfg.milestones), gamma=cfg.gamma)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+
+    def load_init_weights(self, path: str | Path) -> None:
+        """Copy model weights from a checkpoint (strict); InputError if the file or keys do not fit."""
+        load_weights(self, read_checkpoint_weights(path, INIT_WEIGHTS_OPTION), path, INIT_WEIGHTS_OPTION,
+                     f"this {type(self).__name__}", self.weights_hint)
+        self._init_weights_done = True
+
+    def setup(self, stage: str) -> None:
+        # Runs before Lightning restores a ``ckpt_path``, so a resumed run keeps its own weights.
+        if stage == "fit" and self.init_weights and not self._init_weights_done:
+            self.load_init_weights(self.init_weights)
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self._init_weights_done = True
+
+
+__all__ = ["INIT_WEIGHTS_OPTION", "C3FModule"]
