@@ -28,8 +28,8 @@ from lightning.pytorch.callbacks import Callback
 
 from benchmarks.common import RESULTS
 from benchmarks.common.contrafeat import (
-    LABELS,
     GROUND_TRUTH,
+    LABELS,
     SMALL_MODEL,
     PairSelection,
     load_weights,

@@ -52,7 +52,7 @@ class PinholeCamera:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_fov(cls, width: int, height: int, fov_deg: float, **kw: float) -> "PinholeCamera":
+    def from_fov(cls, width: int, height: int, fov_deg: float, **kw: float) -> PinholeCamera:
         """Camera with square pixels whose *horizontal* field of view is ``fov_deg`` degrees."""
         if not 0 < fov_deg < 180:
             raise InputError(f"field of view must be in (0, 180) degrees, got {fov_deg}")
@@ -60,7 +60,7 @@ class PinholeCamera:
         return cls(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0, **kw)
 
     @classmethod
-    def from_json(cls, path: str | Path) -> "PinholeCamera":
+    def from_json(cls, path: str | Path) -> PinholeCamera:
         """Read ``camera.json`` of the project's sequence layout (SPEC §5.2)."""
         path = Path(path)
         if not path.is_file():
@@ -114,11 +114,11 @@ class PinholeCamera:
         )
 
     # ------------------------------------------------------------------ image ops
-    def crop(self, x0: int, y0: int, width: int, height: int) -> "PinholeCamera":
+    def crop(self, x0: int, y0: int, width: int, height: int) -> PinholeCamera:
         """Intrinsics of the sub-image whose top-left pixel is (x0, y0)."""
         return replace(self, width=width, height=height, cx=self.cx - x0, cy=self.cy - y0)
 
-    def resize(self, width: int, height: int) -> "PinholeCamera":
+    def resize(self, width: int, height: int) -> PinholeCamera:
         """Intrinsics after resizing the whole image to ``width`` x ``height``."""
         sx, sy = width / self.width, height / self.height
         return replace(

@@ -114,7 +114,7 @@ class KeyframeGraph:
         timestamps: list[float] | None = None,
         lone: set[int] | None = None,
         fragments: list[int] | None = None,
-    ) -> "KeyframeGraph":
+    ) -> KeyframeGraph:
         """Nodes and edges of a (global) :class:`PoseGraph`; ``frames[k]`` is node k's frame."""
         if len(frames) != graph.n_nodes:
             raise ValueError(f"{len(frames)} frame ids for {graph.n_nodes} nodes")

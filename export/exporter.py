@@ -162,7 +162,7 @@ def export_model(
         config["data"] = {"class_path": f"{type(datamodule).__module__}.{type(datamodule).__name__}",
                           "init_args": _jsonable(getattr(datamodule, "hparams", {}))}
     checkpoint = {"file": ckpt_path.name, "sha256": sha256(ckpt_path)}
-    created = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    created = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
     staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]] = []
     for spec in specs:  # export and check everything before writing anything

@@ -232,9 +232,8 @@ def test_simulator_colon_fusion_if_available(tmp_path):
     """Fusing the simulator's tiny colon with GT depth and poses hugs its GT mesh."""
     if importlib.util.find_spec("datamodules.synthetic.fixture") is None:
         pytest.skip("datamodules.synthetic.fixture not written yet")
-    from datamodules.synthetic.fixture import make_tiny_sequence
-
     from c3f_slam.io import Sequence
+    from datamodules.synthetic.fixture import make_tiny_sequence
 
     root = make_tiny_sequence(tmp_path / "colon", frames=8, size=64, seed=0)
     seq = Sequence(root)

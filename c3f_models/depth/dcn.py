@@ -37,7 +37,7 @@ class DeformConv(nn.Module):
         )
 
     @classmethod
-    def from_conv(cls, conv: nn.Conv2d) -> "DeformConv":
+    def from_conv(cls, conv: nn.Conv2d) -> DeformConv:
         """A deformable conv with the weights (and bias) of ``conv`` and zero offsets."""
         k = conv.kernel_size[0]
         out = cls(

@@ -72,24 +72,24 @@ class MatchFilterConfig:
                 raise InputError(f"{name} must be >= 0, got {getattr(self, name)}")
 
     @classmethod
-    def colon(cls, **overrides) -> "MatchFilterConfig":
+    def colon(cls, **overrides) -> MatchFilterConfig:
         """Colon scale (millimetres): the defaults."""
         return cls(**overrides)
 
     @classmethod
-    def room(cls, **overrides) -> "MatchFilterConfig":
+    def room(cls, **overrides) -> MatchFilterConfig:
         """Room scale (centimetres): BundleFusion's values (2 cm residual, 0.032 m^2 area)."""
         base = dict(max_residual=0.02, pairwise_tolerance=0.04, pairwise_relative_tolerance=0.05, min_area=0.032)
         return cls(**{**base, **overrides})
 
     @classmethod
-    def preset(cls, name: str, **overrides) -> "MatchFilterConfig":
+    def preset(cls, name: str, **overrides) -> MatchFilterConfig:
         """``colon`` or ``room``."""
         if name not in ("colon", "room"):
             raise InputError(f"match filter preset must be 'colon' or 'room', got {name!r}")
         return getattr(cls, name)(**overrides)
 
-    def scaled(self, factor: float) -> "MatchFilterConfig":
+    def scaled(self, factor: float) -> MatchFilterConfig:
         """The same filter for a scene ``factor`` times larger (lengths x f, areas x f^2)."""
         if not factor > 0:
             raise InputError(f"scale factor must be positive, got {factor}")

@@ -37,7 +37,7 @@ class Keypoints:
         return int(self.xy.shape[0])
 
     @classmethod
-    def empty(cls, with_descriptors: bool = True) -> "Keypoints":
+    def empty(cls, with_descriptors: bool = True) -> Keypoints:
         return cls(
             np.zeros((0, 2), np.float64),
             np.zeros(0, np.float32),

@@ -31,7 +31,7 @@ class NetworkView:
     camera: PinholeCamera
 
     @classmethod
-    def of(cls, frame: PinholeCamera, crop: tuple[int, int] | None, size: tuple[int, int]) -> "NetworkView":
+    def of(cls, frame: PinholeCamera, crop: tuple[int, int] | None, size: tuple[int, int]) -> NetworkView:
         """View for ``crop`` = (w, h) or None and network ``size`` = (w, h); InputError when
         the crop is larger than the frame."""
         box = frame.center_crop_box(*crop) if crop is not None else (0, 0, frame.width, frame.height)

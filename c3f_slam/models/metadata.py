@@ -54,7 +54,7 @@ class Preprocessing:
     std: tuple[float, float, float] = IMAGENET_STD
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Preprocessing":
+    def from_dict(cls, d: dict[str, Any]) -> Preprocessing:
         d = dict(d)
         d["size"] = tuple(int(v) for v in d["size"])
         if d.get("crop") is not None:
@@ -105,7 +105,7 @@ class ModelMetadata:
         return {KEY_PREFIX + k: json.dumps(v, sort_keys=True) for k, v in d.items()}
 
     @classmethod
-    def from_props(cls, props: dict[str, str], source: str = "model") -> "ModelMetadata":
+    def from_props(cls, props: dict[str, str], source: str = "model") -> ModelMetadata:
         """Parse ``metadata_props``; InputError naming ``source`` when they are not ours,
         incomplete, or from a newer schema."""
         key = KEY_PREFIX + "schema_version"

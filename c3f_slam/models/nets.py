@@ -28,7 +28,6 @@ from c3f_slam.models.metadata import ModelMetadata
 from c3f_slam.models.session import OnnxModel
 from c3f_slam.preprocess import prepare_network_input
 
-
 #: The command-line option that names each kind's file (prefix of error messages).
 OPTIONS = {"depth": "--depth-model", "descriptors": "--feature-model", "pose": "--pose-model"}
 

@@ -43,8 +43,15 @@ import numpy as np
 from c3f_slam.errors import InputError
 from c3f_slam.geometry import is_rotation
 from datamodules.formats.base import (
-    PublishedSequence, SequenceFormat, check_pose_count, decode_rgb, decode_uint16, list_files, numbered,
-    read_number_rows, require_file,
+    PublishedSequence,
+    SequenceFormat,
+    check_pose_count,
+    decode_rgb,
+    decode_uint16,
+    list_files,
+    numbered,
+    read_number_rows,
+    require_file,
 )
 from datamodules.formats.omnicam import C3VD_CALIBRATION, OmniCamera
 

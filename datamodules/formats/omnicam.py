@@ -58,7 +58,7 @@ class OmniCamera:
 
     # ------------------------------------------------------------------ files
     @classmethod
-    def from_file(cls, path: str | Path) -> "OmniCamera":
+    def from_file(cls, path: str | Path) -> OmniCamera:
         """Read ``key = value`` lines (C3VDv2's ``camera_intrinsics.txt``; ';' or '#' start a
         comment): width, height, cx, cy, a0, a1 (must be 0), a2, a3, a4, c, d, e."""
         path = Path(path)
@@ -104,7 +104,7 @@ class OmniCamera:
         """A: sensor (x, y) -> pixel offset (u - cx, v - cy)."""
         return np.array([[self.c, self.e], [self.d, 1.0]])
 
-    def scaled(self, width: int, height: int) -> "OmniCamera":
+    def scaled(self, width: int, height: int) -> OmniCamera:
         """The same camera for frames resized to ``width`` x ``height`` (same aspect ratio)."""
         if (width, height) == (self.width, self.height):
             return self

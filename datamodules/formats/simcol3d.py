@@ -45,8 +45,15 @@ import numpy as np
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
 from datamodules.formats.base import (
-    PublishedSequence, SequenceFormat, check_pose_count, decode_rgb, decode_uint16, list_files, numbered,
-    read_number_rows, require_file,
+    PublishedSequence,
+    SequenceFormat,
+    check_pose_count,
+    decode_rgb,
+    decode_uint16,
+    list_files,
+    numbered,
+    read_number_rows,
+    require_file,
 )
 from datamodules.formats.unity import pose_from_unity
 

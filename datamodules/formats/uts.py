@@ -44,7 +44,13 @@ import numpy as np
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
 from datamodules.formats.base import (
-    PublishedSequence, SequenceFormat, decode_float_depth, decode_rgb, list_files, numbered, single_match,
+    PublishedSequence,
+    SequenceFormat,
+    decode_float_depth,
+    decode_rgb,
+    list_files,
+    numbered,
+    single_match,
 )
 from datamodules.formats.unity import pose_from_unity
 

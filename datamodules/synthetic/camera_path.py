@@ -73,7 +73,7 @@ class CameraPath:
     labels: list[str]  # '' or the event ('closeup', 'burst', 'occluded', 'roll'), ramps included
     wall_distance: np.ndarray  # (F,) distance of each camera centre to the mesh, m
     colon: Colon = field(repr=False)
-    allowed: "AllowedRadius" = field(repr=False)
+    allowed: AllowedRadius = field(repr=False)
 
     def pose_at(self, t: float) -> np.ndarray:
         """Camera-to-world pose at fractional frame time ``t``."""

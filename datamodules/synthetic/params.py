@@ -118,7 +118,7 @@ class SimParams:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "SimParams":
+    def from_dict(cls, data: dict[str, Any]) -> SimParams:
         """Inverse of :meth:`to_dict`; unknown keys are an error."""
         p = cls()
         for key, value in data.items():
@@ -133,7 +133,7 @@ class SimParams:
                 raise InputError(f"unknown parameter {key!r}")
         return p
 
-    def copy(self) -> "SimParams":
+    def copy(self) -> SimParams:
         return SimParams.from_dict(self.to_dict())
 
     # ------------------------------------------------------------------ validation
