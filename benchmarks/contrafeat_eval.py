@@ -59,7 +59,8 @@ def main(argv: list[str] | None = None) -> None:
     t0 = time.time()
     pairs = cf.PairSelection.from_args(args)
     lines = [(f"Sequences: {', '.join(seqs)} in `{args.data}`; pairs at gaps {args.eval_gaps} (one "
-             f"pair in {args.eval_stride} of each gap), {args.size}x{args.size}, mutual nearest neighbours without ratio test, "
+             f"pair in {args.eval_stride} of each gap), {args.size}x{args.size}, "
+             "mutual nearest neighbours without ratio test, "
              f"correctness radius {cf.GROUND_TRUTH['pixel_radius']:g} px, kpf on ground-truth depth. "
              "Recall/precision %, averaged over the sequences."), ""]
     for ckpt in args.checkpoint:

@@ -56,7 +56,8 @@ def main() -> None:
         near, _ = near_misses(ev.matches, p.kp_j.xy, p.projection, ev.correct, model.gt_settings.pixel_radius)
         rows.append(draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, ev.correct, scale=2, near=near))
         print(f"{ckpt}: this pair {int(np.sum(ev.correct))} correct of {len(ev.matches)} matches "
-              f"({int(np.sum(near))} of the wrong ones near misses; {len(p.gt)} ground-truth); first batch CDF recall/precision "
+              f"({int(np.sum(near))} of the wrong ones near misses; {len(p.gt)} ground-truth); "
+              "first batch CDF recall/precision "
               f"{100 * counts['cdf'].recall:.1f}/{100 * counts['cdf'].precision:.1f} %, "
               f"SIFT {100 * counts['sift'].recall:.1f}/{100 * counts['sift'].precision:.1f} %")
     args.out.parent.mkdir(parents=True, exist_ok=True)

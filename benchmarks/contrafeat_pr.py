@@ -207,9 +207,11 @@ def setup_lines(args: argparse.Namespace, res: Run) -> list[str]:
         f"100 + 17 k + seed): {', '.join(res.train_seqs)}; held-out test sequences ({len(res.test_seqs)} x "
         f"{args.test_frames} frames, the presets' own seeds, i.e. other colons, paths and textures than any "
         f"training sequence): {', '.join(res.test_seqs)}." if args.data is None else
-        f"- Data: existing sequences in `{args.data}` (train: {', '.join(res.train_seqs)}; test: {', '.join(res.test_seqs)}), "
+        f"- Data: existing sequences in `{args.data}` "
+        f"(train: {', '.join(res.train_seqs)}; test: {', '.join(res.test_seqs)}), "
         f"{args.size}x{args.size}.",
-        (f"- Median motion per frame (translation / rotation): training {res.motion['train']}, test {res.motion['test']} "
+        (f"- Median motion per frame (translation / rotation): "
+         f"training {res.motion['train']}, test {res.motion['test']} "
          f"(path.coverage {args.coverage:g}; the paper's sequences move ~0.3 mm per frame)."),
         "- Model: `configs/contrafeat/small.yaml` (ResNet18 + FPN 64 ch, 128-d full-resolution descriptors), "
         + (f"continued from `{args.init_weights}` ({res.init_steps} steps; fresh optimiser)"
@@ -223,12 +225,14 @@ def setup_lines(args: argparse.Namespace, res: Run) -> list[str]:
         + ("training loss on the keypoint matches only (the paper's)." if args.dense_points == 0 else
            f"training loss on the keypoint matches plus up to {args.dense_points} dense ground-truth "
            f"correspondences per pair (jittered {args.dense_spacing}-px grid; `model.loss.dense_points`)."),
-        (f"- Training: {res.steps} steps ({res.steps - res.init_steps} in this run) of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
+        (f"- Training: {res.steps} steps ({res.steps - res.init_steps} in this run) "
+         f"of {args.batch_size} frame pairs (gap drawn from {args.gaps}), "
          f"{res.t_train / 60:.1f} min on CPU (limits: {args.steps} steps or {args.train_minutes:g} min). Training loss "
          f"{head:.3f} (first 10 % of steps) -> {tail:.3f} (last 10 %)."),
         (f"- Evaluation: pairs at gaps {args.eval_gaps} (one pair in {args.eval_stride} of each gap), mutual nearest "
          f"neighbours (SIFT L2, CDF cosine), no ratio test; ground truth and correctness radius "
-         f"{GROUND_TRUTH['pixel_radius']} px, occlusion tolerance {100 * GROUND_TRUTH['depth_tolerance']:.0f} % of depth; "
+         f"{GROUND_TRUTH['pixel_radius']} px, "
+         f"occlusion tolerance {100 * GROUND_TRUTH['depth_tolerance']:.0f} % of depth; "
          f"kpf = `MatchFilterConfig.colon()` on ground-truth depth (>= 10 matches, residual <= 1 mm, pairwise "
          f"tolerance 2 mm + 5 %, condition number < 100, area >= 10 mm^2). Counts summed over the pairs of a "
          f"sequence; the average is over sequences."),

@@ -144,7 +144,8 @@ def main() -> None:
         for gap, r in res["gaps"].items():
             rows.append(
                 f"| {path.parent.name}/{path.name} | {gap} | {r['pairs']} ({r['points']}) | {r['t_mm']:.2f} | "
-                f"{100 * r['med_abs_true']:.2f} | {r['slope']:.3f} | {r['corr']:.3f} | {r['ratio']:.2f} | {r['cos']:.2f} | "
+                f"{100 * r['med_abs_true']:.2f} | {r['slope']:.3f} | {r['corr']:.3f} | "
+                f"{r['ratio']:.2f} | {r['cos']:.2f} | "
                 f"{r['ratio_gt']:.2f} / {r['cos_gt']:.2f} | {100 * r['scale_jump']:.2f} | "
                 f"{res['scale_median']:.2f} / {res['scale_cv']:.3f} |")
     report = Report(__file__, "Does the depth network see the camera move?")

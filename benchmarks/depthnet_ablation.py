@@ -8,9 +8,10 @@ full-no-specular), the baseline plus outlier removal, or the full objective with
 L_dc ramped up from 0 (full-dc-warmup, ``model.loss.lambda_dc_warmup_steps``; not in the paper).
 ``--model KEY=VALUE`` overrides a model argument of every variant (e.g. ``loss.lambda_dc=0.01``).
 ``--init CKPT`` starts every variant from the weights of a checkpoint (``model.init_weights``;
-e.g. a baseline run, to test the extra losses on a network that already predicts structure). Each is then tested on held-out
-sequences with the project's metric function (per-image median scaling), next to the score
-of a constant depth. Sq Rel and RMSE are printed in centimetres, as the paper's table is.
+e.g. a baseline run, to test the extra losses on a network that already predicts structure).
+Each is then tested on held-out sequences with the project's metric function (per-image median
+scaling), next to the score of a constant depth. Sq Rel and RMSE are printed in centimetres, as
+the paper's table is.
 Training throughput is images/s over the whole fit (data loading included).
 
     python -m benchmarks.depthnet_ablation --data runs/bench/depth_slow --steps 500
@@ -80,8 +81,8 @@ VARIANTS = {
 LABELS = {"baseline": "Monodepth2 baseline", "full": "C3Fusion (full)"}
 
 
-def run(configs: list[str], overrides: dict, data: Path, train: list[str], test: list[str], steps: int, batch: int, size: int,
-        root: Path, seed: int = 7) -> dict:
+def run(configs: list[str], overrides: dict, data: Path, train: list[str], test: list[str], steps: int, batch: int,
+        size: int, root: Path, seed: int = 7) -> dict:
     from c3f_models.cli import main
 
     switches = [a for k, v in overrides.items()
@@ -145,9 +146,11 @@ def parse_args() -> tuple[argparse.Namespace, list[str], dict[str, str]]:
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--batch", type=int, default=4)
     ap.add_argument("--seed", type=int, default=7, help="seed_everything of every run (the tables so far: 7)")
-    ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1 is fastest on a shared 2-core machine)")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="torch intra-op threads (1 is fastest on a shared 2-core machine)")
     ap.add_argument("--variants", default="baseline,full",
-                    help=f"comma-separated, from: {', '.join(VARIANTS)} (full-no-X: the full objective with one switch off)")
+                    help=f"comma-separated, from: {', '.join(VARIANTS)} "
+                         "(full-no-X: the full objective with one switch off)")
     ap.add_argument("--dc-warmup-steps", type=int, default=None,
                     help="full-dc-warmup: steps over which the weight of L_dc ramps from 0 (default: half of --steps)")
     ap.add_argument("--model", dest="model_overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -206,15 +209,17 @@ def report_body(a: argparse.Namespace, variants: list[str], extra: dict[str, str
         base, full = results[keys["baseline"]], results[keys["full"]]
         ratio = f"Sq Rel full / baseline = {full['sq_rel'] / base['sq_rel']:.3f} (paper: 0.049 / 0.058 = 0.845)\n"
     text = (
-        f"Setup: ResNet18 without DCN (the small CPU variant), {a.size}x{a.size}, batch {a.batch}, {a.steps} steps each, "
-        f"seed {a.seed}, CPU ({a.threads} torch thread)"
+        f"Setup: ResNet18 without DCN (the small CPU variant), {a.size}x{a.size}, batch {a.batch}, "
+        f"{a.steps} steps each, seed {a.seed}, CPU ({a.threads} torch thread)"
         + (f", every variant starting from the weights of {a.init} (optimiser not resumed)" if a.init else "")
         + (f", model overrides for every variant: {', '.join(a.model_overrides)}" if extra else "")
-        + (f", full-dc-warmup: weight of L_dc ramped from 0 over {warmup} steps" if "full-dc-warmup" in variants else "")
+        + (f", full-dc-warmup: weight of L_dc ramped from 0 over {warmup} steps"
+           if "full-dc-warmup" in variants else "")
         + f". Data: simulator, {a.train_seqs} training sequences and {a.test_seqs} held-out test sequences of "
         f"{a.frames} frames (presets seq1.., seeds 100+k, path.coverage {a.coverage}; ground-truth motion between "
         f"consecutive frames, median of the sequences' medians: rotation {motion['rot_p50']:.2f} deg, "
-        f"translation {motion['t_mm_p50']:.2f} mm, {100 * motion['t_rel_p50']:.1f} % of the median depth). Metrics on the test sequences only, per-image median scaling. "
+        f"translation {motion['t_mm_p50']:.2f} mm, {100 * motion['t_rel_p50']:.1f} % of the median depth). "
+        "Metrics on the test sequences only, per-image median scaling. "
         "Depth CV: spatial coefficient of variation of the predicted depth (std/mean over each image, averaged); "
         "the ground truth's is given in the reference row, and a CV near 0 means the network predicts a flat depth. "
         "The constant-depth row predicts the same depth everywhere (after median scaling: the ground-truth median), "

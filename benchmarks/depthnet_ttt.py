@@ -128,7 +128,8 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--size", type=int, default=128, help="network input size of the base run")
     ap.add_argument("--min-correspondences", type=int, default=15, help="SLAM new-fragment threshold (128 px: 15)")
     ap.add_argument("--model", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="model argument of the test-time training only (repeatable), e.g. loss.use_depth_consistency=false")
+                    help="model argument of the test-time training only (repeatable), "
+                         "e.g. loss.use_depth_consistency=false")
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--work", type=Path, default=Path("/tmp/depthnet_ttt"))

@@ -42,9 +42,12 @@ def graphs(size: int, small: bool):
     else:
         depth = DepthGraph(DepthNetwork(50, True, 1))
         yield "DepthNet (ResNet50 + DCN)", depth, ("image",), "depth", OPSET_DEFORM, (x,)
-    yield "PoseNet (ResNet18, 2 frames)", PoseGraph(PoseNetwork(18)), ("image_a", "image_b"), "T_ba", OPSET, (x, torch.rand_like(x))
-    cf = ContraFeatNet(18, 128, 64, 16, head_channels=64) if small else ContraFeatNet(18, 128, 128, 32, head_channels=128)
-    yield f"ContraFeat (ResNet18 FPN, 128-d{', small' if small else ''})", DescriptorGraph(cf), ("image",), "descriptors", OPSET, (x,)
+    yield ("PoseNet (ResNet18, 2 frames)", PoseGraph(PoseNetwork(18)), ("image_a", "image_b"), "T_ba", OPSET,
+           (x, torch.rand_like(x)))
+    cf = (ContraFeatNet(18, 128, 64, 16, head_channels=64) if small
+          else ContraFeatNet(18, 128, 128, 32, head_channels=128))
+    yield (f"ContraFeat (ResNet18 FPN, 128-d{', small' if small else ''})", DescriptorGraph(cf), ("image",),
+           "descriptors", OPSET, (x,))
 
 
 def time_pair(module, session, inputs, names, repeats: int, warmup: int) -> tuple[list[float], list[float]]:
@@ -87,7 +90,8 @@ def main() -> None:
         session = ort.InferenceSession(proto.SerializeToString(), opts, providers=["CPUExecutionProvider"])
         eager, rt = time_pair(module, session, inputs, names, a.repeats, a.warmup)
         with torch.inference_mode():
-            diff = float(np.abs(session.run(None, {n: t.numpy() for n, t in zip(names, inputs)})[0] - module(*inputs).numpy()).max())
+            onnx_out = session.run(None, {n: t.numpy() for n, t in zip(names, inputs)})[0]
+            diff = float(np.abs(onnx_out - module(*inputs).numpy()).max())
         e, r = statistics.median(eager) * 1e3, statistics.median(rt) * 1e3
         rows.append((label, e, r, e / r, diff))
         print(f"{label}: eager {e:.1f} ms, onnxruntime {r:.1f} ms, ratio {e / r:.2f}, max|diff| {diff:.2g}", flush=True)

@@ -93,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     stages = _stage_breakdown(params, min(40, n))
 
     lines = [
-        (f"Machine: {os.cpu_count()} CPU cores, {platform.processor() or platform.machine()}, Python {platform.python_version()},"
+        (f"Machine: {os.cpu_count()} CPU cores, {platform.processor() or platform.machine()}, "
+         f"Python {platform.python_version()},"
          f" NumPy {np.__version__}, OpenCV {cv2.__version__}, Open3D {open3d.__version__}; no GPU."),
         (f"Load average (1 min) before / after: {load_before[0]:.2f} / {load_after[0]:.2f}"
          " (other jobs share these cores; rates scale with the free CPU)."),

@@ -101,7 +101,8 @@ def main() -> None:
          f"load average {load:.1f} at the end; "
          f"BLAS: {', '.join(blas) or 'none found'}."),
         (f"- Identical results: registered share {res[one][0]['registered_share']:.3f} vs "
-         f"{res[lib][0]['registered_share']:.3f}, keyframes {res[one][0].get('keyframes')} vs {res[lib][0].get('keyframes')}."),
+         f"{res[lib][0]['registered_share']:.3f}, "
+         f"keyframes {res[one][0].get('keyframes')} vs {res[lib][0].get('keyframes')}."),
         "",
         "| stage (ms/frame) | blas_threads=1 | library default | default / capped |",
         "|---|---|---|---|",

@@ -83,19 +83,22 @@ class Probe(FragmentSlam):
             sec = {st: self.t.seconds.get(st, 0.0) for st in STAGES}
             new_frag = self.counts.fragments - self._frag
             self.samples.append({
-                "frames": self._n, "ms": 1000 * (now - self._t) / self.every, "cpu_ms": 1000 * (cpu - self._cpu) / self.every,
+                "frames": self._n, "ms": 1000 * (now - self._t) / self.every,
+                "cpu_ms": 1000 * (cpu - self._cpu) / self.every,
                 "rss": rss_mb(), "kf": len(self.keyframes),
                 "kf_mb": self.keyframe_memory_bytes() / 2**20, "kf_disk_mb": self.keyframes.disk_bytes / 2**20,
                 "edges": self.graph.n_edges, "edge_mb": self.graph.edge_nbytes() / 2**20,
                 "stage_ms": {st: 1000 * (sec[st] - self._stages[st]) / self.every for st in STAGES},
                 "pairs": (self.counts.candidates_matched - self._pairs) / max(new_frag, 1),
-                "opts": self.schedule.counts.optimizations - self._opts, "win": self.schedule.counts.windowed - self._win,
+                "opts": self.schedule.counts.optimizations - self._opts,
+                "win": self.schedule.counts.windowed - self._win,
             })
             self._t, self._cpu, self._stages, self._frag = now, cpu, sec, self.counts.fragments
             self._pairs, self._opts, self._win = self.counts.candidates_matched, self.schedule.counts.optimizations, \
                 self.schedule.counts.windowed
             r = self.samples[-1]
-            print(f"{r['frames']} frames: {r['ms']:.1f} ms/frame (CPU {r['cpu_ms']:.1f}), RSS {r['rss']:.0f} MB, {r['kf']} keyframes, "
+            print(f"{r['frames']} frames: {r['ms']:.1f} ms/frame (CPU {r['cpu_ms']:.1f}), "
+                  f"RSS {r['rss']:.0f} MB, {r['kf']} keyframes, "
                   f"{r['pairs']:.1f} pairs/fragment, {r['opts']} opt ({r['win']} windowed), "
                   + " ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()), flush=True)
 
@@ -158,12 +161,14 @@ def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], w
     """Stream, settings and totals, then one table row per sample (times in ms, memory in MB)."""
     final = probe.final
     rows = [
-        f"| {r['frames']} | {r['ms']:.1f} | {r['cpu_ms']:.1f} | " + " | ".join(f"{r['stage_ms'][k]:.1f}" for k in
-                                                         ("keypoints", "matching", "posegraph"))
-        + f" | {r['rss']:.0f} | {r['kf']} | {r['kf_mb']:.2f} | {r['kf_disk_mb']:.2f} | {r['edges']} | {r['edge_mb']:.1f} | {r['pairs']:.1f} | {r['opts']} ({r['win']}) |"
+        f"| {r['frames']} | {r['ms']:.1f} | {r['cpu_ms']:.1f} | "
+        + " | ".join(f"{r['stage_ms'][k]:.1f}" for k in ("keypoints", "matching", "posegraph"))
+        + f" | {r['rss']:.0f} | {r['kf']} | {r['kf_mb']:.2f} | {r['kf_disk_mb']:.2f} | {r['edges']} | "
+        f"{r['edge_mb']:.1f} | {r['pairs']:.1f} | {r['opts']} ({r['win']}) |"
         for r in probe.samples]
-    keys = ("max_keyframe_candidates", "max_loop_edges_per_keyframe", "recent_keyframe_candidates", "spatial_keyframe_candidates", "spatial_radius",
-            "optimize_growth", "optimize_small_map", "max_optimize_nodes", "final_optimize_nodes", "reuse_keyframes")
+    keys = ("max_keyframe_candidates", "max_loop_edges_per_keyframe", "recent_keyframe_candidates",
+            "spatial_keyframe_candidates", "spatial_radius", "optimize_growth", "optimize_small_map",
+            "max_optimize_nodes", "final_optimize_nodes", "reuse_keyframes")
     return [
         (f"- Stream: a {args.base_frames}-frame simulator sequence ({args.size} px, 15 cm colon) played forward "
          f"and backward (ping-pong, symbolic links) to {args.frames} frames; ground-truth depth, SIFT; "
@@ -185,9 +190,11 @@ def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], w
         f"mesh {'on' if args.mesh else 'off'}." + (f" Error: {error}" if error else ""),
         ("- Per interval of the last frames: wall-clock ms per frame (total, then the process's CPU time, "
          "which other jobs on the shared cores disturb less, then the wall-clock keypoint, matching and "
-         "pose-graph stages), resident memory of the process, keyframes so far, RAM held by the stored keyframe features "
+         "pose-graph stages), resident memory of the process, keyframes so far, "
+         "RAM held by the stored keyframe features "
          "(incl. global descriptors; with the keyframe cache: per-keyframe records and an LRU of 64 keyframes), "
-         "their bytes in the keyframe cache file (OUT/.keyframe_cache), global graph edges and the memory of their arrays (at capacity), "
+         "their bytes in the keyframe cache file (OUT/.keyframe_cache), "
+         "global graph edges and the memory of their arrays (at capacity), "
          "keyframe pairs matched per new fragment (each new fragment's first frame is matched against the "
          "keyframe candidates, then becomes a keyframe or, with reuse_keyframes, hangs off one), global "
          "optimisations (of them windowed)."), "",

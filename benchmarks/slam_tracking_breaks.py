@@ -89,11 +89,13 @@ def main() -> None:
         return f"{np.median([r[key] for r in rs]):.2f}" if rs and have_motion else "-"
 
     lines = [
-        (f"- {n_frames} frames, {len(rows)} consecutive pairs; SIFT (max {cfg.frontend.max_keypoints} keypoints, contrast "
+        (f"- {n_frames} frames, {len(rows)} consecutive pairs; "
+         f"SIFT (max {cfg.frontend.max_keypoints} keypoints, contrast "
          f"threshold {cfg.frontend.sift_contrast_threshold}), ratio {cfg.frontend.ratio}, match filter defaults (>= "
          f"{cfg.match_filter.min_matches} correspondences, residual {1e3 * cfg.match_filter.max_residual:g} mm)."),
         (f"- Broken pairs (no accepted match): {len(broken)}; accepted but under {a.min_correspondences} "
-         f"correspondences: {len(weak)}; median correspondences of all pairs: {np.median([r['n'] for r in rows]):.0f}."),
+         f"correspondences: {len(weak)}; "
+         f"median correspondences of all pairs: {np.median([r['n'] for r in rows]):.0f}."),
         "- Reasons of the broken pairs: " + (", ".join(f"{k} {v}" for k, v in
                                                      Counter(reason_kind(r["reason"]) for r in broken).most_common())
                                              or "-") + ".", "",

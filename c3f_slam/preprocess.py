@@ -85,8 +85,8 @@ def prepare_network_input(
 
     Centre crop ``crop`` = (width, height), resize to ``size`` = (width, height)
     (:func:`center_crop_resize`), then, with ``specular``, the specular mask of the resized
-    frame (``specular_threshold``, ``specular_dilation_px``) and Telea inpainting of its pixels. Returns (uint8 RGB, (h, w) bool specular mask,
-    intrinsics of the returned image).
+    frame (``specular_threshold``, ``specular_dilation_px``) and Telea inpainting of its pixels.
+    Returns (uint8 RGB, (h, w) bool specular mask, intrinsics of the returned image).
     """
     rgb, cam = center_crop_resize(rgb, camera, crop, size)
     if specular:

@@ -174,7 +174,8 @@ def export_model(
         if spec.kind == "depth":
             net = model.depth_net
             depth = {"min_depth": net.min_depth, "max_depth": net.max_depth,
-                     "conversion": "depth = 1 / (1/max_depth + (1/min_depth - 1/max_depth) * sigmoid_disparity), in graph",
+                     "conversion": "depth = 1 / (1/max_depth + (1/min_depth - 1/max_depth) * sigmoid_disparity), "
+                                   "in graph",
                      "scale": "training scale (monocular depth: metres up to the scale the self-supervision fixed; "
                               "metric_scale, when present, is the factor to metres measured on the training data)"}
             cal = _metric_scale(spec.module, datamodule, pre)

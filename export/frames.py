@@ -28,8 +28,8 @@ def frames_from_source(source, pre: Preprocessing, count: int = 4) -> torch.Tens
     picks = evenly_spaced(n, count)
     out = []
     for i in picks:
-        rgb, _, _ = prepare_network_input(source.read_rgb(int(i)), source.camera, pre.crop, pre.size, pre.specular_inpaint,
-                                          pre.specular_threshold, pre.specular_dilation_px)
+        rgb, _, _ = prepare_network_input(source.read_rgb(int(i)), source.camera, pre.crop, pre.size,
+                                          pre.specular_inpaint, pre.specular_threshold, pre.specular_dilation_px)
         out.append(torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float() / 255.0)
     frames = torch.stack(out)
     if frames.shape[0] == 1:  # pose graphs need a pair
@@ -46,7 +46,8 @@ def parity_source(frames: str | Path | None, datamodule) -> object:
             raise InputError(f"--frames: sequence folder not found: {path}")
         return Sequence(path)
     if datamodule is None or not hasattr(datamodule, "split"):
-        raise InputError("--frames: give a sequence folder for the parity check (the config has no sequence data module)")
+        raise InputError("--frames: give a sequence folder for the parity check "
+                         "(the config has no sequence data module)")
     splits = datamodule.split()
     for name in ("test", "val", "train"):
         if splits.get(name):

@@ -160,7 +160,8 @@ def test_ttt_benchmark_end_to_end(tmp_path, monkeypatch):
     out = tmp_path / "ttt.md"
     monkeypatch.setattr(sys, "argv", ["depthnet_ttt.py", "--base-config", str(run / "config.yaml"), "--base-ckpt",
                                       str(run / "checkpoints" / "last.ckpt"), "--sequence", str(held_out),
-                                      "--epochs", "1", "--size", "48", "--work", str(tmp_path / "w"), "--out", str(out)])
+                                      "--epochs", "1", "--size", "48", "--work", str(tmp_path / "w"),
+                                      "--out", str(out)])
     _import_benchmark("depthnet_ttt").main()
     text = out.read_text()
     assert text.count("| base (before TTT) |") == 2 and text.count("| after TTT") == 2

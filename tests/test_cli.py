@@ -39,7 +39,8 @@ def test_missing_data_dir_one_line_error(tmp_path, capsys):
 
 def test_unknown_config_key(tmp_path, capsys):
     cfg = tmp_path / "bad.yaml"
-    cfg.write_text(f"model:\n  class_path: {BORING}\ndata:\n  class_path: {DATA}\n  init_args:\n    data_dir: x\n    no_such_option: 3\n")
+    cfg.write_text(f"model:\n  class_path: {BORING}\ndata:\n  class_path: {DATA}\n"
+                   "  init_args:\n    data_dir: x\n    no_such_option: 3\n")
     with pytest.raises(SystemExit) as exc:
         main(["fit", "--config", str(cfg)])
     assert exc.value.code == 2

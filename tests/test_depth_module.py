@@ -300,7 +300,8 @@ def test_monodepth2_override_composes_the_baseline(base, monkeypatch):
     from c3f_models.cli import main
 
     monkeypatch.setattr(sys, "argv", ["c3f_models"])
-    assert set(_load("monodepth2.yaml")) == {"model"} and set(_load("monodepth2.yaml")["model"]["init_args"]) == {"loss"}
+    assert set(_load("monodepth2.yaml")) == {"model"}
+    assert set(_load("monodepth2.yaml")["model"]["init_args"]) == {"loss"}
     common = ["--config", str(CONFIGS / base), "--trainer.logger", "false"]
     plain = main(common, run=False)
     baseline = main([*common, "--config", str(CONFIGS / "monodepth2.yaml")], run=False)

@@ -135,13 +135,16 @@ def test_pose_graph_is_rigid_and_matches_torch(depth_export, sim_dataset):
 
 def test_export_rejects_wrong_kind_and_wrong_architecture(tmp_path, tiny_sequence):
     contra = tmp_path / "contrafeat.ckpt"
-    torch.save({"state_dict": ContraFeat({"descriptor_dim": 8, "fpn_channels": 8, "stem_channels": 4}).state_dict()}, contra)
-    with pytest.raises(InputError, match=r"--ckpt_path: .*contrafeat.ckpt is a ContraFeat checkpoint, but the config's model is DepthNet"):
+    contra_model = ContraFeat({"descriptor_dim": 8, "fpn_channels": 8, "stem_channels": 4})
+    torch.save({"state_dict": contra_model.state_dict()}, contra)
+    with pytest.raises(InputError, match=r"--ckpt_path: .*contrafeat.ckpt is a ContraFeat checkpoint, "
+                                         r"but the config's model is DepthNet"):
         export_model(DepthNet(ONE_SCALE), contra, tmp_path / "out", frames=tiny_sequence)
     r34 = tmp_path / "r34.ckpt"
     torch.save({"state_dict": DepthNet(DepthNetworkConfig(encoder_layers=34, num_scales=1)).state_dict()}, r34)
     with pytest.raises(InputError, match="does not fit the model in the config"):
-        export_model(DepthNet(DepthNetworkConfig(encoder_layers=18, num_scales=1)), r34, tmp_path / "out", frames=tiny_sequence)
+        export_model(DepthNet(DepthNetworkConfig(encoder_layers=18, num_scales=1)), r34, tmp_path / "out",
+                     frames=tiny_sequence)
     with pytest.raises(InputError, match="--ckpt_path: file not found"):
         export_model(DepthNet(ONE_SCALE), tmp_path / "missing.ckpt", tmp_path / "out", frames=tiny_sequence)
     garbage = tmp_path / "garbage.ckpt"
@@ -179,8 +182,8 @@ def test_dcn_depth_exports_with_opset_19_and_runs(tmp_path, tiny_sequence):
                 m.offset.weight.normal_(0, 0.01)
     ckpt = tmp_path / "dcn.ckpt"
     torch.save({"state_dict": model.state_dict()}, ckpt)
-    written = export_model(DepthNet(DepthNetworkConfig(dcn=True, num_scales=1)), ckpt, tmp_path / "out", frames=tiny_sequence,
-                           num_frames=2, dynamic_size=False)
+    written = export_model(DepthNet(DepthNetworkConfig(dcn=True, num_scales=1)), ckpt, tmp_path / "out",
+                           frames=tiny_sequence, num_frames=2, dynamic_size=False)
     depth = next(p for p in written if p.name == "depthnet.onnx")
     assert _metadata(depth).opset == 19 and not _metadata(depth).dynamic_size
     assert any(n.op_type == "DeformConv" for n in onnx.load(str(depth)).graph.node)

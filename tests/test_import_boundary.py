@@ -27,7 +27,8 @@ else:
     raise SystemExit("the torch block did not work")
 
 import {package}
-names = [m.name for m in pkgutil.walk_packages({package}.__path__, "{package}.")] if hasattr({package}, "__path__") else []
+names = ([m.name for m in pkgutil.walk_packages({package}.__path__, "{package}.")]
+         if hasattr({package}, "__path__") else [])
 for name in names:
     importlib.import_module(name)
 assert not any(m == "torch" or m.startswith("torch.") for m in sys.modules), "torch got imported"

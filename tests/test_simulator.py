@@ -126,7 +126,8 @@ def test_views_of_one_surface_agree(tiny):
     for name, scale, shift in (("true", 1.0, 0.0), ("depth x1.3", 1.3, 0.0), ("shift 2px", 1.0, 2.0)):
         uv, _ = g.project(g.transform_points(g.relative_pose(seq.pose(4), seq.pose(3)), pts * scale), K)
         maps = uv.reshape(64, 64, 2).astype(np.float32) + np.float32(shift)
-        warped = cv2.remap(src, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+        warped = cv2.remap(src, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                           borderValue=np.nan)
         valid = np.isfinite(warped)
         valid[:6], valid[-6:], valid[:, :6], valid[:, -6:] = False, False, False, False
         a, b = warped[valid] - warped[valid].mean(), ref[valid] - ref[valid].mean()
@@ -167,7 +168,8 @@ def test_a_fold_hides_the_wall_behind_it():
     for colon in (folded, _straight_colon(0.0)):
         ang = colon.theta[cols]
         wall = (colon.centre[rows, None] + colon.radius[rows][:, cols, None]
-                * (np.cos(ang)[None, :, None] * colon.normal[rows, None] + np.sin(ang)[None, :, None] * colon.binormal[rows, None]))
+                * (np.cos(ang)[None, :, None] * colon.normal[rows, None]
+                   + np.sin(ang)[None, :, None] * colon.binormal[rows, None]))
         c, t, n, _ = colon.frame_at(crest_s - dist)
         T_wc = g.look_at(c, c + t, -n)
         depth, _ = cast_depth(make_scene(colon), cam, T_wc)
@@ -236,7 +238,8 @@ def test_read_event_labels(tiny, tmp_path):
 def test_events_look_like_what_they_claim(tmp_path):
     """Close-up and fold-occlusion frames see the wall much nearer than plain frames."""
     p = apply_overrides(tiny_params(frames=90, size=48, seed=2), {
-        "colon.length": 0.35, "path.kind": "random", "path.closeups": 25, "path.occlusions": 25, "path.max_step": 0.003})
+        "colon.length": 0.35, "path.kind": "random", "path.closeups": 25, "path.occlusions": 25,
+        "path.max_step": 0.003})
     scene = build_scene(p)
     cam = scene.camera
     med = {}

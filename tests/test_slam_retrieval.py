@@ -116,7 +116,7 @@ def _check_components(pg: PoseGraph) -> None:
 
 def test_incremental_components_match_from_scratch_with_pruning():
     rng = np.random.default_rng(2)
-    for trial in range(6):
+    for _ in range(6):
         pg = PoseGraph()
         for step in range(120):
             if pg.n_nodes < 2 or rng.random() < 0.35:

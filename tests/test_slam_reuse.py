@@ -259,3 +259,5 @@ def test_ping_pong_run_stops_adding_keyframes(tmp_path_factory):
     assert s["attached_fragments"] > 0 and s["keyframes"] + s["attached_fragments"] == s["fragments"]
     assert max(frames) < third_pass <= max(frames0)
     assert s["keyframes"] < s0["keyframes"] and s["global_edges"] < s0["global_edges"]
+    # as accurate as without reuse (here 0.18 mm either way; 25 % headroom for platform noise)
+    assert ev["ate_se3"]["rmse_m"] <= 1.25 * ev0["ate_se3"]["rmse_m"]

@@ -62,6 +62,23 @@ def to_gray_uint8(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+def _strongest_per_location(
+    xy: np.ndarray, response: np.ndarray, width: int, height: int, border: int, max_keypoints: int | None
+) -> np.ndarray:
+    """Indices of the detections to keep, strongest ``response`` first: one per location
+    (``xy`` in pixels, rounded to 0.01 px), none closer than ``border`` pixels to the edge of a
+    ``width`` x ``height`` image, at most ``max_keypoints`` (None = no cap)."""
+    order = np.argsort(-response, kind="stable")
+    _, first = np.unique(np.round(xy[order] * 100).astype(np.int64), axis=0, return_index=True)
+    keep = order[np.sort(first)]
+    if border > 0:
+        x, y = xy[keep, 0], xy[keep, 1]
+        keep = keep[(x >= border) & (y >= border) & (x <= width - 1 - border) & (y <= height - 1 - border)]
+    if max_keypoints is not None:
+        keep = keep[: int(max_keypoints)]
+    return keep
+
+
 def detect_sift(
     image: np.ndarray,
     max_keypoints: int | None = 1024,
@@ -103,16 +120,7 @@ def detect_sift(
         return Keypoints.empty(descriptors)
     xy = np.array([k.pt for k in kps], np.float64)
     resp = np.array([k.response for k in kps], np.float32)
-    order = np.argsort(-resp, kind="stable")
-    # one keypoint per location (the strongest), inside the border
-    _, first = np.unique(np.round(xy[order] * 100).astype(np.int64), axis=0, return_index=True)
-    keep = order[np.sort(first)]
-    if border > 0:
-        x, y = xy[keep, 0], xy[keep, 1]
-        keep = keep[(x >= border) & (y >= border) & (x <= w - 1 - border) & (y <= h - 1 - border)]
-    if max_keypoints is not None:
-        keep = keep[: int(max_keypoints)]
-    kps = [kps[i] for i in keep]
+    kps = [kps[i] for i in _strongest_per_location(xy, resp, w, h, border, max_keypoints)]
     desc = None
     if descriptors:
         kps, desc = sift.compute(gray, kps)

@@ -217,7 +217,8 @@ class Frontend:
     def describe(self, frame: StreamFrame, kp: Keypoints, depth: np.ndarray) -> FrameFeatures:
         desc = np.asarray(self.provider.describe(frame.rgb, kp))
         if len(desc) != len(kp):
-            raise ValueError(f"descriptor provider {self.provider.name!r} returned {len(desc)} rows for {len(kp)} keypoints")
+            raise ValueError(f"descriptor provider {self.provider.name!r} returned {len(desc)} rows "
+                             f"for {len(kp)} keypoints")
         pts = lift_keypoints(kp.xy, depth, self.K).astype(np.float32)
         dt = self.provider.storage_dtype
         if dt == np.uint8:

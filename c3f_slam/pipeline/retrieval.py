@@ -152,7 +152,8 @@ class CandidateConfig:
 
     def __post_init__(self) -> None:
         if self.max_candidates is not None and self.max_candidates < 1:
-            raise InputError(f"candidates.max_candidates must be >= 1 (or None: all keyframes), got {self.max_candidates}")
+            raise InputError("candidates.max_candidates must be >= 1 (or None: all keyframes), "
+                             f"got {self.max_candidates}")
         if self.recent < 0 or self.spatial < 0:
             raise InputError("candidates.recent and candidates.spatial must be >= 0")
 

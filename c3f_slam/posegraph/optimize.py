@@ -157,7 +157,8 @@ def select_window(parts: GraphParts, reference_node: int, nodes: Iterable[int] |
     return Window(free, edge_ids, outside)
 
 
-def edges_at(parts: GraphParts, free: list[int], free_set: set[int], max_boundary: int | None) -> tuple[list[int], bool]:
+def edges_at(parts: GraphParts, free: list[int], free_set: set[int],
+             max_boundary: int | None) -> tuple[list[int], bool]:
     """Sorted ids of the edges with an end in ``free_set`` (at most ``max_boundary`` per
     node to newer nodes outside it, the most recent first), and whether any has its other end
     outside."""

@@ -38,7 +38,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--loop", action="store_true", help="go forward, then back over the same stretch")
     g.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="any parameter, e.g. colon.fold_height=0.4 or appearance.wetness=0.5 (repeatable)")
-    g.add_argument("--layout", default="c3f", help="c3f (default); also write uts, simcol3d, c3vd or colon10k beside it")
+    g.add_argument("--layout", default="c3f",
+                   help="c3f (default); also write uts, simcol3d, c3vd or colon10k beside it")
     g.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.add_argument("--contact-sheet", metavar="PNG", help="also write a contact sheet of the result")

@@ -56,12 +56,14 @@ class Controls:
         i = min(int(t), n - 2) if n > 1 else 0
         w = t - i if n > 1 else 0.0
         j = min(i + 1, n - 1)
-        return tuple(float((1 - w) * a[i] + w * a[j]) for a in (self.s, self.m, self.phi, self.beta, self.psi, self.roll))
+        return tuple(float((1 - w) * a[i] + w * a[j])
+                     for a in (self.s, self.m, self.phi, self.beta, self.psi, self.roll))
 
     def at_many(self, t: np.ndarray) -> np.ndarray:
         """(M, 6) controls at fractional frame times ``t`` (same interpolation as :meth:`at`)."""
         grid = np.arange(len(self.s), dtype=np.float64)
-        return np.stack([np.interp(t, grid, a) for a in (self.s, self.m, self.phi, self.beta, self.psi, self.roll)], axis=1)
+        return np.stack([np.interp(t, grid, a) for a in (self.s, self.m, self.phi, self.beta, self.psi, self.roll)],
+                        axis=1)
 
 
 @dataclass
@@ -201,7 +203,8 @@ def _label(labels: list[str], name: str, a: int, b: int, e: np.ndarray | None = 
                 labels[i] = name
 
 
-def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator, scene: o3d.t.geometry.RaycastingScene) -> CameraPath:
+def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator,
+              scene: o3d.t.geometry.RaycastingScene) -> CameraPath:
     """Draw a trajectory (deterministic for a given generator state)."""
     n = p.frames
     L = colon.length
@@ -265,7 +268,8 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator, scene: o3d.
         step = np.clip((np.arange(n) - a) / (b - a), 0, 1)
         roll = roll + (0.5 - 0.5 * np.cos(np.pi * step)) * rng.choice([-1, 1]) * math.radians(rng.uniform(60, 120))
         _label(labels, "roll", a, b)
-    occlusions = [w for w in (_place(rng, n, int(rng.integers(12, 30)), taken) for _ in range(_count(rng, p.occlusions, n))) if w]
+    occlusions = [w for w in (_place(rng, n, int(rng.integers(12, 30)), taken)
+                              for _ in range(_count(rng, p.occlusions, n))) if w]
 
     # arc length from the speed profile
     cum = np.concatenate([[0.0], np.cumsum(v[:-1])])

@@ -281,7 +281,8 @@ def _radius_field(p: ColonParams, rng: np.random.Generator, s: np.ndarray, theta
         sigma = p.fold_width * rng.uniform(0.8, 1.3)
         tilt = rng.uniform(-0.25, 0.25) * base[j]
         tilt_phase = rng.uniform(0, 2 * np.pi)
-        folds.append(Fold(float(pos), float(sigma), tuple(float(amp * c) for c in crescents), float(tilt), float(tilt_phase)))
+        folds.append(Fold(float(pos), float(sigma), tuple(float(amp * c) for c in crescents), float(tilt),
+                          float(tilt_phase)))
         ang = (theta - phase[j]) % (2 * np.pi)
         idx = np.minimum((ang // third).astype(int), 2)
         g = np.sqrt(np.abs(np.sin(1.5 * (ang - idx * third))))

@@ -33,7 +33,8 @@ def make_contact_sheet(seq_dir: str | Path, out: str | Path, count: int = 12, co
     show_depth = depth and seq.has_depth
     depths = [seq.read_depth(i) for i in idx] if show_depth else []
     if depths:
-        allv = np.concatenate([d[d > 0] for d in depths]) if any((d > 0).any() for d in depths) else np.array([0.01, 0.1])
+        allv = (np.concatenate([d[d > 0] for d in depths]) if any((d > 0).any() for d in depths)
+                else np.array([0.01, 0.1]))
         lo, hi = np.percentile(allv, 1), np.percentile(allv, 99)
     h = int(round(tile * seq.camera.height / seq.camera.width))
     cells = []

@@ -55,7 +55,8 @@ def params_record(scene: SimScene) -> dict:
         "mesh": {"vertices": int(len(c.vertices)), "triangles": int(len(c.triangles)), "length_m": c.length},
         "folds": [{"s": f.s, "sigma": f.sigma, "heights": list(f.heights)} for f in c.folds],
         "polyps": [{"s": q.s, "theta": q.theta, "radius": q.radius, "height": q.height} for q in c.polyps],
-        "events": {k: int(sum(1 for x in scene.path.labels if x == k)) for k in ("closeup", "burst", "occluded", "roll")},
+        "events": {k: int(sum(1 for x in scene.path.labels if x == k))
+                   for k in ("closeup", "burst", "occluded", "roll")},
     }
 
 
@@ -87,7 +88,8 @@ def generate_sequence(
     return out
 
 
-def _write_all(scene: SimScene, root: Path, layout: str, progress: bool, on_frame: Callable[[int], None] | None) -> None:
+def _write_all(scene: SimScene, root: Path, layout: str, progress: bool,
+               on_frame: Callable[[int], None] | None) -> None:
     from tqdm import tqdm
 
     p = scene.params

@@ -39,8 +39,8 @@ def random_sines(rng: np.random.Generator, x: np.ndarray, wavelengths: tuple[flo
     amps = rng.uniform(0.5, 1.0, count)
     lam = rng.uniform(*wavelengths, count)
     ph = rng.uniform(0, 2 * np.pi, count)
-    for a, l, p in zip(amps, lam, ph):
-        out += a * np.sin(2 * np.pi * x / l + p)
+    for amp, wavelength, phase in zip(amps, lam, ph):
+        out += amp * np.sin(2 * np.pi * x / wavelength + phase)
     return out / amps.sum()
 
 

@@ -309,9 +309,11 @@ def _validate(p: SimParams) -> None:
     _check(0 <= c.tortuosity <= 1, f"colon.tortuosity: must be in [0, 1], got {c.tortuosity}")
     r_max = c.radius + c.radius_variation
     _check(c.min_bend_radius > 1.5 * r_max * (1 + c.haustra_bulge),
-           f"colon.min_bend_radius: must exceed 1.5 x the largest radius ({1.5 * r_max:.3f} m), got {c.min_bend_radius}")
+           f"colon.min_bend_radius: must exceed 1.5 x the largest radius ({1.5 * r_max:.3f} m), "
+           f"got {c.min_bend_radius}")
     _check(c.fold_spacing > 0.005, f"colon.fold_spacing: must be above 0.005 m, got {c.fold_spacing}")
-    _check(0 <= c.fold_height <= 0.6, f"colon.fold_height: must be in [0, 0.6] (fraction of radius), got {c.fold_height}")
+    _check(0 <= c.fold_height <= 0.6,
+           f"colon.fold_height: must be in [0, 0.6] (fraction of radius), got {c.fold_height}")
     _check(c.fold_width > 0, f"colon.fold_width: must be positive, got {c.fold_width}")
     _check(0 <= c.fold_coverage <= 1, f"colon.fold_coverage: must be in [0, 1], got {c.fold_coverage}")
     _check(0 <= c.haustra_bulge <= 0.3, f"colon.haustra_bulge: must be in [0, 0.3], got {c.haustra_bulge}")
@@ -332,7 +334,8 @@ def _validate(p: SimParams) -> None:
         v = getattr(a, name)
         _check(0 <= v <= 1, f"appearance.{name}: must be in [0, 1], got {v}")
     _check(0 <= a.vessel_density <= 5, f"appearance.vessel_density: must be in [0, 5], got {a.vessel_density}")
-    _check(0 < a.light_angle <= 180, f"appearance.light_angle: full cone angle must be in (0, 180] degrees, got {a.light_angle}")
+    _check(0 < a.light_angle <= 180,
+           f"appearance.light_angle: full cone angle must be in (0, 180] degrees, got {a.light_angle}")
     _check(a.light_intensity > 0, f"appearance.light_intensity: must be positive, got {a.light_intensity}")
     _check(0 <= a.light_offset <= 0.5 * c.radius,
            f"appearance.light_offset: must be in [0, radius/2], got {a.light_offset}")
@@ -373,24 +376,28 @@ def _validate(p: SimParams) -> None:
 
 
 def _gname(group: Any) -> str:
-    return {ColonParams: "colon", AppearanceParams: "appearance", CameraParams: "camera", PathParams: "path"}[type(group)]
+    group_names = {ColonParams: "colon", AppearanceParams: "appearance", CameraParams: "camera", PathParams: "path"}
+    return group_names[type(group)]
 
 
 # ---------------------------------------------------------------------- paper presets
 
-#: The appendix table of the paper (Unity simulator values, verbatim). Shared by all eight:
-#: trip 150 s at 30 shots/s, 512x512, distance 0, shadow on, dynamic off, vignette on,
-#: bloom on.
-PAPER_TABLE: dict[str, dict[str, Any]] = {
-    "seq1": dict(path="A", hue=0, saturation=72, value=100, wetness=88, vessel_size=60, vessel_opacity=30, angle=150, intensity=74, fov=110, grain=0),
-    "seq2": dict(path="RP", hue=0, saturation=72, value=100, wetness=88, vessel_size=60, vessel_opacity=30, angle=150, intensity=74, fov=110, grain=0),
-    "seq3": dict(path="B", hue=3, saturation=90, value=100, wetness=56, vessel_size=60, vessel_opacity=30, angle=150, intensity=59, fov=110, grain=1),
-    "seq4": dict(path="RP", hue=3, saturation=90, value=100, wetness=56, vessel_size=60, vessel_opacity=30, angle=150, intensity=59, fov=110, grain=1),
-    "seq5": dict(path="RP", hue=100, saturation=78, value=52, wetness=40, vessel_size=60, vessel_opacity=30, angle=150, intensity=62, fov=110, grain=3),
-    "seq6": dict(path="RP", hue=100, saturation=78, value=52, wetness=40, vessel_size=60, vessel_opacity=30, angle=150, intensity=62, fov=110, grain=3),
-    "seq7": dict(path="RP", hue=100, saturation=78, value=52, wetness=40, vessel_size=60, vessel_opacity=30, angle=150, intensity=62, fov=110, grain=3),
-    "seq8": dict(path="RP", hue=100, saturation=78, value=52, wetness=40, vessel_size=60, vessel_opacity=30, angle=150, intensity=62, fov=110, grain=3),
-}
+#: Column names of the paper's appendix table, in its order.
+_PAPER_COLUMNS = ("path", "hue", "saturation", "value", "wetness", "vessel_size", "vessel_opacity", "angle",
+                  "intensity", "fov", "grain")
+#: The appendix table of the paper (Unity simulator values, verbatim; rows in the order of
+#: ``_PAPER_COLUMNS``). Shared by all eight: trip 150 s at 30 shots/s, 512x512, distance 0,
+#: shadow on, dynamic off, vignette on, bloom on.
+PAPER_TABLE: dict[str, dict[str, Any]] = {name: dict(zip(_PAPER_COLUMNS, row)) for name, row in {
+    "seq1": ("A", 0, 72, 100, 88, 60, 30, 150, 74, 110, 0),
+    "seq2": ("RP", 0, 72, 100, 88, 60, 30, 150, 74, 110, 0),
+    "seq3": ("B", 3, 90, 100, 56, 60, 30, 150, 59, 110, 1),
+    "seq4": ("RP", 3, 90, 100, 56, 60, 30, 150, 59, 110, 1),
+    "seq5": ("RP", 100, 78, 52, 40, 60, 30, 150, 62, 110, 3),
+    "seq6": ("RP", 100, 78, 52, 40, 60, 30, 150, 62, 110, 3),
+    "seq7": ("RP", 100, 78, 52, 40, 60, 30, 150, 62, 110, 3),
+    "seq8": ("RP", 100, 78, 52, 40, 60, 30, 150, 62, 110, 3),
+}.items()}
 PAPER_COMMON = dict(trip_duration_s=150, shots_per_s=30, resolution=512, distance=0, shadow=True,
                     dynamic=False, vignette=True, bloom=True)
 

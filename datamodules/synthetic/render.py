@@ -236,7 +236,8 @@ class Renderer:
         y = cv2.GaussianBlur(y, (0, 0), 0.45 * max(1.0, w / 512.0))
         if a.grain > 0:
             g = np.float32(0.01 * a.grain)
-            y = y + g * rng.standard_normal((h, w, 1), dtype=np.float32) + (0.4 * g) * rng.standard_normal((h, w, 3), dtype=np.float32)
+            y = (y + g * rng.standard_normal((h, w, 1), dtype=np.float32)
+                 + (0.4 * g) * rng.standard_normal((h, w, 3), dtype=np.float32))
         return np.clip(y * 255.0 + 0.5, 0, 255).astype(np.uint8)
 
     # ------------------------------------------------------------------ all together

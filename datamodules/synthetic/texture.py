@@ -65,7 +65,8 @@ class TextureAtlas:
         n = len(u)
         x0 = (u * (1.0 / self.texel)).astype(np.float32)
         y0 = (theta * (self.rows / (2 * math.pi))).astype(np.float32)
-        lod = np.clip(np.log2(np.maximum(footprint, 1e-9) * (1.0 / self.texel)), 0.0, MIP_LEVELS - 1.0).astype(np.float32)
+        lod = np.clip(np.log2(np.maximum(footprint, 1e-9) * (1.0 / self.texel)), 0.0,
+                      MIP_LEVELS - 1.0).astype(np.float32)
         lo = lod.astype(np.int8)  # floor, lod >= 0
         order = np.argsort(lo, kind="stable")
         lo_s = lo[order]
@@ -123,7 +124,8 @@ def build_atlas(colon: Colon, a: AppearanceParams, rng: np.random.Generator) -> 
     c_red = hsv_colour(a.hue - 5.0, min(1.0, a.saturation * 1.18), a.value * 0.88)
     t = noise_2d(rng, rows, cols, 64)[..., None]
     albedo = c0 + 0.3 * np.maximum(t, 0) * (c_yellow - c0) + 0.3 * np.maximum(-t, 0) * (c_red - c0)
-    shade = 1.0 + 0.07 * noise_2d(rng, rows, cols, 32) + 0.03 * noise_2d(rng, rows, cols, 8) + 0.025 * noise_2d(rng, rows, cols, 2)
+    shade = (1.0 + 0.07 * noise_2d(rng, rows, cols, 32) + 0.03 * noise_2d(rng, rows, cols, 8)
+             + 0.025 * noise_2d(rng, rows, cols, 2))
     albedo = albedo * np.clip(shade, 0.6, 1.4)[..., None]
 
     # vessels: deep (wide, blurred, dark purple-red) and superficial capillaries (thin, red)
@@ -184,7 +186,8 @@ def _bumps(rng: np.random.Generator, rows: int, cols: int, sigma: float, density
 # ---------------------------------------------------------------------- vessels
 
 
-def _walk(rng: np.random.Generator, start: np.ndarray, angle: np.ndarray, n_steps: int, step: float) -> tuple[np.ndarray, np.ndarray]:
+def _walk(rng: np.random.Generator, start: np.ndarray, angle: np.ndarray, n_steps: int,
+          step: float) -> tuple[np.ndarray, np.ndarray]:
     """Random walks of B branches: points (B, n+1, 2) and headings (B, n+1), in texels."""
     b = len(start)
     turn = rng.normal(0.0, 0.07, (b, n_steps)) + rng.normal(0.0, 0.015, (b, 1))
@@ -194,7 +197,8 @@ def _walk(rng: np.random.Generator, start: np.ndarray, angle: np.ndarray, n_step
     return pts, heading
 
 
-def _vessel_masks(rng: np.random.Generator, rows: int, cols: int, texel: float, size: float, density: float) -> tuple[np.ndarray, np.ndarray]:
+def _vessel_masks(rng: np.random.Generator, rows: int, cols: int, texel: float, size: float,
+                  density: float) -> tuple[np.ndarray, np.ndarray]:
     """Two (rows, cols) float32 masks in [0, 1] of branching vessel trees (wrapping in rows)."""
     area_cm2 = rows * cols * texel * texel * 1e4
     w_max = (0.15 + 0.6 * size) * 1e-3
