@@ -83,7 +83,7 @@ def run_one(seq: Path, out: Path, method: str, min_corr: int, mesh: bool, depth_
         inputs = RunInputs(descriptors, depth_source, depth_model=depth_model if depth_source == "model" else None,
                            feature_model=feature_model if descriptors == "contrafeat" else None,
                            depth_scale=depth_scale if depth_source == "model" else None)
-        s = run_slam(seq, out, cfg, inputs, progress=False)
+        s = run_slam(seq, out, cfg, inputs, progress=False, overwrite=True)  # the benchmark owns its --out
     except Exception as exc:  # noqa: BLE001 -- report, keep going
         return {"error": str(exc)}
     wall = time.perf_counter() - t

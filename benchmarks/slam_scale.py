@@ -216,7 +216,7 @@ def main() -> None:
     t = time.perf_counter()
     error = ""
     try:
-        s = run_slam(long_seq, args.out / "run", cfg, progress=False, slam_factory=probe)
+        s = run_slam(long_seq, args.out / "run", cfg, progress=False, slam_factory=probe, overwrite=True)
     except Exception as exc:  # noqa: BLE001 -- a failed run is a result: report it
         error, s = str(exc), {}
     wall = time.perf_counter() - t

@@ -68,6 +68,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--blas-threads", type=int,
                    help="BLAS threads NumPy may use during the run (default 1: the runtime's matrices are small); "
                         "0 = the BLAS library's own setting")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace a complete earlier run in --out (an incomplete one is always replaced)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     e = sub.add_parser("evaluate", help="ATE / RPE / registered share / coverage of a run against ground truth")
     e.add_argument("out", help="run folder (trajectory.txt, summary.json, mesh.ply)")
@@ -128,7 +130,7 @@ def _run(args: argparse.Namespace) -> int:
     inputs = RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, args.camera,
                        args.threads, args.depth_scale)
     s = run_slam(args.sequence, args.out, cfg, inputs, max_frames=args.max_frames, stride=args.stride,
-                 progress=not args.quiet)
+                 progress=not args.quiet, overwrite=args.overwrite)
     fps = s["timings"]["total"]["frames_per_second"]
     print(f"{s['frames']} frames, {s['registered_frames']} registered ({100 * s['registered_share']:.1f} %), "
           f"{s.get('fragments', 0)} fragments, {s.get('loop_edges', 0)} loop edges, "
@@ -162,3 +164,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        where = f"; the run so far is in {args.out} (summary.json status error)" if args.command == "run" else ""
+        print(f"error: interrupted{where}", file=sys.stderr)
+        return 130

@@ -10,6 +10,13 @@ Layout of an output folder (:class:`RunOutputs`)::
       mesh.ply              fused mesh (written with c3f_slam.fusion.write_mesh)
       trajectory.png        estimate vs ground truth (c3f_slam.trajectory_plot.plot_trajectories)
       coverage.ply          ground-truth mesh painted seen / unseen
+
+A run folder holds one run: ``c3f_slam run`` builds it in a hidden sibling
+(``.OUT.partial-XXXX``) and moves it into place when the run ends, successfully or not
+(:class:`RunFolder`), so OUT is never a mix of two runs; a run killed before that leaves the
+previous OUT as it was. A complete earlier run is replaced only when asked (``--overwrite``).
+summary.json's ``status`` says whether the run completed (``ok``) or not (``error``, with the
+frames done so far); ``evaluate`` refuses runs that did not complete.
 """
 
 from __future__ import annotations
@@ -21,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.io.atomic import atomic_write, atomic_write_text
+from c3f_slam.errors import InputError
+from c3f_slam.io.atomic import atomic_write, atomic_write_text, move_into_place, staging_dir
 from c3f_slam.io.tum import write_tum
 from c3f_slam.posegraph import PoseGraph
 
@@ -184,6 +192,50 @@ def draw_keyframe_graph(path: str | Path, graph: KeyframeGraph, title: str = "ke
     fig.tight_layout()
     with atomic_write(Path(path), suffix=".png") as tmp:
         fig.savefig(tmp, format="png")
+
+
+def run_status(folder: Path) -> str | None:
+    """``status`` of the run in ``folder`` (its summary.json), None when it holds no readable summary."""
+    try:
+        return str(json.loads((folder / "summary.json").read_text()).get("status"))
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+class RunFolder:
+    """Where one run is built (:attr:`staging`) and the folder it becomes (:attr:`target`).
+
+    :meth:`claim` checks ``target`` before anything is written: it may be missing or empty,
+    or hold an earlier run: a complete one (status ``ok``) only with ``overwrite``, an
+    incomplete one always. A non-empty folder that is not a run folder is never replaced.
+    """
+
+    def __init__(self, target: str | Path, overwrite: bool = False) -> None:
+        self.target = Path(target)
+        self.overwrite = overwrite
+        self.staging: Path | None = None
+
+    def claim(self) -> Path:
+        """InputError (one line, nothing written) unless the run may go into ``target``;
+        returns the staging folder to write into."""
+        t = self.target
+        if t.exists() and not t.is_dir():
+            raise InputError(f"--out {t}: exists and is not a folder")
+        if t.is_dir() and any(t.iterdir()):
+            status = run_status(t)
+            if status is None:
+                raise InputError(f"--out {t}: not empty and not a run folder (no summary.json); choose another --out")
+            if status == "ok" and not self.overwrite:
+                raise InputError(f"--out {t}: holds a complete run (summary.json status ok); "
+                                 "pass --overwrite to replace it, or choose another --out")
+        self.staging = staging_dir(t, "partial")
+        return self.staging
+
+    def publish(self) -> None:
+        """Move the built run into ``target`` (the earlier contents are deleted once it is there)."""
+        if self.staging is not None:
+            move_into_place(self.staging, self.target)
+            self.staging = None
 
 
 class RunOutputs:

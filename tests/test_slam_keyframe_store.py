@@ -178,8 +178,9 @@ def test_run_slam_removes_cache_on_error(seq, tmp_path):
 
     class Boom(FragmentSlam):
         def add(self, feat, depth):
-            if len(self.keyframes) >= 2:
-                assert (out / CACHE_DIR / DATA_FILE).stat().st_size > 0
+            if len(self.keyframes) >= 2:  # the cache is in the run being built (beside OUT)
+                assert self.keyframes.folder.name == CACHE_DIR and self.keyframes.folder.parent.parent == tmp_path
+                assert (self.keyframes.folder / DATA_FILE).stat().st_size > 0
                 raise RuntimeError("planted failure")
             return super().add(feat, depth)
 

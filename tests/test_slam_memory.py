@@ -228,9 +228,10 @@ def test_cli_loop_edge_cap_option(tiny_sequence, tmp_path, capsys):
 
     from c3f_slam.cli import main
 
-    for args, expect in ((["--max-loop-edges-per-keyframe", "3"], 3), (["--max-loop-edges-per-keyframe", "0"], None),
-                         (["--max-keyframe-candidates", "0"], None), ([], 8)):
-        out = tmp_path / f"o{len(args)}{args[-1] if args else ''}"
+    for n, (args, expect) in enumerate(((["--max-loop-edges-per-keyframe", "3"], 3),
+                                        (["--max-loop-edges-per-keyframe", "0"], None),
+                                        (["--max-keyframe-candidates", "0"], None), ([], 8))):
+        out = tmp_path / f"o{n}"
         assert main(["run", str(tiny_sequence), "--out", str(out), "--max-frames", "4", "--min-correspondences", "15",
                      "--no-mesh", "--quiet", *args]) == 0
         assert json.loads((out / "summary.json").read_text())["config"]["keyframes"]["max_loop_edges"] == expect

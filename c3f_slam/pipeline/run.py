@@ -17,6 +17,7 @@ the error, keyframe graph) are written atomically before the error is passed on.
 
 from __future__ import annotations
 
+import contextlib
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ from threadpoolctl import threadpool_limits
 
 from c3f_slam.errors import InputError
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
-from c3f_slam.outputs import RunOutputs
+from c3f_slam.outputs import RunFolder, RunOutputs
 from c3f_slam.pipeline.backend import BackendFactory, SlamBackend, Timings
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import Frontend
@@ -187,16 +188,20 @@ def run_slam(
     stride: int = 1,
     progress: bool = True,
     slam_factory: BackendFactory | None = None,
+    overwrite: bool = False,
 ) -> dict:
     """Run on ``sequence`` (folder, or video file with model depth) and write the outputs into
-    ``out``; returns the summary. ``inputs``: descriptors, depth and camera choices
-    (:class:`RunInputs`, default SIFT and depth files); ``stride``: every k-th frame;
-    ``slam_factory`` may replace the back-end (tests). Raises InputError (after writing
-    summary.json with the error) on bad input, including a run in which no frame could be
-    registered."""
+    the run folder ``out``; returns the summary. ``inputs``: descriptors, depth and camera
+    choices (:class:`RunInputs`, default SIFT and depth files); ``stride``: every k-th frame;
+    ``overwrite``: replace a complete earlier run in ``out`` (:class:`RunFolder`);
+    ``slam_factory`` may replace the back-end (tests). The run is built beside ``out`` and
+    moved into place when it ends, also on errors (summary.json then says ``error`` and how
+    far it got). Raises InputError on bad input, including a run in which no frame could be
+    registered (after writing its outputs)."""
     cfg = cfg or SlamConfig()
     inputs = inputs or RunInputs()
-    outputs = RunOutputs(out)
+    folder = RunFolder(out, overwrite)
+    outputs = RunOutputs(folder.claim())
     summary: dict = {
         "sequence": str(sequence), "mode": cfg.mode, "descriptors": inputs.descriptors,
         "depth_source": inputs.depth_source, "preset": cfg.preset, "stride": stride, "max_frames": max_frames,
@@ -214,7 +219,7 @@ def run_slam(
         if mesh is not None:
             if len(mesh.triangles):
                 write_mesh(mesh, outputs.mesh)
-            summary["mesh_triangles"] = len(mesh.triangles)
+            summary["mesh_triangles"] = int(len(mesh.triangles))
         summary["status"] = "ok"
     except BaseException as exc:  # write what we have, then pass the error on
         summary["status"] = "error"
@@ -222,22 +227,28 @@ def run_slam(
         if not isinstance(exc, (InputError, KeyboardInterrupt)):
             summary["traceback"] = traceback.format_exc(limit=8)
         write_run_outputs(outputs, run, summary, t_start)
+        with contextlib.suppress(OSError):  # keep the original error visible
+            folder.publish()
         raise
     write_run_outputs(outputs, run, summary, t_start)
-    _check_registered(outputs, summary, sequence)
+    unregistered = _no_frame_registered(summary, sequence)
+    if unregistered:
+        outputs.write_summary(summary)
+    folder.publish()
+    if unregistered:
+        raise InputError(summary["error"])
     return summary
 
 
-def _check_registered(outputs: RunOutputs, summary: dict, sequence: str | Path) -> None:
-    """InputError (recorded in summary.json) when no frame could be registered."""
+def _no_frame_registered(summary: dict, sequence: str | Path) -> bool:
+    """Mark the summary as an error when no frame could be registered."""
     if summary.get("registered_frames", 0):
-        return
-    msg = (f"{sequence}: no frame could be registered ({summary['frames']} frames, "
-           f"{summary['skipped_black']} black, {summary['skipped_saturated']} saturated, "
-           f"{summary['skipped_featureless']} featureless)")
-    summary["status"], summary["error"] = "error", msg
-    outputs.write_summary(summary)
-    raise InputError(msg)
+        return False
+    summary["status"] = "error"
+    summary["error"] = (f"{sequence}: no frame could be registered ({summary['frames']} frames, "
+                        f"{summary['skipped_black']} black, {summary['skipped_saturated']} saturated, "
+                        f"{summary['skipped_featureless']} featureless)")
+    return True
 
 
 def write_run_outputs(outputs: RunOutputs, run: SlamRun | None, summary: dict, t_start: float) -> None:

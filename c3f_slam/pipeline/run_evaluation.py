@@ -35,6 +35,9 @@ def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000
     summary = {}
     if outputs.summary.is_file():
         summary = json.loads(outputs.summary.read_text())
+    if summary.get("status", "ok") != "ok":
+        raise InputError(f"{out}: the run did not complete (summary.json status {summary.get('status')}: "
+                         f"{summary.get('error', 'no error recorded')}); its outputs are partial, not evaluated")
     n_frames = summary.get("frames") or len(seq)
     res = evaluate_trajectory(stamps, poses, seq.timestamps, seq.poses, n_frames=n_frames)
     rgbd = summary.get("depth_source", "files") == "files"
