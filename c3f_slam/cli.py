@@ -68,6 +68,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--blas-threads", type=int,
                    help="BLAS threads NumPy may use during the run (default 1: the runtime's matrices are small); "
                         "0 = the BLAS library's own setting")
+    r.add_argument("--max-bad-frames", type=int, default=10,
+                   help="unreadable frames (missing or corrupt files, undecodable video frames) skipped and counted "
+                        "(summary.json skipped_unreadable); one more fails the run (default 10)")
     r.add_argument("--overwrite", action="store_true",
                    help="replace a complete earlier run in --out (an incomplete one is always replaced)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -128,7 +131,7 @@ def _run(args: argparse.Namespace) -> int:
     cfg = SlamConfig.preset_config(args.preset, mode=args.baseline or "full", fusion={"enabled": not args.no_mesh},
                                    **_overrides(args))
     inputs = RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, args.camera,
-                       args.threads, args.depth_scale)
+                       args.threads, args.depth_scale, args.max_bad_frames)
     s = run_slam(args.sequence, args.out, cfg, inputs, max_frames=args.max_frames, stride=args.stride,
                  progress=not args.quiet, overwrite=args.overwrite)
     fps = s["timings"]["total"]["frames_per_second"]

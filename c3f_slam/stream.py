@@ -5,7 +5,11 @@ lazily (OpenCV ``VideoCapture`` for videos, :class:`c3f_slam.io.Sequence` for th
 layout) and yields :class:`StreamFrame` items (index, timestamp, RGB uint8, depth in metres or
 None, status). Black frames (mean luma < ``black_threshold``) and saturated frames (at least
 ``saturated_share`` of pixels with luma >= ``saturated_threshold``) are flagged, not
-dropped, so the runtime can skip and report them.
+dropped, so the runtime can skip and report them. A frame that cannot be read (a missing or
+corrupt image file, a video frame that does not decode) is yielded with status
+``unreadable`` and no pixels (``error`` says why); the runtime skips and counts those up to a
+limit. A video that ends before the frame count its container declares (damaged or cut
+files) is recorded in :attr:`FrameStream.truncation` after iteration.
 
 Timestamps (seconds): a video gives index / fps (the container's fps, else ``fps``); a sequence
 folder gives the poses.txt timestamps when present, else index / ``fps`` (``fps`` None: the
@@ -28,20 +32,25 @@ from c3f_slam.io.sequence import Sequence
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".m4v", ".wmv", ".webm")
 
-OK, BLACK, SATURATED = "ok", "black", "saturated"
+OK, BLACK, SATURATED, UNREADABLE = "ok", "black", "saturated", "unreadable"
+#: a video is truncated when it yields fewer frames than its container declares, beyond this
+#: many (some containers round their frame count)
+FRAME_COUNT_SLACK = 1
 
 
 @dataclass(frozen=True)
 class StreamFrame:
-    """One frame: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres or None,
-    ``status`` "ok" / "black" / "saturated", ``mean_luma`` in 0..255."""
+    """One frame: ``rgb`` (H, W, 3) uint8 (None when unreadable), ``depth`` (H, W) float32
+    metres or None, ``status`` "ok" / "black" / "saturated" / "unreadable", ``mean_luma`` in
+    0..255, ``error`` why an unreadable frame could not be read."""
 
     index: int
     timestamp: float
-    rgb: np.ndarray
+    rgb: np.ndarray | None
     depth: np.ndarray | None
     status: str
     mean_luma: float
+    error: str = ""
 
     @property
     def usable(self) -> bool:
@@ -70,6 +79,18 @@ def _load_camera(camera: PinholeCamera | str | Path | None, source: Path) -> Pin
     if beside.is_file():
         return PinholeCamera.from_json(beside)
     raise InputError(f"{source}: video needs intrinsics: pass a camera.json (none found at {beside})")
+
+
+@dataclass(frozen=True)
+class Truncation:
+    """A video that ended at frame ``read`` (the frames before it decoded) of ``declared``."""
+
+    read: int
+    declared: int
+
+    def message(self, source: Path) -> str:
+        return (f"{source}: the video ended after {self.read} of the {self.declared} frames its container "
+                "declares (damaged or cut file)")
 
 
 class FrameStream:
@@ -103,6 +124,7 @@ class FrameStream:
         self.use_depth = use_depth
         self._thresholds = (black_threshold, saturated_threshold, saturated_share)
         self.sequence: Sequence | None = None
+        self.truncation: Truncation | None = None  #: set while iterating a video that ends early
         if not self.source.exists():
             raise InputError(f"{self.source}: no such file or folder")
         if self.source.is_dir():
@@ -143,16 +165,19 @@ class FrameStream:
 
     def _iter_video(self) -> Iterator[tuple[int, float, np.ndarray, None]]:
         cap = self._open()
+        self.truncation = None
         try:
             index = 0
             while True:
                 if index < self.start or (index - self.start) % self.step:
                     if not cap.grab():  # skip without decoding
+                        self._note_end(index)
                         return
                     index += 1
                     continue
                 ok, bgr = cap.read()
                 if not ok or bgr is None:
+                    self._note_end(index)
                     return
                 self.camera.check_image(bgr.shape, f"{self.source} frame {index}")
                 yield index, index / self.video_fps, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), None
@@ -160,8 +185,14 @@ class FrameStream:
         finally:
             cap.release()
 
+    def _note_end(self, index: int) -> None:
+        """The video stopped at frame ``index``: note it when its container declared more."""
+        declared = self._n_source
+        if declared is not None and declared - index > FRAME_COUNT_SLACK:
+            self.truncation = Truncation(index, declared)
+
     # ------------------------------------------------------------------ folder
-    def _iter_folder(self) -> Iterator[tuple[int, float, np.ndarray, np.ndarray | None]]:
+    def _iter_folder(self) -> Iterator[tuple[int, float, np.ndarray | None, np.ndarray | None] | StreamFrame]:
         seq = self.sequence
         assert seq is not None
         for index in range(self.start, len(seq), self.step):
@@ -169,8 +200,13 @@ class FrameStream:
                 stamp = float(seq.timestamps[index])
             else:
                 stamp = index / self.fps if self.fps else float(index)
-            depth = seq.read_depth(index) if (self.use_depth and seq.has_depth) else None
-            yield index, stamp, seq.read_rgb(index), depth
+            try:
+                depth = seq.read_depth(index) if (self.use_depth and seq.has_depth) else None
+                rgb = seq.read_rgb(index)
+            except InputError as exc:  # a missing or corrupt file: an unreadable frame
+                yield StreamFrame(index, stamp, None, None, UNREADABLE, 0.0, str(exc))
+                continue
+            yield index, stamp, rgb, depth
 
     # ------------------------------------------------------------------ public
     @property
@@ -188,7 +224,11 @@ class FrameStream:
         raw = self._iter_video() if self.is_video else self._iter_folder()
         if self.max_frames is not None:
             raw = islice(raw, self.max_frames)
-        for index, stamp, rgb, depth in raw:
+        for item in raw:
+            if isinstance(item, StreamFrame):
+                yield item
+                continue
+            index, stamp, rgb, depth = item
             status, mean = frame_status(rgb, *self._thresholds)
             yield StreamFrame(index, stamp, rgb, depth, status, mean)
 

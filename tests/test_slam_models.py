@@ -336,6 +336,25 @@ def test_slam_model_depth_on_a_video(tiny_sequence, models, tmp_path):
     assert not (out / CACHE_DIR).exists()
 
 
+def test_a_truncated_video_is_not_ok(tiny_sequence, models, tmp_path, capsys):
+    """A video cut short: the frames before the cut are reconstructed, the run says
+    'truncated' (never ok), one error line, exit 2 (issue 21, item 3)."""
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 64))
+    for p in sorted((tiny_sequence / "rgb").glob("*.png")):
+        writer.write(cv2.imread(str(p)))
+    writer.release()
+    data = video.read_bytes()
+    video.write_bytes(data[: len(data) // 2])
+    shutil.copy(tiny_sequence / "camera.json", tmp_path / "camera.json")
+    out = tmp_path / "run"
+    assert main(["run", str(video), "--depth-model", str(models["depth"]), "--out", str(out),
+                 "--min-correspondences", "15", "--no-mesh", "--quiet"]) == 2
+    assert "of the 8 frames its container declares" in _cli_error(capsys)
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "truncated" and s["frames_declared"] == 8 and 0 < s["frames"] < 8
+
+
 def test_inspect(models, tmp_path, capsys):
     assert main(["inspect", str(models["depth"])]) == 0
     out = capsys.readouterr().out

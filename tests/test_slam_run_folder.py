@@ -116,3 +116,25 @@ def test_a_failed_or_interrupted_run_is_marked_not_mixed(tiny_sequence, mesh_run
     assert "did not complete" in _error_line(capsys)
     # an incomplete run is replaced without --overwrite
     assert main(["run", str(tiny_sequence), "--out", str(mesh_run), *RUN]) == 0
+
+
+# ---------------------------------------------------------------------- unreadable frames (issue 21, item 3)
+
+
+def test_unreadable_frames_are_skipped_and_counted_up_to_a_limit(tiny_sequence, tmp_path, capsys):
+    import shutil
+
+    seq = tmp_path / "seq"
+    shutil.copytree(tiny_sequence, seq)
+    bad = sorted((seq / "rgb").iterdir())[3]
+    bad.write_bytes(b"\x89PNG damaged")
+    out = tmp_path / "ok"
+    assert main(["run", str(seq), "--out", str(out), "--no-mesh", *RUN]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "ok" and s["skipped_unreadable"] == 1 and s["frames"] == 6
+    out0 = tmp_path / "strict"
+    assert main(["run", str(seq), "--out", str(out0), "--no-mesh", "--max-bad-frames", "0", *RUN]) == 2
+    line = _error_line(capsys)
+    assert bad.name in line and "--max-bad-frames 0" in line
+    s = json.loads((out0 / "summary.json").read_text())
+    assert s["status"] == "error" and s["skipped_unreadable"] == 1 and s["frames"] == 4

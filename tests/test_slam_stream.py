@@ -123,3 +123,37 @@ def test_errors(tmp_path, video):
         FrameStream(video, camera=PinholeCamera.from_fov(W, H, 90.0), step=0)
     with pytest.raises(InputError, match="rgb"):
         FrameStream(tmp_path)  # a folder without the sequence layout
+
+
+@pytest.mark.parametrize("damage", ["cut", "overwritten"])
+def test_a_cut_or_damaged_video_is_reported(tmp_path, damage):
+    """A video that stops decoding before its declared frame count: the frames before the damage
+    are yielded and ``truncation`` says how many of how many (issue 21, item 3)."""
+    rng = np.random.default_rng(0)
+    path = tmp_path / "clip.avi"
+    _write_video(path, [rng.integers(0, 255, (H, W, 3), dtype=np.uint8) for _ in range(40)])
+    _camera_json(tmp_path / "camera.json")
+    intact = FrameStream(path)
+    assert len(list(intact)) == 40 and intact.truncation is None
+    data = path.read_bytes()
+    third = len(data) // 3
+    if damage == "cut":
+        data = data[:third]
+    else:
+        data = data[:third] + rng.integers(0, 255, third, dtype=np.uint8).tobytes() + data[2 * third:]
+    path.write_bytes(data)
+    stream = FrameStream(path)
+    frames = list(stream)
+    assert 0 < len(frames) < 40
+    assert stream.truncation is not None and stream.truncation.declared == 40
+    assert stream.truncation.read == frames[-1].index + 1
+    assert "ended after" in stream.truncation.message(path) and "of the 40 frames" in stream.truncation.message(path)
+
+
+def test_an_unreadable_folder_frame_is_yielded_marked(tmp_path):
+    root = plane_sequence(tmp_path / "plane", frames=6, size=24)
+    bad = sorted((root / "rgb").iterdir())[2]
+    bad.write_bytes(b"not a png")
+    frames = list(open_stream(root))
+    assert [f.status for f in frames] == ["ok", "ok", "unreadable", "ok", "ok", "ok"]
+    assert frames[2].rgb is None and bad.name in frames[2].error and not frames[2].usable

@@ -38,9 +38,9 @@ from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
 from c3f_slam.pipeline.odometry import OdometrySlam
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.pipeline.sources import RunInputs, RunSources, open_sources
-from c3f_slam.stream import StreamFrame
+from c3f_slam.stream import UNREADABLE, FrameStream, StreamFrame
 
-SKIP_REASONS = ("black", "saturated", "featureless")
+SKIP_REASONS = ("black", "saturated", "featureless", "unreadable")
 
 
 @dataclass
@@ -120,6 +120,8 @@ class SlamRun:
             self.bar.update(1)
         if not frame.usable:
             self._skip(frame, frame.status)
+            if frame.status == UNREADABLE:
+                self._check_bad_frames(frame)
             return
         t0 = time.perf_counter()
         depth = self.sources.depth.depth(frame)
@@ -137,6 +139,12 @@ class SlamRun:
         self.timings.add("fusion", t0)
         if self.bar is not None:
             self.bar.set_postfix(kf=self.backend.n_keyframes(), refresh=False)
+
+    def _check_bad_frames(self, frame: StreamFrame) -> None:
+        """InputError once more frames were unreadable than ``--max-bad-frames`` allows."""
+        n, limit = self.counts.skipped[UNREADABLE], self.sources.max_bad_frames
+        if n > limit:
+            raise InputError(f"{frame.error} ({n} unreadable frames, more than --max-bad-frames {limit})")
 
     def _skip(self, frame: StreamFrame, reason: str) -> None:
         self.counts.skipped[reason] += 1
@@ -231,13 +239,24 @@ def run_slam(
             folder.publish()
         raise
     write_run_outputs(outputs, run, summary, t_start)
-    unregistered = _no_frame_registered(summary, sequence)
-    if unregistered:
+    failed = _truncated(summary, sources.stream) or _no_frame_registered(summary, sequence)
+    if failed:
         outputs.write_summary(summary)
     folder.publish()
-    if unregistered:
+    if failed:
         raise InputError(summary["error"])
     return summary
+
+
+def _truncated(summary: dict, stream: FrameStream) -> bool:
+    """Mark the summary when the video ended before its declared frame count (status
+    ``truncated``: the outputs cover the frames read)."""
+    if stream.truncation is None:
+        return False
+    summary["status"] = "truncated"
+    summary["frames_declared"] = stream.truncation.declared
+    summary["error"] = stream.truncation.message(stream.source) + "; the run of the frames before it is written"
+    return True
 
 
 def _no_frame_registered(summary: dict, sequence: str | Path) -> bool:

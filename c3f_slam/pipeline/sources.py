@@ -38,6 +38,7 @@ class RunInputs:
     camera: str | Path | PinholeCamera | None = None  #: intrinsics of a video (default camera.json beside it)
     threads: int = 2  #: onnxruntime intra-op threads per model
     depth_scale: float | None = None  #: factor on model depth; None: the model's metric_scale, else 1
+    max_bad_frames: int = 10  #: unreadable frames skipped and counted; one more fails the run
 
     def resolved(self) -> RunInputs:
         """A copy with ``descriptors`` and ``depth_source`` decided (:func:`resolve_sources`)."""
@@ -95,6 +96,7 @@ class RunSources:
     stream: FrameStream
     describer: DescriptorProvider
     depth: DepthProvider
+    max_bad_frames: int = 10  #: RunInputs.max_bad_frames
 
     @property
     def camera(self) -> PinholeCamera:
@@ -129,7 +131,9 @@ def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_f
             raise InputError(f"{sequence}: --depth-source files needs a sequence folder, not a video")
         if not stream.sequence.has_depth:
             raise InputError(f"{sequence}: --depth-source files but the sequence has no depth/ folder")
+    if inputs.max_bad_frames < 0:
+        raise InputError(f"--max-bad-frames must be >= 0, got {inputs.max_bad_frames}")
     if inputs.depth_scale is not None and depth_source != "model":
         raise InputError("--depth-scale applies to model depth (--depth-model) only")
     describer, depth = make_providers(inputs, stream.camera)
-    return RunSources(descriptors, depth_source, stream, describer, depth)
+    return RunSources(descriptors, depth_source, stream, describer, depth, inputs.max_bad_frames)
