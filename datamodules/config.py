@@ -16,6 +16,12 @@ from c3f_slam.errors import InputError
 SPLITS = ("train", "val", "test")
 
 
+def check_stride(stride: int) -> None:
+    """InputError unless the frame stride of the samples (``data.sampling.stride``) is >= 1."""
+    if stride < 1:
+        raise InputError(f"data.sampling.stride must be >= 1, got {stride}")
+
+
 @dataclass(frozen=True)
 class SplitConfig:
     """Which whole sequences train, validate and test.
@@ -63,8 +69,7 @@ class TupleSamplingConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "frame_offsets", tuple(int(o) for o in self.frame_offsets))
-        if self.stride < 1:
-            raise InputError(f"data.sampling.stride must be >= 1, got {self.stride}")
+        check_stride(self.stride)
         if 0 not in self.frame_offsets:
             raise InputError(
                 f"data.sampling.frame_offsets must contain 0 (the centre frame), got {list(self.frame_offsets)}"
@@ -109,4 +114,4 @@ class LoaderConfig:
     num_workers: int = 0
 
 
-__all__ = ["SPLITS", "FramesConfig", "LoaderConfig", "SplitConfig", "TupleSamplingConfig"]
+__all__ = ["SPLITS", "FramesConfig", "LoaderConfig", "SplitConfig", "TupleSamplingConfig", "check_stride"]

@@ -18,7 +18,7 @@ from torch.utils.data import Dataset
 from c3f_models.config import as_config
 from c3f_slam.errors import InputError
 from datamodules.base import DEFAULT_FRAMES, DEFAULT_SPLIT, FrameSource, FrameTupleDataset, SequenceDataModule
-from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
+from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig, check_stride
 from datamodules.formats import SequenceFormat, make_format
 
 
@@ -45,8 +45,7 @@ class PairSamplingConfig:
             raise InputError(f"data.sampling.eval_gaps must be integers >= 1, got {list(self.eval_gaps)}")
         if self.eval_stride < 1:
             raise InputError(f"data.sampling.eval_stride must be >= 1, got {self.eval_stride}")
-        if self.stride < 1:
-            raise InputError(f"data.sampling.stride must be >= 1, got {self.stride}")
+        check_stride(self.stride)
         object.__setattr__(self, "gaps", tuple(self.gaps))
         if self.eval_gaps is not None:
             object.__setattr__(self, "eval_gaps", tuple(self.eval_gaps))
@@ -83,6 +82,7 @@ class GapPairDataset(Dataset):
         self.gaps = list(self.by_gap)
         self.index = [(g, k) for g, ds in self.by_gap.items() for k in range(0, len(ds), every)]
         self.length = max(len(ds) for ds in self.by_gap.values()) if train else len(self.index)
+
     def __len__(self) -> int:
         return self.length
 
