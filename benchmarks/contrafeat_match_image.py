@@ -19,11 +19,12 @@ import numpy as np
 import torch
 
 from benchmarks.common.contrafeat import SMALL_MODEL, load_weights
-from c3f_models.contrafeat.data import ContraFeatDataModule
+from c3f_models.contrafeat.data import ContraFeatDataModule, PairSamplingConfig
 from c3f_models.contrafeat.pairs import batch_frames, make_pairs
 from c3f_models.contrafeat_module import ContraFeat
 from c3f_slam.matching.match_accuracy import near_misses
 from c3f_slam.matching.visual import draw_matches
+from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
 
 
 def main() -> None:
@@ -37,8 +38,9 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True, help="PNG file")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    dm = ContraFeatDataModule(str(args.data), train=[], val=[], test=[args.seq], gaps=[args.gap], eval_stride=3,
-                              size=(args.size, args.size), batch_size=4)
+    dm = ContraFeatDataModule(str(args.data), split=SplitConfig(train=[], val=[], test=[args.seq]),
+                              sampling=PairSamplingConfig(gaps=(args.gap,), eval_stride=3),
+                              frames=FramesConfig(size=(args.size, args.size)), loader=LoaderConfig(batch_size=4))
     dm.setup("test")
     batch = next(iter(dm.test_dataloader()))
     frames = batch_frames(batch)

@@ -39,8 +39,9 @@ from benchmarks.common.contrafeat import (
 )
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
-from c3f_models.contrafeat.data import ContraFeatDataModule
+from c3f_models.contrafeat.data import ContraFeatDataModule, PairSamplingConfig
 from c3f_models.contrafeat_module import METHODS, ContraFeat
+from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
 
 PAPER = {  # paper table 2, averages of three synthetic sequences (recall / precision %)
     "sift": (37.9, 21.8), "sift_kpf": (27.0, 99.5), "cdf": (78.2, 86.3), "cdf_kpf": (74.9, 100.0),
@@ -148,8 +149,10 @@ def train(model: ContraFeat, data: Path, train_seqs: list[str],
           args: argparse.Namespace) -> tuple[int, list[float], float]:
     """Fit ``model`` within the step and time budget; returns the steps taken, each step's loss
     and the seconds the fit took."""
-    dm = ContraFeatDataModule(str(data / "train"), train=train_seqs, val=[], test=[], gaps=args.gaps,
-                              size=(args.size, args.size), batch_size=args.batch_size)
+    dm = ContraFeatDataModule(str(data / "train"), split=SplitConfig(train=train_seqs, val=[], test=[]),
+                              sampling=PairSamplingConfig(gaps=args.gaps),
+                              frames=FramesConfig(size=(args.size, args.size)),
+                              loader=LoaderConfig(batch_size=args.batch_size))
     trace = LossTrace()
     trainer = L.Trainer(
         accelerator="cpu", max_steps=args.steps, max_time={"minutes": args.train_minutes}, max_epochs=-1,

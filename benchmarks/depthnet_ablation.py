@@ -89,8 +89,9 @@ def run(configs: list[str], overrides: dict, data: Path, train: list[str], test:
                 for a in (f"--model.init_args.{k}", str(v).lower() if isinstance(v, bool) else str(v))]
     common = [
         "--config", "configs/trainer/cpu_smoke.yaml", *[a for c in configs for a in ("--config", c)], *switches,
-        "--data.data_dir", str(data), "--data.train", json.dumps(train), "--data.val", "[]",
-        "--data.test", json.dumps(test), "--data.size", f"[{size}, {size}]", "--data.batch_size", str(batch),
+        "--data.data_dir", str(data), "--data.split.train", json.dumps(train), "--data.split.val", "[]",
+        "--data.split.test", json.dumps(test), "--data.frames.size", f"[{size}, {size}]",
+        "--data.loader.batch_size", str(batch),
         "--trainer.default_root_dir", str(root), "--trainer.logger.init_args.save_dir", str(root),
         "--trainer.enable_progress_bar", "false", "--seed_everything", str(seed),
     ]
@@ -113,10 +114,11 @@ def constant_depth_metrics(data: Path, test: list[str], size: int) -> dict:
     import torch
 
     from c3f_models.metrics import depth_metrics
+    from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
     from datamodules.sequence import C3FSequenceDataModule
 
-    dm = C3FSequenceDataModule(data_dir=str(data), train=[], val=[], test=test, size=[size, size],
-                               frame_offsets=[-1, 0, 1], specular=True, batch_size=8, num_workers=0)
+    dm = C3FSequenceDataModule(data_dir=str(data), split=SplitConfig(train=[], val=[], test=test),
+                               frames=FramesConfig(size=(size, size)), loader=LoaderConfig(batch_size=8))
     dm.setup("test")
     sums: dict[str, float] = {}
     n = 0

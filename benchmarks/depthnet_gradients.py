@@ -39,11 +39,12 @@ def main() -> None:
     import torch
 
     from c3f_models.depthnet import DepthNet
+    from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
     from datamodules.sequence import C3FSequenceDataModule
 
     torch.set_num_threads(1)
-    dm = C3FSequenceDataModule(data_dir=str(a.data), train=[], val=[], test=a.seqs, size=[a.size, a.size],
-                               frame_offsets=[-1, 0, 1], specular=True, batch_size=4, num_workers=0)
+    dm = C3FSequenceDataModule(data_dir=str(a.data), split=SplitConfig(train=[], val=[], test=a.seqs),
+                               frames=FramesConfig(size=(a.size, a.size)), loader=LoaderConfig(batch_size=4))
     dm.setup("test")
     n_batches = len(dm.test_dataloader())
     step = max(n_batches // a.batches, 1)

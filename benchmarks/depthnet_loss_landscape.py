@@ -40,11 +40,12 @@ def main() -> None:
     import torch
 
     from c3f_models.depth.objective import LossConfig, SelfSupervisedLoss, compose_triplet_poses
+    from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
     from datamodules.sequence import C3FSequenceDataModule
 
     torch.set_num_threads(1)
-    dm = C3FSequenceDataModule(data_dir=str(a.data), train=[], val=[], test=a.seqs, size=[a.size, a.size],
-                               frame_offsets=[-1, 0, 1], specular=True, batch_size=8, num_workers=0)
+    dm = C3FSequenceDataModule(data_dir=str(a.data), split=SplitConfig(train=[], val=[], test=a.seqs),
+                               frames=FramesConfig(size=(a.size, a.size)), loader=LoaderConfig(batch_size=8))
     dm.setup("test")
     loss = SelfSupervisedLoss(LossConfig(use_outlier_mask=not a.no_outlier))
     cases = ("gt depth, gt pose", "flat depth, gt pose", "gt depth, no motion", "flat depth, no motion")

@@ -47,8 +47,9 @@ def test_metrics(base_config: Path, ckpt: Path, sequence: Path, size: list[int],
     from c3f_models.cli import main
 
     cli = main(["test", "--config", str(base_config), "--ckpt_path", str(ckpt), "--data.data_dir", str(sequence),
-                "--data.train", "[]", "--data.val", "[]", "--data.test", json.dumps([sequence.name]),
-                "--data.size", json.dumps(size), "--trainer.limit_test_batches", "1.0", "--trainer.logger", "false",
+                "--data.split.train", "[]", "--data.split.val", "[]", "--data.split.test", json.dumps([sequence.name]),
+                "--data.frames.size", json.dumps(size), "--trainer.limit_test_batches", "1.0",
+                "--trainer.logger", "false",
                 "--trainer.default_root_dir", str(root), "--trainer.enable_progress_bar", "false"])
     return logged_test_metrics(cli.trainer.callback_metrics)
 

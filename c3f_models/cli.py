@@ -9,8 +9,9 @@ Subcommands: ``fit``, ``validate``, ``test``, ``predict`` (Lightning's), plus
 
     python -m c3f_models export --config runs/.../config.yaml --ckpt_path .../last.ckpt --output_dir exported
 
-Model settings are nested groups (``--model.loss.lambda_dc 0.1``; see :class:`c3f_models.DepthNet`
-and :class:`c3f_models.ContraFeat`). The resolved config is saved as ``config.yaml`` next to the
+Model and data settings are nested groups (``--model.loss.lambda_dc 0.1``, ``--data.frames.size
+[128,128]``; see :class:`c3f_models.DepthNet`, :class:`c3f_models.ContraFeat` and
+:mod:`datamodules.config`). The resolved config is saved as ``config.yaml`` next to the
 TensorBoard logs of each run. Bad input (:class:`c3f_slam.errors.InputError`, also when raised
 by a constructor inside the parser) ends the run with a one-line ``error: ...`` and exit
 status 2 instead of a traceback; so does a ``--ckpt_path`` saved with options of an older layout.
@@ -19,8 +20,10 @@ status 2 instead of a traceback; so does a ``--ckpt_path`` saved with options of
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import lightning as L
@@ -35,6 +38,45 @@ from c3f_slam.errors import InputError
 EXTRA_SUBCOMMANDS: dict[str, set[str]] = {"export": {"model", "datamodule"}}
 
 SEED_DEFAULT = 42
+
+#: a field of a settings group: ``--model.GROUP.FIELD`` or ``--data.GROUP.FIELD`` (``init_args.`` optional)
+GROUP_FIELD_OPTION = re.compile(r"--((?:model|data)\.(?:init_args\.)?(?!init_args\b)\w+)\.(\w+)")
+YAML_NULLS = {"null", "Null", "NULL", "~"}
+
+
+def nulls_as_group_values(args: Sequence[str]) -> list[str]:
+    """``args`` with each ``--data.frames.crop null`` written as ``--data.frames {"crop": null}``.
+
+    jsonargparse (4.53) passes a group field of a class chosen by class path on as the text of its
+    parsed value, so a null arrives as the string ``None`` and is refused; given as the group, the
+    null stays one and the group's other fields keep their values.
+    """
+    out: list[str] = []
+    pending: re.Match | None = None
+    for arg in args:
+        if pending is not None:
+            group, field = pending.groups()
+            out += [f"--{group}", json.dumps({field: None})] if arg in YAML_NULLS else [pending.group(0), arg]
+            pending = None
+            continue
+        option, eq, value = arg.partition("=")
+        match = GROUP_FIELD_OPTION.fullmatch(option)
+        if match and not eq:
+            pending = match
+        elif match and value in YAML_NULLS:
+            out += [f"--{match.group(1)}", json.dumps({match.group(2): None})]
+        else:
+            out.append(arg)
+    if pending is not None:
+        out.append(pending.group(0))
+    return out
+
+
+class C3FArgumentParser(LightningArgumentParser):
+    """Lightning's parser; a null given to a field of a settings group reaches it (:func:`nulls_as_group_values`)."""
+
+    def parse_args(self, args: Sequence[str] | None = None, *rest, **kwargs):
+        return super().parse_args(nulls_as_group_values(sys.argv[1:] if args is None else args), *rest, **kwargs)
 
 
 class C3FCLI(LightningCLI):
@@ -98,6 +140,7 @@ def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
             L.LightningModule,
             L.LightningDataModule,
             trainer_class=C3FTrainer,
+            parser_class=C3FArgumentParser,
             subclass_mode_model=True,
             subclass_mode_data=True,
             seed_everything_default=SEED_DEFAULT,
@@ -120,4 +163,4 @@ def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
         raise SystemExit(2) from None
 
 
-__all__ = ["C3FCLI", "EXTRA_SUBCOMMANDS", "main", "wrapped_input_error"]
+__all__ = ["C3FCLI", "EXTRA_SUBCOMMANDS", "C3FArgumentParser", "main", "nulls_as_group_values", "wrapped_input_error"]

@@ -4,13 +4,14 @@ Each module takes its settings as a few small frozen dataclasses (``network``, `
 ``optim``, ...). LightningCLI / jsonargparse read them as nested YAML
 (``model.init_args.optim.lr: 1.0e-4``) or options (``--model.optim.lr 1e-4``); in Python
 they are dataclass instances, or plain dicts (the form saved in checkpoints), see
-:func:`as_config`. Each group validates itself in ``__post_init__``.
+:func:`as_config`. Each group validates itself in ``__post_init__``. The data modules'
+groups (:mod:`datamodules.config`) work the same way.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, is_dataclass, replace
 from typing import Any, TypeVar
 
 from c3f_slam.errors import InputError
@@ -59,4 +60,10 @@ def as_config(value: Config | Mapping[str, Any], default: Config, option: str) -
     raise InputError(f"{option}: expected {cls.__name__} settings (a mapping), got {type(value).__name__}")
 
 
-__all__ = ["ADAM_BETAS", "OptimConfig", "as_config"]
+def settings_as_dicts(hparams: Mapping[str, Any]) -> dict[str, Any]:
+    """``hparams`` with each settings group (a dataclass) as a dict of its fields, the form
+    LightningCLI saves: a checkpoint then holds no pickled classes (the safe unpickler reads it)."""
+    return {k: asdict(v) if is_dataclass(v) else v for k, v in hparams.items()}
+
+
+__all__ = ["ADAM_BETAS", "OptimConfig", "as_config", "settings_as_dicts"]

@@ -84,7 +84,7 @@ class DepthNet(C3FModule):
         image = batch["image"]
         if image.dim() != 5 or image.shape[1] != 3:
             raise InputError(
-                "DepthNet needs frame triplets (data.frame_offsets [-1, 0, 1]); "
+                "DepthNet needs frame triplets (data.sampling.frame_offsets [-1, 0, 1]); "
                 f"got an image batch of shape {tuple(image.shape)}"
             )
         spec = batch.get("specular")

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import MutableMapping
-from dataclasses import asdict, is_dataclass
 from pathlib import Path
 
 import lightning as L
 import torch
 
 from c3f_models.checkpoints import load_weights, read_checkpoint_weights
-from c3f_models.config import ADAM_BETAS, OptimConfig
+from c3f_models.config import ADAM_BETAS, OptimConfig, settings_as_dicts
 
 INIT_WEIGHTS_OPTION = "model.init_weights"
 
@@ -40,7 +39,7 @@ class C3FModule(L.LightningModule):
     def _set_hparams(self, hp: MutableMapping) -> None:
         """Settings groups (dataclasses) saved as dicts: a checkpoint then holds no pickled classes."""
         if isinstance(hp, MutableMapping):
-            hp = {k: asdict(v) if is_dataclass(v) else v for k, v in hp.items()}
+            hp = settings_as_dicts(hp)
         super()._set_hparams(hp)
 
     def configure_optimizers(self):

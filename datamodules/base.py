@@ -3,8 +3,9 @@
 A sample is a tuple of frames around a centre frame t, by default (t-1, t, t+1) with a
 configurable stride, pre-processed as SPEC §2 says: centre crop, resize (intrinsics
 follow), specular mask (Y > 0.9, 13-px dilation) and inpainting of the masked pixels.
+The settings groups (split, sampling, frames, loader) are those of :mod:`datamodules.config`.
 
-Batch layout (``F`` = frames per sample, in ``frame_offsets`` order; t is at index
+Batch layout (``F`` = frames per sample, in ``sampling.frame_offsets`` order; t is at index
 ``frame_offsets.index(0)``):
 
 ====================  ===========================  =========================================
@@ -25,6 +26,7 @@ key                   shape / type                 meaning
 from __future__ import annotations
 
 import math
+from collections.abc import MutableMapping
 from collections.abc import Sequence as SequenceABC
 from pathlib import Path
 from typing import Protocol
@@ -35,10 +37,16 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from c3f_models.config import as_config, settings_as_dicts
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
 from c3f_slam.preprocess import center_crop_resize, prepare_network_input
+from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.formats import SequenceFormat, find_sequences
+
+# the defaults of the groups (frozen, so one instance serves every module)
+DEFAULT_SPLIT, DEFAULT_SAMPLING, DEFAULT_FRAMES = SplitConfig(), TupleSamplingConfig(), FramesConfig()
+DEFAULT_LOADER = LoaderConfig()
 
 
 class FrameSource(Protocol):
@@ -59,38 +67,26 @@ class FrameSource(Protocol):
 
 
 class FrameTupleDataset(Dataset):
-    """Tuples of frames (centre t plus ``frame_offsets`` x ``stride``) from several sequences.
+    """Tuples of frames (the centre t and t + offset * stride) from several sequences.
 
     Args:
         sequences: the sequences to draw from.
-        frame_offsets: offsets of the frames relative to the centre, e.g. (-1, 0, 1).
-        stride: multiplies the offsets (frame gap between neighbours).
-        crop: centre crop (width, height) applied first, or None.
-        size: output (width, height), or None to keep the (cropped) size.
-        specular: compute the specular mask and inpaint the masked pixels.
+        frames: crop, size (width, height) and specular inpainting of every frame.
+        sampling: the frame offsets around the centre and their stride.
         load_depth / load_poses: include ground truth when every sequence has it.
     """
 
     def __init__(
         self,
         sequences: SequenceABC[FrameSource],
-        frame_offsets: SequenceABC[int] = (-1, 0, 1),
-        stride: int = 1,
-        crop: tuple[int, int] | None = None,
-        size: tuple[int, int] | None = None,
-        specular: bool = True,
+        frames: FramesConfig,
+        sampling: TupleSamplingConfig = DEFAULT_SAMPLING,
         load_depth: bool = True,
         load_poses: bool = True,
     ) -> None:
-        if stride < 1:
-            raise InputError(f"stride must be >= 1, got {stride}")
-        if 0 not in frame_offsets:
-            raise InputError(f"frame_offsets must contain 0 (the centre frame), got {list(frame_offsets)}")
         self.sequences = list(sequences)
-        self.offsets = [int(o) * stride for o in frame_offsets]
-        self.crop = tuple(crop) if crop is not None else None
-        self.size = tuple(size) if size is not None else None
-        self.specular = specular
+        self.offsets = sampling.offsets()
+        self.frames = frames
         self.load_depth = load_depth and all(s.has_depth for s in self.sequences)
         self.load_poses = load_poses and all(s.has_poses for s in self.sequences)
         span = max(self.offsets) - min(self.offsets)
@@ -108,13 +104,14 @@ class FrameTupleDataset(Dataset):
         return len(self.index)
 
     def _frame(self, seq: FrameSource, i: int) -> tuple[np.ndarray, np.ndarray, PinholeCamera, np.ndarray | None]:
-        rgb, mask, cam = prepare_network_input(seq.read_rgb(i), seq.camera, self.crop, self.size, self.specular)
+        crop, size = self.frames.crop, self.frames.size
+        rgb, mask, cam = prepare_network_input(seq.read_rgb(i), seq.camera, crop, size, self.frames.specular)
         depth = None
         if self.load_depth:
             d = seq.read_depth(i)
             if not np.all(np.isfinite(d)):
                 raise InputError(f"sequence {seq.name!r} frame {i}: depth has NaN or infinite values")
-            depth, _ = center_crop_resize(d, seq.camera, self.crop, self.size, cv2.INTER_NEAREST)
+            depth, _ = center_crop_resize(d, seq.camera, crop, size, cv2.INTER_NEAREST)
         return rgb, mask, cam, depth
 
     def __getitem__(self, idx: int) -> dict:
@@ -171,44 +168,49 @@ class SequenceDataModule(L.LightningDataModule):
 
     Subclasses say which layout their sequences have (:meth:`sequence_format`, one of
     :mod:`datamodules.formats`); everything else (finding sequences, tuples, pre-processing,
-    splits, loaders) is shared. The splits are given by name (``train``/``val``/``test``), or
-    come from the data set's release (:meth:`published_split`), or are made from the sorted
-    names with ``val_fraction``/``test_fraction``.
+    splits, loaders) is shared. The splits are given by name (``split.train``/``val``/``test``),
+    or come from the data set's release (:meth:`published_split`), or are made from the sorted
+    names with ``split.val_fraction``/``test_fraction``.
+
+    Each group is a settings dataclass of :mod:`datamodules.config` (or a dict of its fields);
+    in a config they are nested under ``data.init_args`` (``--data.frames.size [128, 128]``).
 
     Args:
         data_dir: folder holding the sequences.
-        train, val, test: sequence names per split (None = automatic split).
-        val_fraction, test_fraction: shares of sequences for the automatic split.
-        frame_offsets, stride, crop, size, specular: see :class:`FrameTupleDataset`;
-            ``crop`` and ``size`` are (width, height).
+        split: sequence names per split, or the fractions of an automatic split.
+        sampling: the frame offsets of a sample around its centre frame, and their stride.
+        frames: centre crop, size (width, height) and specular inpainting of every frame.
+        loader: batch size and loader processes.
         load_depth, load_poses: put ground truth in the batch when available.
-        batch_size, num_workers: data loader settings.
         min_frames: a sequence with fewer frames is an error (a triplet needs three).
     """
 
     def __init__(
         self,
         data_dir: str,
-        train: list[str] | None = None,
-        val: list[str] | None = None,
-        test: list[str] | None = None,
-        val_fraction: float = 0.1,
-        test_fraction: float = 0.2,
-        frame_offsets: list[int] = [-1, 0, 1],  # noqa: B006 (jsonargparse needs a literal default)
-        stride: int = 1,
-        crop: tuple[int, int] | None = None,
-        size: tuple[int, int] | None = (224, 224),
-        specular: bool = True,
+        split: SplitConfig = DEFAULT_SPLIT,
+        sampling: TupleSamplingConfig = DEFAULT_SAMPLING,
+        frames: FramesConfig = DEFAULT_FRAMES,
+        loader: LoaderConfig = DEFAULT_LOADER,
         load_depth: bool = True,
         load_poses: bool = True,
-        batch_size: int = 16,
-        num_workers: int = 0,
         min_frames: int = 3,
     ) -> None:
         super().__init__()
+        split = as_config(split, DEFAULT_SPLIT, "data.split")
+        sampling = as_config(sampling, DEFAULT_SAMPLING, "data.sampling")
+        frames = as_config(frames, DEFAULT_FRAMES, "data.frames")
+        loader = as_config(loader, DEFAULT_LOADER, "data.loader")
         self.save_hyperparameters()
         self.data_dir = Path(data_dir)
+        self.split_config, self.sampling_config, self.frames_config = split, sampling, frames
+        self.loader_config = loader
+        self.load_depth, self.load_poses, self.min_frames = load_depth, load_poses, min_frames
         self.datasets: dict[str, FrameTupleDataset] = {}
+
+    def _set_hparams(self, hp: MutableMapping) -> None:
+        """Settings groups (dataclasses) saved as dicts, as LightningCLI saves them."""
+        super()._set_hparams(settings_as_dicts(hp) if isinstance(hp, MutableMapping) else hp)
 
     # ----------------------------------------------------------- for subclasses
     def sequence_format(self) -> SequenceFormat:
@@ -239,16 +241,16 @@ class SequenceDataModule(L.LightningDataModule):
     # ----------------------------------------------------------- splits
     def split(self) -> dict[str, list[Path]]:
         """Sequence paths of each split (train/val/test): the configured names, else the data
-        set's published split (its train part shared out by ``val_fraction``), else the
+        set's published split (its train part shared out by ``split.val_fraction``), else the
         fractions over the sorted names."""
         found = self._sequences()
-        hp = self.hparams
-        given = {"train": hp.train, "val": hp.val, "test": hp.test}
+        cfg = self.split_config
+        given = cfg.names()
         if all(v is None for v in given.values()):
             published = self.published_split()
             if published:
                 known = {k: [n for n in names if n in found] for k, names in published.items()}
-                train, val, _ = split_names(known.get("train", []), hp.val_fraction, 0.0)
+                train, val, _ = split_names(known.get("train", []), cfg.val_fraction, 0.0)
                 given = {"train": train, "val": val, "test": known.get("test", [])}
         if any(v is not None for v in given.values()):
             out = {}
@@ -257,25 +259,17 @@ class SequenceDataModule(L.LightningDataModule):
                 unknown = [n for n in names if n not in found]
                 if unknown:
                     shown = ", ".join(list(found)[:5]) + (", ..." if len(found) > 5 else "")
-                    raise InputError(f"data.{k}: unknown sequence {unknown[0]!r} in {self.data_dir} (found: {shown})")
+                    raise InputError(
+                        f"data.split.{k}: unknown sequence {unknown[0]!r} in {self.data_dir} (found: {shown})"
+                    )
                 out[k] = [found[n] for n in names]
             return out
-        tr, va, te = split_names(list(found), hp.val_fraction, hp.test_fraction)
+        tr, va, te = split_names(list(found), cfg.val_fraction, cfg.test_fraction)
         return {"train": [found[n] for n in tr], "val": [found[n] for n in va], "test": [found[n] for n in te]}
 
     def make_dataset(self, paths: list[Path], train: bool) -> FrameTupleDataset:
-        hp = self.hparams
         seqs = [self.open_sequence(p) for p in paths]
-        return FrameTupleDataset(
-            seqs,
-            frame_offsets=hp.frame_offsets,
-            stride=hp.stride,
-            crop=hp.crop,
-            size=hp.size,
-            specular=hp.specular,
-            load_depth=hp.load_depth,
-            load_poses=hp.load_poses,
-        )
+        return FrameTupleDataset(seqs, self.frames_config, self.sampling_config, self.load_depth, self.load_poses)
 
     def setup(self, stage: str | None = None) -> None:
         splits = self.split()
@@ -287,13 +281,16 @@ class SequenceDataModule(L.LightningDataModule):
     # ----------------------------------------------------------- loaders
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         if split not in self.datasets:
-            raise InputError(f"no {split} sequences in {self.data_dir} (set data.{split} or the split fractions)")
+            raise InputError(
+                f"no {split} sequences in {self.data_dir} (set data.split.{split} or the split fractions)"
+            )
+        workers = self.loader_config.num_workers
         return DataLoader(
             self.datasets[split],
-            batch_size=self.hparams.batch_size,
+            batch_size=self.loader_config.batch_size,
             shuffle=shuffle,
-            num_workers=self.hparams.num_workers,
-            persistent_workers=self.hparams.num_workers > 0,
+            num_workers=workers,
+            persistent_workers=workers > 0,
             drop_last=False,
         )
 

@@ -12,15 +12,21 @@ data module                ``data_dir`` (as published)                 ground tr
 =========================  ==========================================  ==================
 
 (* UTS's public release has no depth maps; sequences rendered with its simulator do.)
-Every other argument is :class:`datamodules.base.SequenceDataModule`'s: frame tuples, the
-centre crop and resize of SPEC §2 (intrinsics follow), specular masks, splits by sequence.
+Every other argument is :class:`datamodules.base.SequenceDataModule`'s: the groups ``split``
+(by sequence), ``sampling`` (frame tuples), ``frames`` (the centre crop and resize of SPEC §2,
+intrinsics follow; specular masks) and ``loader``.
 The crops of the paper are in ``configs/depthnet/<data set>.yaml``.
 """
 
 from __future__ import annotations
 
+from c3f_models.config import as_config
 from datamodules.base import SequenceDataModule
+from datamodules.config import SplitConfig
 from datamodules.formats import SequenceFormat, make_format
+
+#: Colon10K's split (the paper's): 80/20 by sequence, no validation sequences
+COLON10K_SPLIT = SplitConfig(val_fraction=0.0, test_fraction=0.2)
 
 
 class UTSDataModule(SequenceDataModule):
@@ -34,9 +40,10 @@ class UTSDataModule(SequenceDataModule):
 
     def __init__(self, data_dir: str, fov: float | None = None, **kwargs) -> None:
         super().__init__(data_dir, **kwargs)
+        self.fov = fov
 
     def sequence_format(self) -> SequenceFormat:
-        return make_format("uts", fov=self.hparams.fov)
+        return make_format("uts", fov=self.fov)
 
 
 class SimCol3DDataModule(SequenceDataModule):
@@ -45,19 +52,20 @@ class SimCol3DDataModule(SequenceDataModule):
     Args:
         data_dir: the release's folder (holding ``misc/`` and ``SyntheticColon_*/``), or any
             folder above ``Frames_*`` folders.
-        published_split: with no ``train``/``val``/``test`` given, use the release's
-            ``misc/train_file.txt`` and ``test_file.txt`` (``val_fraction`` of the training
+        published_split: with no ``split.train``/``val``/``test`` given, use the release's
+            ``misc/train_file.txt`` and ``test_file.txt`` (``split.val_fraction`` of the training
             sequences become validation) when ``data_dir`` has them.
     """
 
     def __init__(self, data_dir: str, published_split: bool = True, **kwargs) -> None:
         super().__init__(data_dir, **kwargs)
+        self.use_published_split = published_split
 
     def sequence_format(self) -> SequenceFormat:
         return make_format("simcol3d")
 
     def published_split(self) -> dict[str, list[str]] | None:
-        return super().published_split() if self.hparams.published_split else None
+        return super().published_split() if self.use_published_split else None
 
 
 class C3VDDataModule(SequenceDataModule):
@@ -74,9 +82,10 @@ class C3VDDataModule(SequenceDataModule):
     def __init__(self, data_dir: str, calibration: str | None = None, pinhole_focal: float | None = None,
                  **kwargs) -> None:
         super().__init__(data_dir, **kwargs)
+        self.calibration, self.pinhole_focal = calibration, pinhole_focal
 
     def sequence_format(self) -> SequenceFormat:
-        return make_format("c3vd", calibration=self.hparams.calibration, pinhole_focal=self.hparams.pinhole_focal)
+        return make_format("c3vd", calibration=self.calibration, pinhole_focal=self.pinhole_focal)
 
 
 class Colon10KDataModule(SequenceDataModule):
@@ -85,11 +94,14 @@ class Colon10KDataModule(SequenceDataModule):
     Args:
         data_dir: folder of ``<seq>/image/`` sequences.
         calibration: a DSO-style calibration file for frames that are not Colon10K's 270x216.
+        split: as the base's, but by default the paper's 80/20 (``val_fraction`` 0).
     """
 
-    def __init__(self, data_dir: str, calibration: str | None = None, val_fraction: float = 0.0,
-                 test_fraction: float = 0.2, **kwargs) -> None:
-        super().__init__(data_dir, val_fraction=val_fraction, test_fraction=test_fraction, **kwargs)
+    def __init__(self, data_dir: str, calibration: str | None = None, split: SplitConfig = COLON10K_SPLIT,
+                 **kwargs) -> None:
+        split = as_config(split, COLON10K_SPLIT, "data.split")
+        super().__init__(data_dir, split=split, **kwargs)
+        self.calibration = calibration
 
     def sequence_format(self) -> SequenceFormat:
-        return make_format("colon10k", calibration=self.hparams.calibration)
+        return make_format("colon10k", calibration=self.calibration)

@@ -15,4 +15,4 @@ class C3FSequenceDataModule(SequenceDataModule):
     """Sequences in the project's layout: ``data_dir/<name>/{rgb,depth,camera.json,poses.txt}``."""
 
     def sequence_format(self) -> ProjectFormat:
-        return ProjectFormat(min_frames=self.hparams.min_frames)
+        return ProjectFormat(min_frames=self.min_frames)

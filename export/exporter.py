@@ -83,7 +83,7 @@ def graph_specs(model: L.LightningModule) -> list[GraphSpec]:
 
 def preprocessing_of(datamodule, source) -> Preprocessing:
     """Crop, size and inpainting the model was trained with (the data module's settings)."""
-    hp = dict(getattr(datamodule, "hparams", {}) or {})
+    hp = dict(getattr(datamodule, "hparams", {}) or {}).get("frames") or {}  # the data module's frames group
     crop = tuple(hp["crop"]) if hp.get("crop") else None
     size = hp.get("size")
     if size is None:  # training kept the (cropped) frame size

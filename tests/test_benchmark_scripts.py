@@ -152,8 +152,9 @@ def test_ttt_benchmark_end_to_end(tmp_path, monkeypatch):
     make_tiny_sequence(data / "train0", frames=8, size=48, seed=1)
     held_out = make_tiny_sequence(tmp_path / "held" / "test0", frames=8, size=48, seed=2)
     cli(["fit", "--config", "configs/trainer/cpu_smoke.yaml", "--config", "configs/depthnet/small.yaml",
-         "--data.data_dir", str(data), "--data.size", "[48, 48]", "--data.batch_size", "2", "--data.val", "[]",
-         "--data.test", "[]", "--data.train", '["train0"]', "--trainer.max_steps", "2",
+         "--data.data_dir", str(data), "--data.frames.size", "[48, 48]", "--data.loader.batch_size", "2",
+         "--data.split.val", "[]", "--data.split.test", "[]", "--data.split.train", '["train0"]',
+         "--trainer.max_steps", "2",
          "--trainer.default_root_dir", str(tmp_path / "base"), "--trainer.logger.init_args.save_dir",
          str(tmp_path / "base"), "--trainer.enable_progress_bar", "false"])
     run = tmp_path / "base" / "tb" / "version_0"

@@ -15,7 +15,7 @@ import torchvision
 from c3f_models.cli import main
 from c3f_models.config import OptimConfig
 from c3f_models.contrafeat.config import ContraFeatLossConfig, MatchEvaluationConfig
-from c3f_models.contrafeat.data import ContraFeatDataModule, GapPairDataset
+from c3f_models.contrafeat.data import ContraFeatDataModule, GapPairDataset, PairSamplingConfig
 from c3f_models.contrafeat.loss import batch_info_nce, info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
 from c3f_models.contrafeat.pairs import GroundTruthSettings, KeypointSettings
@@ -23,6 +23,7 @@ from c3f_models.contrafeat_module import METHODS, ContraFeat
 from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.matching import sample_descriptor_map
+from datamodules.config import FramesConfig, LoaderConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = dict(fpn_channels=16, stem_channels=8, head_channels=32)
@@ -113,17 +114,18 @@ def test_pretrained_from_depthnet_checkpoint(tmp_path, dcn):
 
 def test_gap_pairs(plane_dataset):
     seqs = [Sequence(p) for p in sorted(plane_dataset.iterdir())]
-    train = GapPairDataset(seqs, [1, 2, 4, 8], random_gap=True, specular=False)
+    plain = FramesConfig(size=None, specular=False)
+    train = GapPairDataset(seqs, PairSamplingConfig(gaps=(1, 2, 4, 8)), plain, train=True)
     assert train.gaps == [1, 2, 4]  # 6-frame sequences: gap 8 fits none
     gaps = {train[k]["gap"] for k in range(len(train)) for _ in range(3)}
     assert gaps == {1, 2, 4}
     s = train[0]
     assert s["image"].shape[:2] == (2, 3) and s["depth"].shape[:2] == (2, 1) and s["pose"].shape == (2, 4, 4)
     assert s["frame_index"][1] - s["frame_index"][0] == s["gap"]
-    ev = GapPairDataset(seqs, [1, 4], random_gap=False, specular=False)
+    ev = GapPairDataset(seqs, PairSamplingConfig(gaps=(1, 4)), plain, train=False)
     assert len(ev) == 3 * (5 + 2) and [ev[k]["gap"] for k in (0, len(ev) - 1)] == [1, 4]
     with pytest.raises(InputError, match="long enough"):
-        GapPairDataset(seqs, [6], random_gap=True)
+        GapPairDataset(seqs, PairSamplingConfig(gaps=(6,)), FramesConfig(size=None), train=True)
 
 
 def _module(**groups) -> ContraFeat:
@@ -135,7 +137,8 @@ def _module(**groups) -> ContraFeat:
 def test_module_fit_and_test_in_process(plane_dataset, tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    dm = ContraFeatDataModule(str(plane_dataset), gaps=[1, 2], size=(48, 48), batch_size=2, eval_stride=3)
+    dm = ContraFeatDataModule(str(plane_dataset), sampling=PairSamplingConfig(gaps=(1, 2), eval_stride=3),
+                              frames=FramesConfig(size=(48, 48)), loader=LoaderConfig(batch_size=2))
     model = _module()
     logger = L.pytorch.loggers.TensorBoardLogger(str(tmp_path), name="tb")
     trainer = L.Trainer(max_steps=2, limit_train_batches=2, limit_val_batches=1, limit_test_batches=2,
@@ -194,7 +197,7 @@ def test_cli_smoke_fit_small_config(plane_dataset, tmp_path, monkeypatch):
     main([
         "fit", "--config", str(ROOT / "configs/trainer/cpu_smoke.yaml"),
         "--config", str(ROOT / "configs/contrafeat/small.yaml"),
-        "--data.data_dir", str(plane_dataset), "--data.size", "[48, 48]", "--data.gaps", "[1, 2]",
+        "--data.data_dir", str(plane_dataset), "--data.frames.size", "[48, 48]", "--data.sampling.gaps", "[1, 2]",
         "--trainer.max_steps", "2", "--trainer.limit_val_batches", "1",
         "--trainer.default_root_dir", str(tmp_path), "--trainer.logger.init_args.save_dir", str(tmp_path),
     ])
@@ -259,7 +262,8 @@ def test_dense_correspondences_follow_the_true_motion():
 
 
 def test_module_dense_points_join_the_training_loss(plane_dataset):
-    dm = ContraFeatDataModule(str(plane_dataset), gaps=[1, 2], size=(48, 48), batch_size=2)
+    dm = ContraFeatDataModule(str(plane_dataset), sampling=PairSamplingConfig(gaps=(1, 2)),
+                              frames=FramesConfig(size=(48, 48)), loader=LoaderConfig(batch_size=2))
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
     plain, dense = _module(), _module(loss=ContraFeatLossConfig(dense_points=64))

@@ -11,13 +11,14 @@ from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.preprocess import specular_mask
 from datamodules.base import FrameTupleDataset, split_names
+from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.sequence import C3FSequenceDataModule
 from tests.scenes import plane_sequence
 
 
 def test_triplets_with_stride(plane_dataset):
     seq = Sequence(plane_dataset / "plane0")
-    ds = FrameTupleDataset([seq], stride=2, size=None)
+    ds = FrameTupleDataset([seq], FramesConfig(size=None), TupleSamplingConfig(stride=2))
     # 6 frames, offsets (-2, 0, 2): centres 2 and 3
     assert len(ds) == 2
     s = ds[0]
@@ -31,7 +32,7 @@ def test_triplets_with_stride(plane_dataset):
 def test_crop_resize_keeps_geometry(plane_dataset):
     """After crop+resize, the depth of a pixel back-projects to the same world point."""
     seq = Sequence(plane_dataset / "plane1")
-    ds = FrameTupleDataset([seq], crop=(40, 40), size=(20, 20))
+    ds = FrameTupleDataset([seq], FramesConfig(crop=(40, 40), size=(20, 20)))
     s = ds[0]
     K = s["K"].numpy().astype(np.float64)
     depth = s["depth"][1, 0].numpy()
@@ -57,7 +58,7 @@ def test_specular_pixels_inpainted_in_batch(tmp_path):
     img = cv2.imread(str(p))
     img[20:24, 20:24] = 255
     cv2.imwrite(str(p), img)
-    s = FrameTupleDataset([Sequence(root)], size=None)[0]
+    s = FrameTupleDataset([Sequence(root)], FramesConfig(size=None))[0]
     assert s["specular"][1, 0, 20:24, 20:24].all()
     assert float(s["image"][1, :, 20:24, 20:24].max()) < 0.95  # the highlight is gone
 
@@ -72,7 +73,8 @@ def test_split_names_whole_sequences():
 
 
 def test_datamodule_batches(plane_dataset):
-    dm = C3FSequenceDataModule(str(plane_dataset), size=(32, 32), batch_size=2)
+    dm = C3FSequenceDataModule(str(plane_dataset), frames=FramesConfig(size=(32, 32)),
+                               loader=LoaderConfig(batch_size=2))
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
     assert batch["image"].shape == (2, 3, 3, 32, 32)
@@ -91,14 +93,14 @@ def test_datamodule_batches(plane_dataset):
 def test_bad_data_dir(tmp_path, make, match):
     root = tmp_path / "data"
     make(root)
-    dm = C3FSequenceDataModule(str(root), size=None)
+    dm = C3FSequenceDataModule(str(root), frames=FramesConfig(size=None))
     with pytest.raises(InputError, match=match):
         dm.setup("fit")
 
 
 def test_unknown_split_name(plane_dataset):
-    dm = C3FSequenceDataModule(str(plane_dataset), train=["plane0", "nope"])
-    with pytest.raises(InputError, match=r"data.train: unknown sequence 'nope'"):
+    dm = C3FSequenceDataModule(str(plane_dataset), split=SplitConfig(train=["plane0", "nope"]))
+    with pytest.raises(InputError, match=r"data.split.train: unknown sequence 'nope'"):
         dm.setup("fit")
 
 
@@ -108,6 +110,6 @@ def test_nan_depth_rejected(tmp_path):
     orig = seq.read_depth
     seq.read_depth = lambda i: np.full_like(orig(i), np.nan)
     with pytest.raises(InputError, match="NaN"):
-        FrameTupleDataset([seq], size=None)[0]
+        FrameTupleDataset([seq], FramesConfig(size=None))[0]
 
 

@@ -4,11 +4,13 @@ import numpy as np
 import torch
 
 from c3f_slam import geometry as g
+from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
 from datamodules.sequence import C3FSequenceDataModule
 
 
 def test_datamodule_over_simulated_sequences(sim_dataset):
-    dm = C3FSequenceDataModule(str(sim_dataset), size=(32, 32), batch_size=2, val_fraction=0.34, test_fraction=0.34)
+    dm = C3FSequenceDataModule(str(sim_dataset), split=SplitConfig(val_fraction=0.34, test_fraction=0.34),
+                               frames=FramesConfig(size=(32, 32)), loader=LoaderConfig(batch_size=2))
     dm.setup("fit")
     dm.setup("test")
     names = {k: {s.name for s in ds.sequences} for k, ds in dm.datasets.items()}

@@ -18,6 +18,7 @@ from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
 from c3f_models.depth.objective import LossConfig
 from c3f_models.depthnet import DepthNet
 from c3f_slam.errors import InputError
+from datamodules.config import FramesConfig, LoaderConfig
 from datamodules.sequence import C3FSequenceDataModule
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,7 +29,8 @@ MONODEPTH2 = dict(use_extra_photometric=False, use_depth_consistency=False, use_
 
 
 def datamodule(root: Path, size: int = 32, batch_size: int = 2) -> C3FSequenceDataModule:
-    return C3FSequenceDataModule(data_dir=str(root), size=[size, size], batch_size=batch_size)
+    return C3FSequenceDataModule(data_dir=str(root), frames=FramesConfig(size=(size, size)),
+                                 loader=LoaderConfig(batch_size=batch_size))
 
 
 def trainer(tmp_path: Path, **kw) -> L.Trainer:
@@ -289,7 +291,8 @@ def test_configs_instantiate(name):
         assert isinstance(model, DepthNet)
     else:  # building ResNet50+DCN takes a while: check the groups instead
         assert args["network"]["encoder_layers"] == 50 and args["network"]["dcn"] is True
-        assert cfg["data"]["init_args"]["size"] == [224, 224] and cfg["data"]["init_args"]["batch_size"] == 16
+        data_args = cfg["data"]["init_args"]
+        assert data_args["frames"]["size"] == [224, 224] and data_args["loader"]["batch_size"] == 16
         assert cfg["trainer"]["max_epochs"] == 40
 
 

@@ -56,7 +56,8 @@ def depth_export(sim_dataset, tmp_path_factory):
               "--trainer.enable_progress_bar", "false"]
     main(["fit", "--config", str(ROOT / "configs/trainer/cpu_smoke.yaml"), "--config",
           str(ROOT / "configs/depthnet/small.yaml"), "--data.data_dir", str(sim_dataset),
-          "--data.size", f"[{SIZE}, {SIZE}]", "--data.batch_size", "2", "--trainer.max_steps", "1", *common])
+          "--data.frames.size", f"[{SIZE}, {SIZE}]", "--data.loader.batch_size", "2", "--trainer.max_steps", "1",
+          *common])
     run = root / "tb" / "version_0"
     out = root / "exported"
     main(["export", "--config", str(run / "config.yaml"), "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
@@ -74,7 +75,7 @@ def test_cli_export_writes_files_with_metadata(depth_export):
     assert depth.outputs[0]["name"] == "depth" and depth.outputs[0]["units"] == "m"
     assert depth.depth["min_depth"] == pytest.approx(0.001) and depth.depth["max_depth"] == pytest.approx(0.3)
     assert depth.training_config["model"]["init_args"]["network"]["encoder_layers"] == 18
-    assert depth.training_config["data"]["init_args"]["size"] == [SIZE, SIZE]
+    assert depth.training_config["data"]["init_args"]["frames"]["size"] == [SIZE, SIZE]
     assert depth.checkpoint["sha256"] == exporter_mod.sha256(run / "checkpoints" / "last.ckpt")
     assert 0 <= depth.parity["max_abs_diff"] <= TOL and depth.parity["frames"] >= 2
     model = onnx.load(str(out / "depthnet.onnx"))

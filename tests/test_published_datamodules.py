@@ -9,8 +9,9 @@ import torch
 import yaml
 
 from c3f_models.cli import main
-from c3f_models.contrafeat.data import ContraFeatDataModule
+from c3f_models.contrafeat.data import ContraFeatDataModule, PairSamplingConfig
 from c3f_slam.errors import InputError
+from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
 from datamodules.published import C3VDDataModule, Colon10KDataModule, SimCol3DDataModule, UTSDataModule
 from tests.published_data import SEQUENCE_DIR
 
@@ -22,8 +23,8 @@ MODULES = {"uts": UTSDataModule, "simcol3d": SimCol3DDataModule, "c3vd": C3VDDat
 @pytest.mark.parametrize("layout", list(MODULES))
 def test_data_module_batches_and_intrinsics(published, layout):
     _, root = published(layout)
-    dm = MODULES[layout](str(root), crop=[40, 40], size=[32, 32], batch_size=2, val_fraction=0.0, test_fraction=0.0,
-                         train=None)
+    dm = MODULES[layout](str(root), split=SplitConfig(train=None, val_fraction=0.0, test_fraction=0.0),
+                         frames=FramesConfig(crop=(40, 40), size=(32, 32)), loader=LoaderConfig(batch_size=2))
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
     assert batch["image"].shape == (2, 3, 3, 32, 32)
@@ -45,9 +46,10 @@ def test_simcol3d_uses_the_release_split_and_colon10k_the_papers(published, tmp_
         shutil.copy(scene / f"{stem}_S1.txt", scene / f"{stem}_S2.txt")
     (root / "misc" / "train_file.txt").write_text("SyntheticColon_C3F/Frames_S2/\n")  # a trailing '/' as in some copies
     (root / "misc" / "test_file.txt").write_text("SyntheticColon_C3F/Frames_S1\n")
-    split = SimCol3DDataModule(str(root), val_fraction=0.0).split()
+    split = SimCol3DDataModule(str(root), split=SplitConfig(val_fraction=0.0)).split()
     assert [p.name for p in split["train"]] == ["Frames_S2"] and [p.name for p in split["test"]] == ["Frames_S1"]
-    by_fraction = SimCol3DDataModule(str(root), published_split=False, val_fraction=0, test_fraction=0.5).split()
+    by_fraction = SimCol3DDataModule(str(root), published_split=False,
+                                     split=SplitConfig(val_fraction=0, test_fraction=0.5)).split()
     assert [p.name for p in by_fraction["train"]] == ["Frames_S1"]
     # Colon10K: 80/20 by sequence
     src = published("colon10k")[1]
@@ -63,7 +65,8 @@ def test_simcol3d_uses_the_release_split_and_colon10k_the_papers(published, tmp_
 
 def test_contrafeat_pairs_from_a_published_layout(published):
     _, root = published("simcol3d")
-    dm = ContraFeatDataModule(str(root), layout="simcol3d", gaps=[1, 2], size=(32, 32), batch_size=2)
+    dm = ContraFeatDataModule(str(root), layout="simcol3d", sampling=PairSamplingConfig(gaps=(1, 2)),
+                              frames=FramesConfig(size=(32, 32)), loader=LoaderConfig(batch_size=2))
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
     assert batch["image"].shape == (2, 2, 3, 32, 32) and batch["depth"].shape == (2, 2, 1, 32, 32)
@@ -88,21 +91,23 @@ def test_data_set_configs_compose_with_the_paper_model(published, model, data, m
     monkeypatch.chdir(ROOT)
     layout = Path(data).stem
     cli = main(["--config", f"configs/{model}", "--config", f"configs/{data}", "--trainer.logger", "false",
-                "--data.data_dir", str(published(layout)[1]), "--data.crop", "null", "--data.size", "[32, 32]",
-                "--data.val_fraction", "0", "--data.test_fraction", "0"], run=False)
+                "--data.data_dir", str(published(layout)[1]), "--data.frames.crop", "null",
+                "--data.frames.size", "[32, 32]", "--data.split.val_fraction", "0", "--data.split.test_fraction", "0"],
+               run=False)
     cfg = yaml.safe_load((ROOT / "configs" / data).read_text())["data"]
     assert type(cli.datamodule).__name__ == cfg["class_path"].rsplit(".", 1)[1]
-    assert cfg["init_args"]["size"] == [224, 224] and cfg["init_args"]["crop"] == PAPER_CROPS[layout]
+    frames = cfg["init_args"]["frames"]
+    assert frames["size"] == [224, 224] and frames["crop"] == PAPER_CROPS[layout]
     if model.startswith("depthnet"):
         net, optim = cli.model.network_config, cli.model.optim_config
         assert (net.encoder_layers, net.dcn, optim.lr, list(optim.milestones)) == (50, True, 1e-4, [16, 24, 32])
-        assert cfg["init_args"]["batch_size"] == 16
+        assert cfg["init_args"]["loader"]["batch_size"] == 16
     assert cli.datamodule.split()["train"]
 
 
 def _fit_checkpoint(data: Path, tmp_path: Path) -> Path:
     main(["fit", "--config", "configs/trainer/cpu_smoke.yaml", "--config", "configs/depthnet/small.yaml",
-          "--data.data_dir", str(data), "--data.size", "[32, 32]", "--data.batch_size", "2",
+          "--data.data_dir", str(data), "--data.frames.size", "[32, 32]", "--data.loader.batch_size", "2",
           "--trainer.max_steps", "1", "--trainer.default_root_dir", str(tmp_path / "base"),
           "--trainer.logger.init_args.save_dir", str(tmp_path / "base"), "--trainer.enable_progress_bar", "false"])
     return tmp_path / "base" / "tb" / "version_0" / "checkpoints" / "last.ckpt"
@@ -115,8 +120,8 @@ def test_test_time_training_smoke(published, tmp_path, monkeypatch):
     base = _fit_checkpoint(sim, tmp_path)
     start = torch.load(base, map_location="cpu", weights_only=True)["state_dict"]
     cli = main(["fit", "--config", "configs/depthnet/small.yaml", "--config", "configs/depthnet/ttt.yaml",
-                "--model.init_weights", str(base), "--data.data_dir", str(sim), "--data.size", "[32, 32]",
-                "--data.batch_size", "2", "--trainer.max_epochs", "1", "--trainer.accelerator", "cpu",
+                "--model.init_weights", str(base), "--data.data_dir", str(sim), "--data.frames.size", "[32, 32]",
+                "--data.loader.batch_size", "2", "--trainer.max_epochs", "1", "--trainer.accelerator", "cpu",
                 "--trainer.default_root_dir", str(tmp_path / "ttt"), "--trainer.logger.init_args.save_dir",
                 str(tmp_path / "ttt"), "--trainer.enable_progress_bar", "false"])
     assert [p.name for p in cli.datamodule.split()["train"]] == ["sim"]  # the whole sequence, no held-out part
@@ -142,7 +147,7 @@ def test_test_time_training_needs_weights(published, tmp_path, monkeypatch, caps
     sim, _ = published("simcol3d")
     with pytest.raises(SystemExit) as exit_:
         main(["fit", "--config", "configs/depthnet/small.yaml", "--config", "configs/depthnet/ttt.yaml",
-              "--data.data_dir", str(sim), "--data.size", "[32, 32]", "--trainer.accelerator", "cpu",
+              "--data.data_dir", str(sim), "--data.frames.size", "[32, 32]", "--trainer.accelerator", "cpu",
               "--trainer.default_root_dir", str(tmp_path), "--trainer.logger.init_args.save_dir", str(tmp_path)])
     assert exit_.value.code == 2
     assert "model.init_weights: file not found: <the checkpoint to tune" in capsys.readouterr().err

@@ -2,49 +2,78 @@
 
 A sample is a pair (t, t + g * stride) in the batch layout of :mod:`datamodules.base` with
 F = 2 (``image`` (B, 2, 3, H, W), ``depth``, ``pose``, ...). Training draws the gap g for
-every sample uniformly from ``gaps`` (so wide baselines are learned); validation and test
-use every gap of ``eval_gaps`` deterministically (every ``eval_stride``-th pair).
+every sample uniformly from ``sampling.gaps`` (so wide baselines are learned); validation and
+test use every gap of ``sampling.eval_gaps`` deterministically (every ``eval_stride``-th pair).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence as SequenceABC
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from torch.utils.data import Dataset
 
+from c3f_models.config import as_config
 from c3f_slam.errors import InputError
-from datamodules.base import FrameSource, FrameTupleDataset, SequenceDataModule
+from datamodules.base import DEFAULT_FRAMES, DEFAULT_SPLIT, FrameSource, FrameTupleDataset, SequenceDataModule
+from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig, check_stride
 from datamodules.formats import SequenceFormat, make_format
 
 
+@dataclass(frozen=True)
+class PairSamplingConfig:
+    """The frame pairs (t, t + g * stride) of ContraFeat's samples, g a frame gap.
+
+    Attributes:
+        gaps: gaps drawn at random for each training sample (paper: wide baselines), e.g. [1, 2, 4, 8].
+        eval_gaps: gaps used, all of them, for validation and test; null or empty = ``gaps``.
+        eval_stride: keep every n-th pair of each gap for validation and test.
+        stride: multiplies the gaps.
+    """
+
+    gaps: tuple[int, ...] = (1, 2, 4, 8)
+    eval_gaps: tuple[int, ...] | None = None
+    eval_stride: int = 1
+    stride: int = 1
+
+    def __post_init__(self) -> None:
+        if not self.gaps or any(int(g) < 1 for g in self.gaps):
+            raise InputError(f"data.sampling.gaps must be a non-empty list of integers >= 1, got {list(self.gaps)}")
+        if self.eval_gaps and any(int(g) < 1 for g in self.eval_gaps):
+            raise InputError(f"data.sampling.eval_gaps must be integers >= 1, got {list(self.eval_gaps)}")
+        if self.eval_stride < 1:
+            raise InputError(f"data.sampling.eval_stride must be >= 1, got {self.eval_stride}")
+        check_stride(self.stride)
+        object.__setattr__(self, "gaps", tuple(self.gaps))
+        if self.eval_gaps is not None:
+            object.__setattr__(self, "eval_gaps", tuple(self.eval_gaps))
+
+    def gaps_for(self, train: bool) -> tuple[int, ...]:
+        """The gaps of the training pairs, or of the validation and test pairs."""
+        return self.gaps if train or not self.eval_gaps else self.eval_gaps
+
+
 class GapPairDataset(Dataset):
-    """Pairs (t, t + g * stride) of frames, g from ``gaps`` (random per sample, or all in turn).
+    """Pairs (t, t + g * stride) of frames with ground truth: for training a random gap g per
+    sample, for validation and test every ``eval_stride``-th pair of each evaluation gap.
 
     Sequences too short for a gap are left out of that gap; a gap that fits no sequence is
     dropped; no gap fitting any sequence is an InputError.
     """
 
     def __init__(
-        self,
-        sequences: SequenceABC[FrameSource],
-        gaps: SequenceABC[int],
-        random_gap: bool,
-        stride: int = 1,
-        every: int = 1,
-        **frame_kwargs,
+        self, sequences: SequenceABC[FrameSource], sampling: PairSamplingConfig, frames: FramesConfig, train: bool
     ) -> None:
-        if not gaps or any(int(g) < 1 for g in gaps):
-            raise InputError(f"gaps must be a non-empty list of integers >= 1, got {list(gaps)}")
-        if every < 1:
-            raise InputError(f"eval_stride must be >= 1, got {every}")
-        self.random_gap = random_gap
+        gaps, stride = sampling.gaps_for(train), sampling.stride
+        every = 1 if train else sampling.eval_stride
+        self.random_gap = train
         self.by_gap: dict[int, FrameTupleDataset] = {}
         for g in sorted({int(g) for g in gaps}):
             fits = [s for s in sequences if len(s) > g * stride]
             if fits:
-                self.by_gap[g] = FrameTupleDataset(fits, frame_offsets=(0, g), stride=stride, **frame_kwargs)
+                self.by_gap[g] = FrameTupleDataset(fits, frames, TupleSamplingConfig((0, g), stride))
         if not self.by_gap:
             longest = max((len(s) for s in sequences), default=0)
             raise InputError(
@@ -52,7 +81,7 @@ class GapPairDataset(Dataset):
             )
         self.gaps = list(self.by_gap)
         self.index = [(g, k) for g, ds in self.by_gap.items() for k in range(0, len(ds), every)]
-        self.length = max(len(ds) for ds in self.by_gap.values()) if random_gap else len(self.index)
+        self.length = max(len(ds) for ds in self.by_gap.values()) if train else len(self.index)
 
     def __len__(self) -> int:
         return self.length
@@ -69,19 +98,27 @@ class GapPairDataset(Dataset):
         return sample
 
 
+#: ContraFeat's defaults where they differ from the base's (frame pairs, batch 8)
+DEFAULT_PAIRS, DEFAULT_PAIR_LOADER = PairSamplingConfig(), LoaderConfig(batch_size=8)
+
+
 class ContraFeatDataModule(SequenceDataModule):
     """Frame pairs at several gaps from sequences with depth and poses.
 
     Args:
+        data_dir: folder holding the sequences.
         layout: the sequences' layout, a name of :mod:`datamodules.formats`: ``c3f`` (the
             project's, default), ``uts``, ``simcol3d`` or ``c3vd``.
         layout_options: options of that layout's reader, e.g. ``{fov: 110}`` (uts),
             ``{calibration: FILE, pinhole_focal: 700}`` (c3vd).
-        gaps: frame gaps drawn at random for training (paper: wide baselines), e.g. [1, 2, 4, 8].
-        eval_gaps: gaps used (all of them) for validation and test (default: ``gaps``).
-        eval_stride: keep every n-th pair of each gap for validation and test.
-        The others are those of :class:`datamodules.base.SequenceDataModule` (``stride``
-        multiplies the gaps; ``frame_offsets`` is not used).
+        split: sequence names per split, or the fractions of an automatic split.
+        sampling: the frame gaps of training and evaluation pairs, the evaluation stride.
+        frames: centre crop, size (width, height) and specular inpainting of every frame.
+        loader: batch size (default 8) and loader processes.
+        min_frames: a sequence with fewer frames is an error (``c3f`` layout).
+
+    ``split``, ``frames`` and ``loader`` are the groups of :mod:`datamodules.config`, as in
+    :class:`datamodules.base.SequenceDataModule`; ``sampling`` is :class:`PairSamplingConfig`.
     """
 
     def __init__(
@@ -89,46 +126,31 @@ class ContraFeatDataModule(SequenceDataModule):
         data_dir: str,
         layout: str = "c3f",
         layout_options: dict | None = None,
-        gaps: list[int] = [1, 2, 4, 8],  # noqa: B006 (jsonargparse needs a literal default)
-        eval_gaps: list[int] | None = None,
-        eval_stride: int = 1,
-        train: list[str] | None = None,
-        val: list[str] | None = None,
-        test: list[str] | None = None,
-        val_fraction: float = 0.1,
-        test_fraction: float = 0.2,
-        stride: int = 1,
-        crop: tuple[int, int] | None = None,
-        size: tuple[int, int] | None = (224, 224),
-        specular: bool = True,
-        batch_size: int = 8,
-        num_workers: int = 0,
+        split: SplitConfig = DEFAULT_SPLIT,
+        sampling: PairSamplingConfig = DEFAULT_PAIRS,
+        frames: FramesConfig = DEFAULT_FRAMES,
+        loader: LoaderConfig = DEFAULT_PAIR_LOADER,
         min_frames: int = 2,
     ) -> None:
-        super().__init__(
-            data_dir=data_dir, train=train, val=val, test=test, val_fraction=val_fraction,
-            test_fraction=test_fraction, frame_offsets=[0, 1], stride=stride, crop=crop, size=size,
-            specular=specular, load_depth=True, load_poses=True, batch_size=batch_size,
-            num_workers=num_workers, min_frames=min_frames,
-        )
-        self.save_hyperparameters()
+        split = as_config(split, DEFAULT_SPLIT, "data.split")
+        sampling = as_config(sampling, DEFAULT_PAIRS, "data.sampling")
+        frames = as_config(frames, DEFAULT_FRAMES, "data.frames")
+        loader = as_config(loader, DEFAULT_PAIR_LOADER, "data.loader")
+        super().__init__(data_dir, split=split, sampling=TupleSamplingConfig((0, 1), sampling.stride),
+                         frames=frames, loader=loader, min_frames=min_frames)
+        self.pairs_config = sampling
+        self.layout, self.layout_options = layout, layout_options
         self.sequence_format()  # an unknown layout or option fails here, before any data is read
 
     def sequence_format(self) -> SequenceFormat:
-        hp = self.hparams
-        options = dict(hp.layout_options or {})
-        if hp.layout == "c3f":
-            options.setdefault("min_frames", hp.min_frames)
-        return make_format(hp.layout, option_prefix="data.", **options)
+        options = dict(self.layout_options or {})
+        if self.layout == "c3f":
+            options.setdefault("min_frames", self.min_frames)
+        return make_format(self.layout, option_prefix="data.", **options)
 
     def make_dataset(self, paths: list[Path], train: bool) -> GapPairDataset:
-        hp = self.hparams
         seqs = [self.open_sequence(p) for p in paths]
         missing = [s.name for s in seqs if not (s.has_depth and s.has_poses)]
         if missing:
             raise InputError(f"ContraFeat needs depth and poses; sequence {missing[0]!r} in {self.data_dir} lacks them")
-        gaps = hp.gaps if train or not hp.eval_gaps else hp.eval_gaps
-        return GapPairDataset(
-            seqs, gaps, random_gap=train, stride=hp.stride, every=1 if train else hp.eval_stride,
-            crop=hp.crop, size=hp.size, specular=hp.specular, load_depth=True, load_poses=True,
-        )
+        return GapPairDataset(seqs, self.pairs_config, self.frames_config, train)
