@@ -23,7 +23,7 @@ from benchmarks.common.report import Report
 TERMS = ("ph", "ph_extra", "dc")
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=ROOT / "runs/bench/depth_slow")
     ap.add_argument("--seqs", nargs="+", default=["train0", "train1"])
@@ -36,43 +36,61 @@ def main() -> None:
     a = ap.parse_args()
     if a.ckpt is not None and not a.ckpt.is_file():
         ap.error(f"--ckpt: no such checkpoint: {a.ckpt}")
-    import torch
+    return a
 
-    from c3f_models.depthnet import DepthNet
+
+def _batches(a: argparse.Namespace) -> list:
+    """``a.batches`` batches of 4 triplets, evenly spread over the test split of the sequences."""
     from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
     from datamodules.sequence import C3FSequenceDataModule
 
-    torch.set_num_threads(1)
     dm = C3FSequenceDataModule(data_dir=str(a.data), split=SplitConfig(train=[], val=[], test=a.seqs),
                                frames=FramesConfig(size=(a.size, a.size)), loader=LoaderConfig(batch_size=4))
     dm.setup("test")
     n_batches = len(dm.test_dataloader())
     step = max(n_batches // a.batches, 1)
-    batches = [b for k, b in enumerate(dm.test_dataloader()) if k % step == step // 2][: a.batches]
+    return [b for k, b in enumerate(dm.test_dataloader()) if k % step == step // 2][: a.batches]
 
+
+def _gradient_row(name: str, ckpt: Path | None, a: argparse.Namespace, batches: list) -> str:
+    """One table row: median loss terms, gradient norms per term and network, and the
+    |grad L_dc| / |grad L_ph| ratios, for the seeded initialisation or ``ckpt``'s weights."""
+    import torch
+
+    from c3f_models.depthnet import DepthNet
+
+    torch.manual_seed(a.seed)
+    model = DepthNet({"encoder_layers": 18, "dcn": False, "num_scales": a.num_scales})
+    if ckpt is not None:
+        model.load_init_weights(ckpt)
+    nets = {"depth": list(model.depth_net.parameters()), "pose": list(model.pose_net.parameters())}
+    norms: dict[tuple[str, str], list[float]] = {}
+    values: dict[str, list[float]] = {t: [] for t in TERMS}
+    for b in batches:
+        terms, _ = model.compute_loss(b)
+        for t in TERMS:
+            v = getattr(terms, t)
+            values[t].append(float(v.detach()))
+            for net, params in nets.items():
+                g = torch.autograd.grad(v, params, retain_graph=True, allow_unused=True)
+                norms.setdefault((t, net), []).append(float(sum((x ** 2).sum() for x in g if x is not None) ** 0.5))
+    ratio = {net: statistics.median(d / p for d, p in zip(norms[("dc", net)], norms[("ph", net)])) for net in nets}
+    return (f"| {name} | " + " | ".join(f"{statistics.median(values[t]):.4f}" for t in TERMS) + " | "
+            + " | ".join(f"{statistics.median(norms[(t, net)]):.2e}" for net in nets for t in TERMS)
+            + f" | {ratio['depth']:.1f} | {ratio['pose']:.1f} |")
+
+
+def main() -> None:
+    a = _arguments()
+    import torch
+
+    torch.set_num_threads(1)
+    batches = _batches(a)
     rows = []
     for name, ckpt in (("random init", None), (f"weights of {a.ckpt}", a.ckpt)):
         if name != "random init" and ckpt is None:
             continue
-        torch.manual_seed(a.seed)
-        model = DepthNet({"encoder_layers": 18, "dcn": False, "num_scales": a.num_scales})
-        if ckpt is not None:
-            model.load_init_weights(ckpt)
-        nets = {"depth": list(model.depth_net.parameters()), "pose": list(model.pose_net.parameters())}
-        norms: dict[tuple[str, str], list[float]] = {}
-        values: dict[str, list[float]] = {t: [] for t in TERMS}
-        for b in batches:
-            terms, _ = model.compute_loss(b)
-            for t in TERMS:
-                v = getattr(terms, t)
-                values[t].append(float(v.detach()))
-                for net, params in nets.items():
-                    g = torch.autograd.grad(v, params, retain_graph=True, allow_unused=True)
-                    norms.setdefault((t, net), []).append(float(sum((x ** 2).sum() for x in g if x is not None) ** 0.5))
-        ratio = {net: statistics.median(d / p for d, p in zip(norms[("dc", net)], norms[("ph", net)])) for net in nets}
-        rows.append(f"| {name} | " + " | ".join(f"{statistics.median(values[t]):.4f}" for t in TERMS) + " | "
-                    + " | ".join(f"{statistics.median(norms[(t, net)]):.2e}" for net in nets for t in TERMS)
-                    + f" | {ratio['depth']:.1f} | {ratio['pose']:.1f} |")
+        rows.append(_gradient_row(name, ckpt, a, batches))
 
     report = Report(__file__, "DepthNet: gradient norm of each loss term")
     text = report.render([

@@ -18,6 +18,7 @@ import platform
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -54,23 +55,42 @@ def _stage_breakdown(params, frames: int) -> dict[str, float]:
     return {k: float(np.median(v)) for k, v in times.items()}
 
 
-def main(argv: list[str] | None = None) -> int:
+@dataclass
+class _Run:
+    """Wall-clock stamps of one timed ``generate_sequence`` run."""
+
+    start: float  # perf_counter() before the run, s
+    stamps: list[float]  # perf_counter() as each frame was done, s
+    cpu: list[float]  # process CPU seconds (all threads) as each frame was done
+    total: float  # duration of the whole run, s
+    size_mb: float  # size of everything written, MB
+
+
+@dataclass
+class _Rates:
+    """Throughput derived from a :class:`_Run` of ``n`` frames."""
+
+    setup: float  # s until the first frame was done
+    skip: int  # frames left out of the steady part
+    steady: float  # frames/s over frames skip..n-1
+    cpu_ms: float  # CPU ms per frame over the steady part
+    overall: float  # frames/s including set-up and mesh.ply
+
+
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--preset", default="seq1")
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--out", default=str(RESULTS / "simulator_fps.md"))
-    args = ap.parse_args(argv)
+    return ap.parse_args(argv)
 
-    import cv2
-    import open3d
 
+def _timed_generation(params) -> _Run:
+    """Generate the sequence of ``params`` into a temporary folder, stamping every frame."""
     from datamodules.synthetic.generate import generate_sequence
-    from datamodules.synthetic.params import apply_overrides, get_preset
 
-    params = apply_overrides(get_preset(args.preset), {"frames": args.frames, "size": args.size, "seed": args.seed})
-    load_before = os.getloadavg()
     stamps: list[float] = []
     cpu: list[float] = []
 
@@ -83,30 +103,41 @@ def main(argv: list[str] | None = None) -> int:
         generate_sequence(params, Path(tmp) / "seq", progress=False, on_frame=tick)
         total = time.perf_counter() - t0
         size_mb = sum(f.stat().st_size for f in (Path(tmp) / "seq").rglob("*") if f.is_file()) / 1e6
-    load_after = os.getloadavg()
-    n = args.frames
-    setup = stamps[0] - t0 if stamps else float("nan")
+    return _Run(start=t0, stamps=stamps, cpu=cpu, total=total, size_mb=size_mb)
+
+
+def _rates(run: _Run, n: int) -> _Rates:
+    """Set-up time and rates of ``run``; the steady part leaves out the first (up to) 10 frames."""
+    stamps, cpu = run.stamps, run.cpu
+    setup = stamps[0] - run.start if stamps else float("nan")
     skip = min(10, n - 1)
     steady = (n - 1 - skip) / (stamps[-1] - stamps[skip]) if n - 1 > skip else float("nan")
     cpu_ms = 1000 * (cpu[-1] - cpu[skip]) / (n - 1 - skip) if n - 1 > skip else float("nan")
-    overall = n / total
-    stages = _stage_breakdown(params, min(40, n))
+    return _Rates(setup=setup, skip=skip, steady=steady, cpu_ms=cpu_ms, overall=n / run.total)
 
+
+def _report_lines(args: argparse.Namespace, params, run: _Run, rates: _Rates, stages: dict[str, float],
+                  loads: tuple[float, float]) -> list[str]:
+    """The report's body; ``loads``: 1-minute load average before and after the run."""
+    import cv2
+    import open3d
+
+    n, skip, cpu_ms = args.frames, rates.skip, rates.cpu_ms
     lines = [
         (f"Machine: {os.cpu_count()} CPU cores, {platform.processor() or platform.machine()}, "
          f"Python {platform.python_version()},"
          f" NumPy {np.__version__}, OpenCV {cv2.__version__}, Open3D {open3d.__version__}; no GPU."),
-        (f"Load average (1 min) before / after: {load_before[0]:.2f} / {load_after[0]:.2f}"
+        (f"Load average (1 min) before / after: {loads[0]:.2f} / {loads[1]:.2f}"
          " (other jobs share these cores; rates scale with the free CPU)."),
         "",
         (f"Preset {params.preset}, {n} frames at {args.size}x{args.size}, seed {args.seed},"
-         f" colon {params.colon.length} m, mesh of the full colon; output {size_mb:.1f} MB."),
+         f" colon {params.colon.length} m, mesh of the full colon; output {run.size_mb:.1f} MB."),
         "",
         "| measure | value |",
         "|---|---|",
-        f"| set-up (colon mesh, path planning, texture atlas) | {setup:.2f} s |",
-        f"| steady rate, frames {skip}..{n - 1}, rendering + writing | **{steady:.1f} frames/s** |",
-        f"| overall rate incl. set-up and mesh.ply | {overall:.1f} frames/s ({total:.1f} s total) |",
+        f"| set-up (colon mesh, path planning, texture atlas) | {rates.setup:.2f} s |",
+        f"| steady rate, frames {skip}..{n - 1}, rendering + writing | **{rates.steady:.1f} frames/s** |",
+        f"| overall rate incl. set-up and mesh.ply | {rates.overall:.1f} frames/s ({run.total:.1f} s total) |",
         f"| CPU time per frame (all threads), steady part | {cpu_ms:.0f} ms |",
         f"| bound with both cores free: 2 cores / CPU time per frame | {2000 / cpu_ms:.0f} frames/s |",
         "",
@@ -118,8 +149,22 @@ def main(argv: list[str] | None = None) -> int:
     ]
     lines += [f"| {k} | {v:.1f} |" for k, v in stages.items()]
     lines += [f"| sum | {sum(stages.values()):.1f} |"]
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _arguments(argv)
+
+    from datamodules.synthetic.params import apply_overrides, get_preset
+
+    params = apply_overrides(get_preset(args.preset), {"frames": args.frames, "size": args.size, "seed": args.seed})
+    load_before = os.getloadavg()
+    run = _timed_generation(params)
+    load_after = os.getloadavg()
+    rates = _rates(run, args.frames)
+    stages = _stage_breakdown(params, min(40, args.frames))
     report = Report(__file__, "Simulator throughput", argv)
-    text = report.render(lines)
+    text = report.render(_report_lines(args, params, run, rates, stages, (load_before[0], load_after[0])))
     report.write(Path(args.out), text)
     print(text)
     return 0

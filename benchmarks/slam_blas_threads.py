@@ -29,6 +29,8 @@ from c3f_slam.matching import mutual_nearest_neighbours
 from c3f_slam.pipeline import SlamConfig, run_slam
 
 STAGES = ("keypoints", "matching", "posegraph")
+#: The two settings compared: name -> ``SlamConfig.blas_threads``.
+SETTINGS = {"blas_threads=1": 1, "library default": None}
 
 
 def _spin(stop) -> None:  # a busy core (another job on the machine)
@@ -53,7 +55,7 @@ def micro(limit: int | None, repeats: int = 300) -> float:
             ctx.restore_original_limits()
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("sequence", type=Path, help="sequence folder with depth/ (RGB-D mode)")
     ap.add_argument("--max-frames", type=int, default=300)
@@ -61,19 +63,22 @@ def main() -> None:
     ap.add_argument("--min-correspondences", type=int, default=15)
     ap.add_argument("--busy", type=int, default=0, help="busy-looping processes to start beside the runs")
     ap.add_argument("--report", type=Path, default=None, help="Markdown report (default: print only)")
-    a = ap.parse_args()
+    return ap.parse_args()
 
+
+def _alternating_runs(a: argparse.Namespace) -> tuple[dict[str, list[dict]], dict[str, list[float]]]:
+    """Run the SLAM system ``a.repeats`` times per setting, alternating, with ``a.busy`` busy
+    processes beside it; returns the run summaries and the micro-benchmark times (ms) per setting."""
     stop = mp.Event()
     spinners = [mp.Process(target=_spin, args=(stop,), daemon=True) for _ in range(a.busy)]
     for p in spinners:
         p.start()
-    settings = {"blas_threads=1": 1, "library default": None}
-    res: dict[str, list[dict]] = {k: [] for k in settings}
-    micro_ms: dict[str, list[float]] = {k: [] for k in settings}
+    res: dict[str, list[dict]] = {k: [] for k in SETTINGS}
+    micro_ms: dict[str, list[float]] = {k: [] for k in SETTINGS}
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for r in range(a.repeats):
-                for name, limit in settings.items():
+                for name, limit in SETTINGS.items():
                     cfg = SlamConfig.preset_config("colon", fusion={"enabled": False}, blas_threads=limit,
                                                    fragments={"min_correspondences": a.min_correspondences})
                     s = run_slam(a.sequence, Path(tmp) / f"{r}_{limit}", cfg, progress=False, max_frames=a.max_frames)
@@ -83,7 +88,11 @@ def main() -> None:
         stop.set()
         for p in spinners:
             p.join()
+    return res, micro_ms
 
+
+def _report_lines(a: argparse.Namespace, res: dict[str, list[dict]], micro_ms: dict[str, list[float]]) -> list[str]:
+    """Setup, identical-results check and the table of median per-stage times of both settings."""
     load = os.getloadavg()[0]
     blas = [f"{i['internal_api']} {i['version']} ({i['num_threads']} threads)" for i in threadpool_info()
             if i["user_api"] == "blas"]
@@ -94,7 +103,7 @@ def main() -> None:
     def fps(name: str) -> float:
         return statistics.median(s["timings"]["total"]["frames_per_second"] for s in res[name])
 
-    one, lib = settings
+    one, lib = SETTINGS
     lines = [
         (f"- {a.max_frames} frames of {a.sequence.name}, RGB-D, SIFT, full system, no mesh; {a.repeats} alternating "
          f"runs per setting, medians; {a.busy} busy-looping processes beside the runs; {os.cpu_count()} CPUs, "
@@ -113,8 +122,14 @@ def main() -> None:
     lines.append(f"| total frames/s | {fps(one):.1f} | {fps(lib):.1f} | {fps(one) / fps(lib):.2f} (speed-up) |")
     m1, m0 = statistics.median(micro_ms[one]), statistics.median(micro_ms[lib])
     lines.append(f"| one 120x120 descriptor matching (ms) | {m1:.3f} | {m0:.3f} | {m0 / m1:.2f} |")
+    return lines
+
+
+def main() -> None:
+    a = _arguments()
+    res, micro_ms = _alternating_runs(a)
     report = Report(__file__, "SLAM runtime: BLAS capped at one thread vs the library default")
-    text = report.render(lines)
+    text = report.render(_report_lines(a, res, micro_ms))
     if a.report:
         report.write(a.report, text)
     print(text)

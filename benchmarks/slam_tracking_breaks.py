@@ -43,18 +43,26 @@ def reason_kind(reason: str) -> str:
     return reason.split(" (")[0] if reason else ""
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("sequence", type=Path, help="sequence folder with depth/ (and poses.txt, frames.csv if any)")
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--min-correspondences", type=int, default=15, help="new-fragment threshold to report against")
     ap.add_argument("--list", type=int, default=60, help="broken pairs listed one by one (0 = none)")
     ap.add_argument("--report", type=Path, default=None, help="Markdown report (default: print only)")
-    a = ap.parse_args()
+    return ap.parse_args()
 
-    cfg = SlamConfig()
-    stream = FrameStream(a.sequence, use_depth=True, max_frames=a.max_frames)
-    seq = Sequence(a.sequence)
+
+def pair_rows(sequence: Path, max_frames: int | None, cfg: SlamConfig) -> tuple[list[dict], bool]:
+    """One row per consecutive pair (i - 1, i) and whether the rows hold the true motion.
+
+    A row holds ``i``, the keypoints of frame i (``kp``), descriptor matches (``candidates``),
+    filter survivors (``filtered``), accepted correspondences ``n`` (0 = broken pair), the
+    filter's ``reason``, the event of either frame and, with poses.txt, the ground-truth
+    rotation (``rot_deg``, degrees) and translation (``trans_mm``, mm) between the frames.
+    """
+    stream = FrameStream(sequence, use_depth=True, max_frames=max_frames)
+    seq = Sequence(sequence)
     # ground-truth motion of each consecutive pair (i - 1, i), at index i - 1
     step_t, step_rot = relative_motion(seq.poses) if seq.has_poses else (None, None)
     front = Frontend(stream.camera.K, SiftDescriptors(), cfg.frontend)
@@ -62,7 +70,7 @@ def main() -> None:
     prev = None
     for frame in stream:
         if frame.depth is None:
-            raise SystemExit(f"{a.sequence}: no depth/ folder (this diagnostic runs in RGB-D mode)")
+            raise SystemExit(f"{sequence}: no depth/ folder (this diagnostic runs in RGB-D mode)")
         feat = front.describe(frame, front.keypoints(frame.rgb), frame.depth)
         if prev is not None:
             att = explain_match(prev, feat, cfg.match_filter, "l2", cfg.frontend.ratio)
@@ -73,32 +81,39 @@ def main() -> None:
                 row["trans_mm"] = 1e3 * float(step_t[frame.index - 1])
             rows.append(row)
         prev = feat
-    n_frames = len(rows) + 1
-    events = events_of(a.sequence, n_frames)
+    events = events_of(sequence, len(rows) + 1)
     for r in rows:  # a pair belongs to an event when either frame does
         r["event"] = events[r["i"]] or events[r["i"] - 1]
+    return rows, step_t is not None
 
+
+def _median(rows: list[dict], key: str, have_motion: bool) -> str:
+    return f"{np.median([r[key] for r in rows]):.2f}" if rows and have_motion else "-"
+
+
+def _summary_lines(rows: list[dict], cfg: SlamConfig, min_correspondences: int) -> list[str]:
+    """Counts of pairs, broken and weak pairs, the matching settings and the reasons of the breaks."""
     broken = [r for r in rows if r["n"] == 0]
-    weak = [r for r in rows if 0 < r["n"] < a.min_correspondences]
-    by_event: dict[str, list] = defaultdict(list)
-    for r in rows:
-        by_event[r["event"] or "none"].append(r)
-    have_motion = step_t is not None
-
-    def med(rs, key):
-        return f"{np.median([r[key] for r in rs]):.2f}" if rs and have_motion else "-"
-
-    lines = [
-        (f"- {n_frames} frames, {len(rows)} consecutive pairs; "
+    weak = [r for r in rows if 0 < r["n"] < min_correspondences]
+    reasons = Counter(reason_kind(r["reason"]) for r in broken).most_common()
+    return [
+        (f"- {len(rows) + 1} frames, {len(rows)} consecutive pairs; "
          f"SIFT (max {cfg.frontend.max_keypoints} keypoints, contrast "
          f"threshold {cfg.frontend.sift_contrast_threshold}), ratio {cfg.frontend.ratio}, match filter defaults (>= "
          f"{cfg.match_filter.min_matches} correspondences, residual {1e3 * cfg.match_filter.max_residual:g} mm)."),
-        (f"- Broken pairs (no accepted match): {len(broken)}; accepted but under {a.min_correspondences} "
+        (f"- Broken pairs (no accepted match): {len(broken)}; accepted but under {min_correspondences} "
          f"correspondences: {len(weak)}; "
          f"median correspondences of all pairs: {np.median([r['n'] for r in rows]):.0f}."),
-        "- Reasons of the broken pairs: " + (", ".join(f"{k} {v}" for k, v in
-                                                     Counter(reason_kind(r["reason"]) for r in broken).most_common())
-                                             or "-") + ".", "",
+        "- Reasons of the broken pairs: " + (", ".join(f"{k} {v}" for k, v in reasons) or "-") + ".",
+    ]
+
+
+def _event_table(rows: list[dict], min_correspondences: int, have_motion: bool) -> list[str]:
+    """Markdown table: pairs, broken and weak pairs and median motions per event ('none' first)."""
+    by_event: dict[str, list] = defaultdict(list)
+    for r in rows:
+        by_event[r["event"] or "none"].append(r)
+    lines = [
         ("| event | pairs | broken | under threshold | median rotation deg/frame | median translation mm/frame "
          "| median rotation of broken pairs | median translation of broken pairs |"),
         "|---|---|---|---|---|---|---|---|",
@@ -106,19 +121,37 @@ def main() -> None:
     for ev in sorted(by_event, key=lambda e: (e != "none", e)):
         rs = by_event[ev]
         br = [r for r in rs if r["n"] == 0]
-        wk = [r for r in rs if 0 < r["n"] < a.min_correspondences]
-        lines.append(f"| {ev} | {len(rs)} | {len(br)} | {len(wk)} | {med(rs, 'rot_deg')} | {med(rs, 'trans_mm')} | "
-                     f"{med(br, 'rot_deg')} | {med(br, 'trans_mm')} |")
-    if a.list and broken:
-        lines += ["", "Broken pairs (frame i-1 -> i):", "",
-                  ("| frame i | event | keypoints | descriptor matches | filter survivors | rotation deg | "
-                   "translation mm | reason |"), "|---|---|---|---|---|---|---|---|"]
-        for r in broken[: a.list]:
-            lines.append(f"| {r['i']} | {r['event'] or '-'} | {r['kp']} | {r['candidates']} | {r['filtered']} | "
-                         + (f"{r['rot_deg']:.1f} | {r['trans_mm']:.2f}" if have_motion else "- | -")
-                         + f" | {r['reason']} |")
-        if len(broken) > a.list:
-            lines.append(f"\n({len(broken) - a.list} more not listed)")
+        wk = [r for r in rs if 0 < r["n"] < min_correspondences]
+        lines.append(f"| {ev} | {len(rs)} | {len(br)} | {len(wk)} | {_median(rs, 'rot_deg', have_motion)} | "
+                     f"{_median(rs, 'trans_mm', have_motion)} | "
+                     f"{_median(br, 'rot_deg', have_motion)} | {_median(br, 'trans_mm', have_motion)} |")
+    return lines
+
+
+def _broken_list(rows: list[dict], limit: int, have_motion: bool) -> list[str]:
+    """The first ``limit`` broken pairs one by one (nothing when ``limit`` is 0 or none broke)."""
+    broken = [r for r in rows if r["n"] == 0]
+    if not (limit and broken):
+        return []
+    lines = ["", "Broken pairs (frame i-1 -> i):", "",
+             ("| frame i | event | keypoints | descriptor matches | filter survivors | rotation deg | "
+              "translation mm | reason |"), "|---|---|---|---|---|---|---|---|"]
+    for r in broken[:limit]:
+        lines.append(f"| {r['i']} | {r['event'] or '-'} | {r['kp']} | {r['candidates']} | {r['filtered']} | "
+                     + (f"{r['rot_deg']:.1f} | {r['trans_mm']:.2f}" if have_motion else "- | -")
+                     + f" | {r['reason']} |")
+    if len(broken) > limit:
+        lines.append(f"\n({len(broken) - limit} more not listed)")
+    return lines
+
+
+def main() -> None:
+    a = _arguments()
+    cfg = SlamConfig()
+    rows, have_motion = pair_rows(a.sequence, a.max_frames, cfg)
+    lines = [*_summary_lines(rows, cfg, a.min_correspondences), "",
+             *_event_table(rows, a.min_correspondences, have_motion),
+             *_broken_list(rows, a.list, have_motion)]
     report = Report(__file__, "Consecutive-frame tracking breaks")
     text = report.render(lines)
     if a.report:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import lightning as L
@@ -120,6 +121,15 @@ def _io_entries(spec: GraphSpec, dynamic_size: bool) -> tuple[list[dict], list[d
     return inputs, outputs
 
 
+@dataclass
+class _Provenance:
+    """Where every exported graph comes from (recorded in its metadata and in export.json)."""
+
+    training_config: dict  # model (and data module) class paths and init args
+    checkpoint: dict  # {"file": name, "sha256": hex digest}
+    created: str  # UTC time of the export, ISO 8601 to the second
+
+
 def export_model(
     model: L.LightningModule,
     ckpt_path: str | Path | None,
@@ -144,6 +154,29 @@ def export_model(
         weights_only: accepted for the run's saved ``config.yaml``; checkpoints are always read with
             the safe unpickler (:func:`c3f_models.checkpoints.read_checkpoint_weights`), and False is refused.
     """
+    ckpt_path = _checked_arguments(ckpt_path, weights_only, num_frames)
+    specs = graph_specs(model)
+    source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
+    load_checkpoint(model, ckpt_path)
+    pre = preprocessing_of(datamodule, source)
+    images = frames_from_source(source, pre, num_frames)
+    provenance = _Provenance(training_config=_training_config(model, datamodule),
+                             checkpoint={"file": ckpt_path.name, "sha256": sha256(ckpt_path)},
+                             created=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
+
+    staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]] = []
+    for spec in specs:  # export and check everything before writing anything
+        example = spec.example_inputs(images)
+        proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size)
+        report = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name)
+        depth = _depth_entry(model, spec, datamodule, pre) if spec.kind == "depth" else None
+        staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, report.as_dict(), provenance)))
+    return _write_export(staged, Path(output_dir), provenance)
+
+
+def _checked_arguments(ckpt_path: str | Path | None, weights_only: bool | None, num_frames: int) -> Path:
+    """The checkpoint path; InputError (naming the option) for a missing checkpoint,
+    ``weights_only`` False or fewer than one parity frame."""
     if ckpt_path is None:
         raise InputError("--ckpt_path: give the checkpoint to export")
     if weights_only is False:
@@ -151,51 +184,55 @@ def export_model(
     ckpt_path = Path(ckpt_path)
     if num_frames < 1:
         raise InputError(f"--num_frames must be >= 1, got {num_frames}")
-    specs = graph_specs(model)
-    source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
-    load_checkpoint(model, ckpt_path)
-    pre = preprocessing_of(datamodule, source)
-    images = frames_from_source(source, pre, num_frames)
+    return ckpt_path
+
+
+def _training_config(model: L.LightningModule, datamodule) -> dict:
+    """Class paths and init args of the model and (if any) the data module, as a config records them."""
     config = {"model": {"class_path": f"{type(model).__module__}.{type(model).__name__}",
                         "init_args": _jsonable(model.hparams)}}
     if datamodule is not None:
         config["data"] = {"class_path": f"{type(datamodule).__module__}.{type(datamodule).__name__}",
                           "init_args": _jsonable(getattr(datamodule, "hparams", {}))}
-    checkpoint = {"file": ckpt_path.name, "sha256": sha256(ckpt_path)}
-    created = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+    return config
 
-    staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]] = []
-    for spec in specs:  # export and check everything before writing anything
-        example = spec.example_inputs(images)
-        proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size)
-        report = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name)
-        inputs, outputs = _io_entries(spec, dynamic_size)
-        depth = None
-        if spec.kind == "depth":
-            net = model.depth_net
-            depth = {"min_depth": net.min_depth, "max_depth": net.max_depth,
-                     "conversion": "depth = 1 / (1/max_depth + (1/min_depth - 1/max_depth) * sigmoid_disparity), "
-                                   "in graph",
-                     "scale": "training scale (monocular depth: metres up to the scale the self-supervision fixed; "
-                              "metric_scale, when present, is the factor to metres measured on the training data)"}
-            cal = _metric_scale(spec.module, datamodule, pre)
-            if cal is not None:
-                depth.update(metric_scale=cal["metric_scale"], metric_scale_spread=cal["spread"],
-                             metric_scale_frames=cal["frames"], metric_scale_source=cal["source"])
-        meta = ModelMetadata(
-            kind=spec.kind, inputs=inputs, outputs=outputs, preprocessing=pre, dynamic_batch=True,
-            dynamic_size=dynamic_size, descriptor_dim=spec.output_channels if spec.kind == "descriptors" else None,
-            depth=depth, opset=spec.opset, training_config=config, checkpoint=checkpoint,
-            parity=report.as_dict(), project_version=__version__, created=created,
-        )
-        staged.append((spec, proto, meta))
 
-    out = Path(output_dir)
+def _depth_entry(model: DepthNet, spec: GraphSpec, datamodule, pre: Preprocessing) -> dict:
+    """The ``depth`` metadata of the depth graph: range (m), conversion, scale and, when the
+    training data has true depth, the measured metric scale."""
+    net = model.depth_net
+    depth = {"min_depth": net.min_depth, "max_depth": net.max_depth,
+             "conversion": "depth = 1 / (1/max_depth + (1/min_depth - 1/max_depth) * sigmoid_disparity), "
+                           "in graph",
+             "scale": "training scale (monocular depth: metres up to the scale the self-supervision fixed; "
+                      "metric_scale, when present, is the factor to metres measured on the training data)"}
+    cal = _metric_scale(spec.module, datamodule, pre)
+    if cal is not None:
+        depth.update(metric_scale=cal["metric_scale"], metric_scale_spread=cal["spread"],
+                     metric_scale_frames=cal["frames"], metric_scale_source=cal["source"])
+    return depth
+
+
+def _graph_metadata(spec: GraphSpec, pre: Preprocessing, dynamic_size: bool, depth: dict | None, parity: dict,
+                    provenance: _Provenance) -> ModelMetadata:
+    """The metadata written into the graph's ONNX file."""
+    inputs, outputs = _io_entries(spec, dynamic_size)
+    return ModelMetadata(
+        kind=spec.kind, inputs=inputs, outputs=outputs, preprocessing=pre, dynamic_batch=True,
+        dynamic_size=dynamic_size, descriptor_dim=spec.output_channels if spec.kind == "descriptors" else None,
+        depth=depth, opset=spec.opset, training_config=provenance.training_config, checkpoint=provenance.checkpoint,
+        parity=parity, project_version=__version__, created=provenance.created,
+    )
+
+
+def _write_export(staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]], out: Path,
+                  provenance: _Provenance) -> list[Path]:
+    """Write the checked graphs and ``export.json`` (files, hashes, parity) into ``out``."""
     if out.exists() and not out.is_dir():
         raise InputError(f"--output_dir: {out} exists and is not a folder")
     written = [write_onnx(proto, meta, out / spec.file_name) for spec, proto, meta in staged]
     manifest = {
-        "project_version": __version__, "created": created, "checkpoint": checkpoint,
+        "project_version": __version__, "created": provenance.created, "checkpoint": provenance.checkpoint,
         "files": {p.name: {"kind": m.kind, "sha256": sha256(p), "opset": m.opset, "parity": m.parity}
                   for p, (_, _, m) in zip(written, staged)},
     }

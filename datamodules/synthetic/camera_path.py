@@ -14,7 +14,7 @@ The view always looks deeper into the colon (+s, as a colonoscope does during in
 and withdrawal); path ``A`` inserts, ``B`` withdraws, ``random`` goes back and forth with a
 forward drift; ``loop`` goes forward and then back over the same stretch. Events (per 1000
 frames): close-ups of the wall, fast-motion bursts, approaches that fill the view with a
-fold (occluded frames), quick roll turns.
+fold (occluded frames), quick roll turns (drawn in :mod:`datamodules.synthetic.path_events`).
 
 Safety: every frame and sub-frame position is checked against the mesh with Open3D's
 ``compute_distance``; offsets shrink until the camera keeps ``min_wall_distance`` from the
@@ -33,6 +33,14 @@ from scipy.ndimage import minimum_filter1d
 from datamodules.synthetic.colon import Colon
 from datamodules.synthetic.noise import smooth_1d
 from datamodules.synthetic.params import PathParams
+from datamodules.synthetic.path_events import (
+    PathSignals,
+    add_bursts,
+    add_closeups,
+    add_occlusion,
+    add_roll_events,
+    place_occlusions,
+)
 
 START_MARGIN = 0.025  # m of colon kept free at the start (dome)
 END_MARGIN = 0.03  # and at the end
@@ -159,50 +167,6 @@ def pose_from_controls(colon: Colon, allowed: AllowedRadius, s: float, m: float,
 # ---------------------------------------------------------------------- planning
 
 
-def _envelope(n: int, a: int, b: int, ramp: int) -> np.ndarray:
-    """(n,) 0..1: raised-cosine ramps of ``ramp`` frames into and out of [a, b)."""
-    t = np.arange(n, dtype=np.float64)
-    ramp = max(ramp, 1)
-    up = np.clip((t - (a - ramp)) / ramp, 0, 1)
-    down = np.clip(((b - 1 + ramp) - t) / ramp, 0, 1)
-    e = np.minimum(up, down)
-    return 0.5 - 0.5 * np.cos(np.pi * e)
-
-
-def _place(rng: np.random.Generator, n: int, length: int, taken: np.ndarray) -> tuple[int, int] | None:
-    """A free window of ``length`` frames (with a margin), or None."""
-    if length + 4 > n:
-        return None
-    for _ in range(30):
-        a = int(rng.integers(2, n - length - 1))
-        lo, hi = max(0, a - 3), min(n, a + length + 3)
-        if not taken[lo:hi].any():
-            taken[lo:hi] = True
-            return a, a + length
-    return None
-
-
-def _count(rng: np.random.Generator, rate: float, frames: int) -> int:
-    x = rate * frames / 1000.0
-    return int(math.floor(x + rng.random()))
-
-
-def _blend_angle(base: np.ndarray, target: float, e: np.ndarray, centre: int) -> np.ndarray:
-    target = target + 2 * math.pi * round((base[centre] - target) / (2 * math.pi))
-    return base * (1 - e) + target * e
-
-
-def _label(labels: list[str], name: str, a: int, b: int, e: np.ndarray | None = None) -> None:
-    """Label the event's frames [a, b) and, where its envelope ``e`` ramps in and out
-    beyond them (the fastest motion of an event), the ramp frames no other event holds."""
-    for i in range(a, b):
-        labels[i] = name
-    if e is not None:
-        for i in np.flatnonzero(e > 0).tolist():
-            if not labels[i]:
-                labels[i] = name
-
-
 def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator,
               scene: o3d.t.geometry.RaycastingScene) -> CameraPath:
     """Draw a trajectory (deterministic for a given generator state)."""
@@ -215,8 +179,28 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator,
     labels = [""] * n
     taken = np.zeros(n, bool)
 
-    # base signals
-    noise_v = smooth_1d(rng, n, corr)
+    sig = _base_signals(p, rng, n, corr)
+    # events that change the speed and view
+    add_closeups(sig, p, rng, taken, labels)
+    add_bursts(sig, p, rng, taken, labels)
+    add_roll_events(sig, p, rng, taken, labels)
+    occlusions = place_occlusions(p, rng, taken)
+
+    s = _arc_length(sig.v, p, s_lo, s_hi)
+    for window in occlusions:
+        s = add_occlusion(colon, p, sig, s, labels, window, s_hi)
+    s = np.clip(s, 0.5 * START_MARGIN, L - 0.5 * END_MARGIN)
+
+    ctl = Controls(s=s, m=sig.m, phi=sig.phi, beta=sig.beta, psi=sig.psi, roll=sig.roll)
+    allowed = AllowedRadius(colon, p.min_wall_distance)
+    wall = _enforce_clearance(colon, ctl, allowed, scene, p.min_wall_distance)
+    poses = poses_from_controls(colon, allowed, ctl.at_many(np.arange(n, dtype=np.float64)))
+    return CameraPath(poses=poses, controls=ctl, labels=labels, wall_distance=wall, colon=colon, allowed=allowed)
+
+
+def _speed_profile(p: PathParams, noise_v: np.ndarray) -> np.ndarray:
+    """(F,) signed relative speed along the centreline from unit noise ``noise_v``: forward
+    for ``A``, backward for ``B``, drifting forward for ``random``; ``loop`` turns round halfway."""
     if p.kind == "random":
         v = 0.45 + 0.9 * noise_v
     else:
@@ -224,54 +208,31 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator,
         if p.kind == "B":
             v = -v
     if p.loop:
+        n = len(noise_v)
         t = np.arange(n)
         turn = np.clip((t - 0.5 * n) / max(2.0, 0.06 * n) + 0.5, 0.0, 1.0)
         sign = np.cos(np.pi * turn)
         v = np.abs(v) * sign if p.kind != "B" else -np.abs(v) * sign
+    return v
+
+
+def _base_signals(p: PathParams, rng: np.random.Generator, n: int, corr: float) -> PathSignals:
+    """Smooth random signals of ``n`` frames (correlated over ``corr`` frames) before any event:
+    speed, a wandering offset of about ``lateral``, a small deflection and a slow roll of
+    about ``roll`` degrees."""
+    v = _speed_profile(p, smooth_1d(rng, n, corr))
     m = np.clip(p.lateral * (0.55 + 0.45 * smooth_1d(rng, n, corr)), 0.0, 1.0)
     phi = rng.uniform(0, 2 * np.pi) + 1.5 * smooth_1d(rng, n, 2 * corr)
     beta = np.abs(0.06 + 0.05 * smooth_1d(rng, n, corr))
     psi = rng.uniform(0, 2 * np.pi) + 1.5 * smooth_1d(rng, n, 2 * corr)
     roll = math.radians(p.roll) * smooth_1d(rng, n, 1.5 * corr)
+    return PathSignals(v=v, m=m, phi=phi, beta=beta, psi=psi, roll=roll)
 
-    # events that change the speed and view
-    for _ in range(_count(rng, p.closeups, n)):
-        w = _place(rng, n, int(np.clip(0.03 * n, 12, 45)), taken)
-        if w is None:
-            continue
-        a, b = w
-        e = _envelope(n, a, b, max(4, (b - a) // 4))
-        target = rng.uniform(0, 2 * np.pi)
-        v *= 1 - 0.9 * e
-        m = m * (1 - e) + 0.92 * e
-        phi = _blend_angle(phi, target, e, (a + b) // 2)
-        psi = _blend_angle(psi, target, e, (a + b) // 2)
-        beta = beta * (1 - e) + math.radians(rng.uniform(40, 70)) * e
-        _label(labels, "closeup", a, b, e)
-    for _ in range(_count(rng, p.bursts, n)):
-        w = _place(rng, n, int(rng.integers(3, 9)), taken)
-        if w is None:
-            continue
-        a, b = w
-        e = _envelope(n, a, b, 1)
-        v = v * (1 + (p.burst_factor - 1) * e)
-        if p.kind == "random" and rng.random() < 0.3:
-            v = v * (1 - 2 * e)
-        roll = roll + e * rng.uniform(-0.3, 0.3)
-        beta = beta + e * math.radians(rng.uniform(0, 15))
-        _label(labels, "burst", a, b, e)
-    for _ in range(_count(rng, p.roll_events, n)):
-        w = _place(rng, n, int(rng.integers(12, 31)), taken)
-        if w is None:
-            continue
-        a, b = w
-        step = np.clip((np.arange(n) - a) / (b - a), 0, 1)
-        roll = roll + (0.5 - 0.5 * np.cos(np.pi * step)) * rng.choice([-1, 1]) * math.radians(rng.uniform(60, 120))
-        _label(labels, "roll", a, b)
-    occlusions = [w for w in (_place(rng, n, int(rng.integers(12, 30)), taken)
-                              for _ in range(_count(rng, p.occlusions, n))) if w]
 
-    # arc length from the speed profile
+def _arc_length(v: np.ndarray, p: PathParams, s_lo: float, s_hi: float) -> np.ndarray:
+    """(F,) arc length (m) from the speed profile ``v``: it covers ``coverage`` of [s_lo, s_hi]
+    without exceeding ``max_step`` per frame (90th percentile of the speed)."""
+    n = len(v)
     cum = np.concatenate([[0.0], np.cumsum(v[:-1])])
     span = float(cum.max() - cum.min())
     cover = p.coverage * (s_hi - s_lo)
@@ -279,41 +240,8 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator,
         typical = float(np.percentile(np.abs(v), 90)) + 1e-12
         k = min(cover / span, p.max_step / typical)
         # withdrawal starts deep in the colon; everything else starts near the entry
-        s = s_hi - k * (cum.max() - cum) if p.kind == "B" else s_lo + k * (cum - cum.min())
-    else:
-        s = np.full(n, s_hi if p.kind == "B" else s_lo)
-
-    for a, b in occlusions:
-        c = (a + b) // 2
-        ramp = max(4, (b - a) // 2)
-        s0 = s[max(a - ramp, 0)]  # where the approach starts
-        ahead = []
-        for f in colon.folds:
-            goal = min(f.s - (3 * f.sigma + abs(f.tilt) + p.min_wall_distance + 0.002), s_hi)
-            if goal > s0 - 0.5 * p.max_step * ramp and abs(goal - s0) <= p.max_step * ramp:
-                ahead.append((goal, f))
-        if not ahead:  # no fold within a smooth approach: skip
-            continue
-        goal, fold = min(ahead, key=lambda x: abs(x[0] - s0))
-        e = _envelope(n, a, b, ramp)
-        # approach the fold, stay, then carry on from there (the rest of the path shifts)
-        after = np.arange(n) >= b
-        s = np.where(after, goal + (s - s[min(b, n - 1)]), s * (1 - e) + goal * e)
-        j = int(round(fold.s / colon.ring_spacing))
-        crest = int(np.argmax(fold.heights))
-        target = colon.taenia_phase[j] + (crest + 0.5) * 2 * np.pi / 3
-        m = m * (1 - e) + 0.9 * e
-        phi = _blend_angle(phi, target, e, c)
-        psi = _blend_angle(psi, target, e, c)
-        beta = beta * (1 - e) + math.radians(15) * e
-        _label(labels, "occluded", a, b, e)
-    s = np.clip(s, 0.5 * START_MARGIN, L - 0.5 * END_MARGIN)
-
-    ctl = Controls(s=s, m=m, phi=phi, beta=beta, psi=psi, roll=roll)
-    allowed = AllowedRadius(colon, p.min_wall_distance)
-    wall = _enforce_clearance(colon, ctl, allowed, scene, p.min_wall_distance)
-    poses = poses_from_controls(colon, allowed, ctl.at_many(np.arange(n, dtype=np.float64)))
-    return CameraPath(poses=poses, controls=ctl, labels=labels, wall_distance=wall, colon=colon, allowed=allowed)
+        return s_hi - k * (cum.max() - cum) if p.kind == "B" else s_lo + k * (cum - cum.min())
+    return np.full(n, s_hi if p.kind == "B" else s_lo)
 
 
 def _substeps(ctl: Controls, centres: np.ndarray) -> list[tuple[int, float]]:

@@ -131,46 +131,18 @@ def build_colon(p: ColonParams, rng: np.random.Generator) -> Colon:
     theta = np.arange(p.ring_vertices) * (2 * np.pi / p.ring_vertices)
     radius, phase, folds, polyps = _radius_field(p, rng, s, theta)
 
-    dirs = np.cos(theta)[None, :, None] * normal[:, None, :] + np.sin(theta)[None, :, None] * binormal[:, None, :]
-    tube = centre[:, None, :] + radius[..., None] * dirs  # (S, K, 3)
-
-    start_cap = _dome(centre[0], -tangent[0], tube[0])  # rings from the apex side outwards
-    end_cap = _dome(centre[-1], tangent[-1], tube[-1])
-    start_apex = centre[0] - tangent[0] * 0.7 * radius[0].mean()
-    end_apex = centre[-1] + tangent[-1] * 0.7 * radius[-1].mean()
-    grid = np.concatenate([start_cap[::-1], tube, end_cap], axis=0)  # (M, K, 3)
-    m_rings, k = grid.shape[:2]
-
-    vertices = np.concatenate([start_apex[None], grid.reshape(-1, 3), end_apex[None]], axis=0)
-    triangles = _triangulate(m_rings, k)
+    rings = _closed_rings(centre, tangent, normal, binormal, theta, radius)
+    m_rings, k = rings.grid.shape[:2]
+    vertices = np.concatenate([rings.start_apex[None], rings.grid.reshape(-1, 3), rings.end_apex[None]], axis=0)
     vertices = vertices.astype(np.float32)
     v64 = vertices.astype(np.float64)
-
-    # orient triangles into the lumen
-    tri_n = np.cross(v64[triangles[:, 1]] - v64[triangles[:, 0]], v64[triangles[:, 2]] - v64[triangles[:, 0]])
     mid = len(s) // 2
-    sel = slice(1 + (len(start_cap) + mid) * k, 1 + (len(start_cap) + mid + 1) * k)
-    probe = np.isin(triangles[:, 0], np.arange(sel.start, sel.stop))
-    outward = (tri_n[probe] * (v64[triangles[probe, 0]] - centre[mid])).sum(1).mean()
-    if outward > 0:
-        triangles = triangles[:, [0, 2, 1]]
-        tri_n = -tri_n
-    vnormals = np.zeros_like(v64)
-    for c in range(3):
-        for corner in range(3):
-            vnormals[:, c] += np.bincount(triangles[:, corner], weights=tri_n[:, c], minlength=len(v64))
-    vnormals /= np.maximum(np.linalg.norm(vnormals, axis=1, keepdims=True), 1e-12)
+    triangles, tri_n = _inward_triangles(v64, _triangulate(m_rings, k), rings.start_rings + mid, k, centre[mid])
+    vnormals = _vertex_normals(v64, triangles, tri_n)
 
-    # texture coordinates: surface arc length along the tube, resynchronised between folds
-    n0 = len(start_cap)
+    n0 = rings.start_rings
     fold_rows = [n0 + int(round(f.s / (s[1] - s[0]))) for f in folds]
-    u_grid = _surface_u(grid, start_apex, fold_rows)
-    end_u = u_grid[-1] + np.linalg.norm(grid[-1] - end_apex, axis=1)
-    tex_u = np.concatenate([[0.0], u_grid.reshape(-1), [end_u.mean()]])
-    tex_theta = np.concatenate([[0.0], np.tile(theta, m_rings), [0.0]])
-    tang = np.roll(grid, -1, axis=1) - np.roll(grid, 1, axis=1)
-    tang /= np.maximum(np.linalg.norm(tang, axis=2, keepdims=True), 1e-12)
-    tangent_theta = np.concatenate([binormal[:1], tang.reshape(-1, 3), binormal[-1:]], axis=0)
+    u_grid, tex_u, tex_theta, tangent_theta = _texture_coordinates(rings, fold_rows, theta, binormal)
 
     return Colon(
         params=p,
@@ -192,6 +164,77 @@ def build_colon(p: ColonParams, rng: np.random.Generator) -> Colon:
         folds=folds,
         polyps=polyps,
     )
+
+
+@dataclass
+class _Rings:
+    """Vertex rings of the closed tube (world frame, metres) and the apexes of its two end domes."""
+
+    grid: np.ndarray  # (M, K, 3): start dome (apex side first), main tube, end dome
+    start_apex: np.ndarray  # (3,)
+    end_apex: np.ndarray  # (3,)
+    start_rings: int  # rings of the start dome at the beginning of ``grid``
+
+
+def _closed_rings(centre: np.ndarray, tangent: np.ndarray, normal: np.ndarray, binormal: np.ndarray,
+                  theta: np.ndarray, radius: np.ndarray) -> _Rings:
+    """The tube's rings P(s, theta) (see the module docstring) closed by a dome at each end."""
+    dirs = np.cos(theta)[None, :, None] * normal[:, None, :] + np.sin(theta)[None, :, None] * binormal[:, None, :]
+    tube = centre[:, None, :] + radius[..., None] * dirs  # (S, K, 3)
+
+    start_cap = _dome(centre[0], -tangent[0], tube[0])  # rings from the apex side outwards
+    end_cap = _dome(centre[-1], tangent[-1], tube[-1])
+    start_apex = centre[0] - tangent[0] * 0.7 * radius[0].mean()
+    end_apex = centre[-1] + tangent[-1] * 0.7 * radius[-1].mean()
+    grid = np.concatenate([start_cap[::-1], tube, end_cap], axis=0)  # (M, K, 3)
+    return _Rings(grid=grid, start_apex=start_apex, end_apex=end_apex, start_rings=len(start_cap))
+
+
+def _inward_triangles(v64: np.ndarray, triangles: np.ndarray, probe_row: int, k: int,
+                      probe_centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles wound so that their normals point into the lumen, and those (unnormalised) normals.
+
+    The winding is decided on the triangles of grid row ``probe_row`` (K vertices per row,
+    vertex 0 = start apex) against the centreline point ``probe_centre`` of that ring.
+    """
+    tri_n = np.cross(v64[triangles[:, 1]] - v64[triangles[:, 0]], v64[triangles[:, 2]] - v64[triangles[:, 0]])
+    sel = slice(1 + probe_row * k, 1 + (probe_row + 1) * k)
+    probe = np.isin(triangles[:, 0], np.arange(sel.start, sel.stop))
+    outward = (tri_n[probe] * (v64[triangles[probe, 0]] - probe_centre)).sum(1).mean()
+    if outward > 0:
+        triangles = triangles[:, [0, 2, 1]]
+        tri_n = -tri_n
+    return triangles, tri_n
+
+
+def _vertex_normals(v64: np.ndarray, triangles: np.ndarray, tri_n: np.ndarray) -> np.ndarray:
+    """(V, 3) unit vertex normals: sums of the area-weighted normals of the adjacent triangles."""
+    vnormals = np.zeros_like(v64)
+    for c in range(3):
+        for corner in range(3):
+            vnormals[:, c] += np.bincount(triangles[:, corner], weights=tri_n[:, c], minlength=len(v64))
+    vnormals /= np.maximum(np.linalg.norm(vnormals, axis=1, keepdims=True), 1e-12)
+    return vnormals
+
+
+def _texture_coordinates(rings: _Rings, fold_rows: list[int], theta: np.ndarray,
+                         binormal: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-vertex texture coordinates of the closed mesh.
+
+    Returns the (M, K) grid of u (surface arc length along the tube, m, resynchronised
+    between folds), per-vertex u (m) and theta (radians), and the (V, 3) unit direction of
+    increasing theta; vertex 0 is the start apex, the last one the end apex.
+    """
+    grid = rings.grid
+    m_rings = grid.shape[0]
+    u_grid = _surface_u(grid, rings.start_apex, fold_rows)
+    end_u = u_grid[-1] + np.linalg.norm(grid[-1] - rings.end_apex, axis=1)
+    tex_u = np.concatenate([[0.0], u_grid.reshape(-1), [end_u.mean()]])
+    tex_theta = np.concatenate([[0.0], np.tile(theta, m_rings), [0.0]])
+    tang = np.roll(grid, -1, axis=1) - np.roll(grid, 1, axis=1)
+    tang /= np.maximum(np.linalg.norm(tang, axis=2, keepdims=True), 1e-12)
+    tangent_theta = np.concatenate([binormal[:1], tang.reshape(-1, 3), binormal[-1:]], axis=0)
+    return u_grid, tex_u, tex_theta, tangent_theta
 
 
 def _centreline(p: ColonParams, rng: np.random.Generator, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -247,72 +290,113 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def _radius_field(p: ColonParams, rng: np.random.Generator, s: np.ndarray, theta: np.ndarray):
-    """r(s, theta) (S, K) with taeniae, haustra, folds, polyps and relief."""
-    L = p.length
+def _radius_field(p: ColonParams, rng: np.random.Generator, s: np.ndarray,
+                  theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[Fold], list[Polyp]]:
+    """r(s, theta) (S, K, metres) with taeniae, haustra, folds, polyps and relief; also the
+    (S,) angle of the first taenia (radians), the folds and the polyps."""
     base = p.radius + p.radius_variation * random_sines(rng, s, (0.08, 0.35), 4)  # (S,)
+    phase, tau = _taeniae(rng, s, theta)
+    positions = _fold_positions(p, rng)
+    bulge = _haustral_bulge(s, positions)
+    r = base[:, None] * (1 + p.haustra_bulge * bulge[:, None] * (1 - tau)) * (1 - p.taenia_depth * tau)
+    folds = [_carve_fold(r, s, theta, _draw_fold(p, rng, pos, base[int(round(pos / (s[1] - s[0])))]), phase)
+             for pos in positions]
+    polyps = [_carve_polyp(r, s, theta, _draw_polyp(p, rng), base) for _ in range(p.polyps)]
+    if p.relief > 0:
+        _add_relief(p, rng, s, theta, r)
+    r = np.maximum(r, 0.25 * p.radius)
+    return r, phase, folds, polyps
+
+
+def _taeniae(rng: np.random.Generator, s: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(S,) angle of the first of the three taeniae (radians, slowly twisting along s) and
+    the (S, K) taenia profile: 1 on a taenia, falling to 0 between them."""
     phase = rng.uniform(0, 2 * np.pi) + rng.uniform(-3.0, 3.0) * s + 0.25 * random_sines(rng, s, (0.1, 0.4), 2)
     rel = theta[None, :] - phase[:, None]  # (S, K)
     tau = sum(np.exp(-0.5 * (_wrap(rel - 2 * np.pi * m / 3) / 0.14) ** 2) for m in range(3))
+    return phase, tau
 
-    # fold positions
-    folds: list[Fold] = []
+
+def _fold_positions(p: ColonParams, rng: np.random.Generator) -> list[float]:
+    """Arc lengths (m) of the folds: about ``fold_spacing`` apart, FOLD_MARGIN clear of both ends."""
     pos = FOLD_MARGIN + rng.uniform(0, p.fold_spacing)
     positions = []
-    while pos < L - FOLD_MARGIN:
+    while pos < p.length - FOLD_MARGIN:
         positions.append(pos)
         pos += p.fold_spacing * rng.uniform(0.7, 1.3)
-    # haustral bulge between consecutive folds
+    return positions
+
+
+def _haustral_bulge(s: np.ndarray, positions: list[float]) -> np.ndarray:
+    """(S,) 0..1 half-sine bulge between consecutive folds (0 at the folds and outside them)."""
     bulge = np.zeros_like(s)
     for a, b in zip(positions[:-1], positions[1:]):
         m = (s >= a) & (s < b)
         bulge[m] = np.sin(np.pi * (s[m] - a) / (b - a))
-    r = base[:, None] * (1 + p.haustra_bulge * bulge[:, None] * (1 - tau)) * (1 - p.taenia_depth * tau)
+    return bulge
 
+
+def _draw_fold(p: ColonParams, rng: np.random.Generator, pos: float, base_radius: float) -> Fold:
+    """The fold at arc length ``pos`` (m) where the lumen radius is ``base_radius`` (m)."""
+    present = rng.random(3) < p.fold_coverage
+    if not present.any():
+        present[rng.integers(3)] = True
+    crescents = np.where(present, rng.uniform(0.55, 1.0, 3), 0.0)
+    amp = p.fold_height * base_radius * rng.uniform(0.75, 1.15)
+    sigma = p.fold_width * rng.uniform(0.8, 1.3)
+    tilt = rng.uniform(-0.25, 0.25) * base_radius
+    tilt_phase = rng.uniform(0, 2 * np.pi)
+    return Fold(float(pos), float(sigma), tuple(float(amp * c) for c in crescents), float(tilt), float(tilt_phase))
+
+
+def _carve_fold(r: np.ndarray, s: np.ndarray, theta: np.ndarray, fold: Fold, phase: np.ndarray) -> Fold:
+    """Subtract ``fold``'s three crescents (between the taeniae at ``phase``, radians) from
+    the (S, K) radius field ``r`` in place; returns the fold."""
     ds = s[1] - s[0]
     third = 2 * np.pi / 3
-    for pos in positions:
-        present = rng.random(3) < p.fold_coverage
-        if not present.any():
-            present[rng.integers(3)] = True
-        crescents = np.where(present, rng.uniform(0.55, 1.0, 3), 0.0)
-        j = int(round(pos / ds))
-        amp = p.fold_height * base[j] * rng.uniform(0.75, 1.15)
-        sigma = p.fold_width * rng.uniform(0.8, 1.3)
-        tilt = rng.uniform(-0.25, 0.25) * base[j]
-        tilt_phase = rng.uniform(0, 2 * np.pi)
-        folds.append(Fold(float(pos), float(sigma), tuple(float(amp * c) for c in crescents), float(tilt),
-                          float(tilt_phase)))
-        ang = (theta - phase[j]) % (2 * np.pi)
-        idx = np.minimum((ang // third).astype(int), 2)
-        g = np.sqrt(np.abs(np.sin(1.5 * (ang - idx * third))))
-        h = amp * crescents[idx] * g  # (K,)
-        centre_s = pos + tilt * np.cos(theta - tilt_phase)  # (K,)
-        reach = 5 * sigma + abs(tilt)
-        lo, hi = max(0, int((pos - reach) / ds)), min(len(s), int((pos + reach) / ds) + 2)
-        prof = np.exp(-0.5 * ((s[lo:hi, None] - centre_s[None]) / sigma) ** 2)
-        r[lo:hi] -= h[None] * prof
+    pos, sigma, tilt = fold.s, fold.sigma, fold.tilt
+    j = int(round(pos / ds))
+    ang = (theta - phase[j]) % (2 * np.pi)
+    idx = np.minimum((ang // third).astype(int), 2)
+    g = np.sqrt(np.abs(np.sin(1.5 * (ang - idx * third))))
+    h = np.asarray(fold.heights)[idx] * g  # (K,)
+    centre_s = pos + tilt * np.cos(theta - fold.tilt_phase)  # (K,)
+    reach = 5 * sigma + abs(tilt)
+    lo, hi = max(0, int((pos - reach) / ds)), min(len(s), int((pos + reach) / ds) + 2)
+    prof = np.exp(-0.5 * ((s[lo:hi, None] - centre_s[None]) / sigma) ** 2)
+    r[lo:hi] -= h[None] * prof
+    return fold
 
-    polyps: list[Polyp] = []
-    for _ in range(p.polyps):
-        ps = rng.uniform(0.1, 0.9) * L
-        pt = rng.uniform(0, 2 * np.pi)
-        pr = p.polyp_radius * rng.uniform(0.7, 1.4)
-        ph = pr * rng.uniform(0.5, 0.9)
-        polyps.append(Polyp(float(ps), float(pt), float(pr), float(ph)))
-        j = int(round(ps / ds))
-        lo, hi = max(0, int((ps - 2 * pr) / ds)), min(len(s), int((ps + 2 * pr) / ds) + 2)
-        d2 = (s[lo:hi, None] - ps) ** 2 + (base[j] * _wrap(theta[None] - pt)) ** 2
-        r[lo:hi] -= ph * np.exp(-2.5 * (d2 / pr**2) ** 2)
 
-    if p.relief > 0:
-        corr_s = 0.003 / ds
-        corr_t = 0.003 / (p.radius * (theta[1] - theta[0]))
-        noise = gaussian_filter(rng.standard_normal(r.shape), (corr_s, corr_t), mode=("reflect", "wrap"))
-        noise /= max(noise.std(), 1e-12)
-        r += p.relief * np.clip(noise, -3, 3)
-    r = np.maximum(r, 0.25 * p.radius)
-    return r, phase, folds, polyps
+def _draw_polyp(p: ColonParams, rng: np.random.Generator) -> Polyp:
+    """A sessile polyp somewhere in the middle 80 % of the colon."""
+    ps = rng.uniform(0.1, 0.9) * p.length
+    pt = rng.uniform(0, 2 * np.pi)
+    pr = p.polyp_radius * rng.uniform(0.7, 1.4)
+    ph = pr * rng.uniform(0.5, 0.9)
+    return Polyp(float(ps), float(pt), float(pr), float(ph))
+
+
+def _carve_polyp(r: np.ndarray, s: np.ndarray, theta: np.ndarray, polyp: Polyp, base: np.ndarray) -> Polyp:
+    """Raise ``polyp`` (a smooth bump into the lumen) on the (S, K) radius field ``r`` in place;
+    ``base`` is the (S,) mean radius (m). Returns the polyp."""
+    ds = s[1] - s[0]
+    ps, pr = polyp.s, polyp.radius
+    j = int(round(ps / ds))
+    lo, hi = max(0, int((ps - 2 * pr) / ds)), min(len(s), int((ps + 2 * pr) / ds) + 2)
+    d2 = (s[lo:hi, None] - ps) ** 2 + (base[j] * _wrap(theta[None] - polyp.theta)) ** 2
+    r[lo:hi] -= polyp.height * np.exp(-2.5 * (d2 / pr**2) ** 2)
+    return polyp
+
+
+def _add_relief(p: ColonParams, rng: np.random.Generator, s: np.ndarray, theta: np.ndarray, r: np.ndarray) -> None:
+    """Add the fine random relief (std ``relief`` m, correlated over ~3 mm, clipped at 3 std) to ``r`` in place."""
+    ds = s[1] - s[0]
+    corr_s = 0.003 / ds
+    corr_t = 0.003 / (p.radius * (theta[1] - theta[0]))
+    noise = gaussian_filter(rng.standard_normal(r.shape), (corr_s, corr_t), mode=("reflect", "wrap"))
+    noise /= max(noise.std(), 1e-12)
+    r += p.relief * np.clip(noise, -3, 3)
 
 
 def _surface_u(grid: np.ndarray, apex: np.ndarray, fold_rows: list[int]) -> np.ndarray:

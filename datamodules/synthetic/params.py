@@ -291,15 +291,31 @@ def _check(cond: bool, msg: str) -> None:
 
 
 def _validate(p: SimParams) -> None:
+    """Check every group in a fixed order; the first failing check raises."""
     _check(isinstance(p.seed, int) and 0 <= p.seed < 2**63, f"seed: must be a non-negative integer, got {p.seed!r}")
-    c, a, cam, path = p.colon, p.appearance, p.camera, p.path
-    for group in (c, a, cam, path):
+    _validate_finite(p)
+    _validate_colon(p.colon)
+    _validate_appearance(p.appearance, p.colon)
+    _validate_camera(p.camera, p.colon)
+    _validate_path(p.path, p.colon)
+
+
+def _validate_finite(p: SimParams) -> None:
+    """Every float parameter of every group is finite."""
+    for group in (p.colon, p.appearance, p.camera, p.path):
         for f in fields(group):
             v = getattr(group, f.name)
             if isinstance(v, float):
                 _check(math.isfinite(v), f"{_gname(group)}.{f.name}: must be finite, got {v}")
 
-    # colon geometry
+
+def _largest_radius(c: ColonParams) -> float:
+    """Largest lumen radius before the haustral bulge, m."""
+    return c.radius + c.radius_variation
+
+
+def _validate_colon(c: ColonParams) -> None:
+    """Tube geometry (metres, fractions of the radius) and the mesh size."""
     _check(c.radius > 0, f"colon.radius: must be positive, got {c.radius}")
     _check(c.radius <= 0.2, f"colon.radius: {c.radius} m is not a colon (at most 0.2 m)")
     _check(0 <= c.radius_variation < 0.5 * c.radius,
@@ -307,7 +323,7 @@ def _validate(p: SimParams) -> None:
     _check(c.length >= 0.08, f"colon.length: must be at least 0.08 m, got {c.length}")
     _check(c.length <= 5.0, f"colon.length: at most 5 m, got {c.length}")
     _check(0 <= c.tortuosity <= 1, f"colon.tortuosity: must be in [0, 1], got {c.tortuosity}")
-    r_max = c.radius + c.radius_variation
+    r_max = _largest_radius(c)
     _check(c.min_bend_radius > 1.5 * r_max * (1 + c.haustra_bulge),
            f"colon.min_bend_radius: must exceed 1.5 x the largest radius ({1.5 * r_max:.3f} m), "
            f"got {c.min_bend_radius}")
@@ -328,7 +344,9 @@ def _validate(p: SimParams) -> None:
     _check(n_rings * c.ring_vertices <= 6_000_000,
            f"colon.ring_spacing: mesh would have {n_rings * c.ring_vertices:.0f} vertices (at most 6e6)")
 
-    # appearance
+
+def _validate_appearance(a: AppearanceParams, c: ColonParams) -> None:
+    """Strengths in [0, 1], light (degrees, metres) and the texture atlas size for colon ``c``."""
     for name in ("saturation", "value", "wetness", "vessel_size", "vessel_opacity", "auto_exposure",
                  "micro_relief", "vignette", "bloom", "motion_blur"):
         v = getattr(a, name)
@@ -341,21 +359,25 @@ def _validate(p: SimParams) -> None:
            f"appearance.light_offset: must be in [0, radius/2], got {a.light_offset}")
     _check(0 <= a.grain <= 20, f"appearance.grain: must be in [0, 20], got {a.grain}")
     _check(0.00005 <= a.texel <= 0.002, f"appearance.texel: must be in [0.00005, 0.002] m, got {a.texel}")
-    circumference = 2 * math.pi * (c.radius + c.radius_variation)
+    circumference = 2 * math.pi * _largest_radius(c)
     _check(circumference / a.texel < 16000 and 1.8 * c.length / a.texel < 32000,
            f"appearance.texel: {a.texel} m makes the texture atlas too large for this colon")
 
-    # camera
+
+def _validate_camera(cam: CameraParams, c: ColonParams) -> None:
+    """Frame size (pixels), field of view (degrees) and a depth scale that fits colon ``c`` in uint16."""
     _check(isinstance(cam.width, int) and isinstance(cam.height, int) and cam.width >= 16 and cam.height >= 16,
            f"camera.width/height: frames must be at least 16x16 pixels, got {cam.width}x{cam.height}")
     _check(cam.width <= 4096 and cam.height <= 4096, f"camera.width/height: at most 4096, got {cam.width}x{cam.height}")
     _check(0 < cam.fov < 180, f"camera.fov: horizontal field of view must be in (0, 180) degrees, got {cam.fov}")
     _check(cam.depth_scale > 0, f"camera.depth_scale: must be positive, got {cam.depth_scale}")
-    longest = c.length + 2 * r_max * (1 + c.haustra_bulge)  # no straight line inside the tube is longer
+    longest = c.length + 2 * _largest_radius(c) * (1 + c.haustra_bulge)  # no straight line inside the tube is longer
     _check(longest * cam.depth_scale <= 65535,
            f"camera.depth_scale: {cam.depth_scale} units/m cannot store depths up to {longest:.2f} m in uint16")
 
-    # path
+
+def _validate_path(path: PathParams, c: ColonParams) -> None:
+    """Trajectory settings (metres per frame, degrees, events per 1000 frames) and the wall clearance in colon ``c``."""
     _check(path.kind in PATH_KINDS, f"path.kind: unknown path {path.kind!r} (choose A, B or random)")
     _check(isinstance(path.frames, int) and path.frames >= 1, f"path.frames: must be at least 1, got {path.frames}")
     _check(path.frames <= 1_000_000, f"path.frames: at most 1e6, got {path.frames}")

@@ -72,6 +72,18 @@ def cast_depth(scene: o3d.t.geometry.RaycastingScene, camera: PinholeCamera, T_w
                    "primitive_uvs": ans["primitive_uvs"].numpy(), "dirs": np.ascontiguousarray(rays[:, 3:].T)}
 
 
+def _facing_normals(n: np.ndarray, view: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalise the (3, N) normals ``n`` in place and flip those facing away from the (3, N)
+    unit directions ``view`` (surface to camera); returns them and |n . view| (N,)."""
+    n *= 1.0 / np.maximum(np.sqrt((n * n).sum(0)), 1e-12)
+    ndv = (n * view).sum(0)
+    flip = ndv < 0
+    if flip.any():
+        n[:, flip] *= -1.0
+        ndv = np.abs(ndv)
+    return n, ndv
+
+
 @dataclass
 class Hits:
     """Per-pixel result of casting one view's rays."""
@@ -140,23 +152,30 @@ class Renderer:
         """
         h, w = self.camera.height, self.camera.width
         hit = np.isfinite(hits.t)
+        dist = np.where(hit, hits.t, 0.0).astype(np.float32) * self.ray_norm  # camera to surface, m
+        attr = self._surface_attributes(hits, hit)
+        view = -hits.dirs * self.inv_norm  # (3, N) unit, towards the camera
+        n, ndv = _facing_normals(attr[0:3], view)
+        tex4, nb = self._texture(attr, n, dist, ndv)
+        ldir, half, irradiance = self._light(hits, T_wc, view, dist, n, hit)
+        radiance, lum = self._reflect(tex4, n, nb, ldir, half, ndv, irradiance)
+        return np.ascontiguousarray(radiance.T).reshape(h, w, 3), lum.reshape(h, w)
+
+    def _surface_attributes(self, hits: Hits, hit: np.ndarray) -> np.ndarray:
+        """(12, N) per-pixel vertex attributes (see ``tri_attrs``) interpolated at the hit points
+        (triangle 0 for misses)."""
         prim = np.where(hit, hits.prim, 0).astype(np.int32)
-        dist = np.where(hit, hits.t, 0.0).astype(np.float32) * self.ray_norm
         bary = np.empty((len(prim), 3), np.float32)
         bary[:, 1:] = hits.uv
         bary[:, 0] = 1.0 - hits.uv[:, 0] - hits.uv[:, 1]
         attr = np.einsum("nk,nkc->nc", bary, np.take(self.tri_attrs, prim, axis=0))
-        attr = np.ascontiguousarray(attr.T)  # (12, N)
+        return np.ascontiguousarray(attr.T)  # (12, N)
 
-        view = -hits.dirs * self.inv_norm  # (3, N) unit, towards the camera
-        n = attr[0:3]
-        n *= 1.0 / np.maximum(np.sqrt((n * n).sum(0)), 1e-12)
-        ndv = (n * view).sum(0)
-        flip = ndv < 0
-        if flip.any():
-            n[:, flip] *= -1.0
-            ndv = np.abs(ndv)
-
+    def _texture(self, attr: np.ndarray, n: np.ndarray, dist: np.ndarray,
+                 ndv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Atlas look-up filtered by each pixel's footprint on the surface (``dist`` in metres):
+        (4, N) albedo RGB + slope along u, and the (3, N) unit normals ``n`` tilted by the
+        atlas' micro-relief."""
         footprint = dist * self.pix_angle / np.sqrt(np.maximum(ndv, 0.2))
         theta = cv2.phase(attr[10], attr[11]).reshape(-1)  # radians in [0, 2 pi), same for every view
         tex4, slope_v = self.atlas.sample(attr[9], theta, footprint)
@@ -165,8 +184,13 @@ class Renderer:
         # micro-relief: tilt the normal by the atlas slopes along the surface directions
         nb = n - tex4[3] * attr[3:6] - slope_v * attr[6:9]
         nb *= 1.0 / np.maximum(np.sqrt((nb * nb).sum(0)), 1e-12)
+        return tex4, nb
 
-        # light
+    def _light(self, hits: Hits, T_wc: np.ndarray, view: np.ndarray, dist: np.ndarray, n: np.ndarray,
+               hit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unit directions to the light and Blinn half vectors (3, N, world frame), and the
+        irradiance (N,) of the spot light (cone, inverse-square falloff, shadows when the light
+        sits ``light_offset`` metres beside the lens of camera-to-world pose ``T_wc``)."""
         a = self.a
         R = T_wc[:3, :3]
         axis = R[:, 2].astype(np.float32)
@@ -187,7 +211,12 @@ class Renderer:
         if a.light_offset > 0 and a.shadows:
             irradiance *= self._unshadowed(points, n, lpos, hit)
         irradiance = np.where(hit, irradiance, 0.0).astype(np.float32)
+        return ldir, half, irradiance
 
+    def _reflect(self, tex4: np.ndarray, n: np.ndarray, nb: np.ndarray, ldir: np.ndarray, half: np.ndarray,
+                 ndv: np.ndarray, irradiance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Wrapped-Lambert diffuse plus wet Blinn-Phong highlights: radiance (3, N) and the
+        luminance (N,) of its diffuse part (what auto exposure meters)."""
         ndl = (n * ldir).sum(0) * 0.7 + (nb * ldir).sum(0) * 0.3  # diffuse sees little of the micro-relief
         wrap = WRAP[:, None]
         diffuse = tex4[:3] * (np.maximum((ndl + wrap) * (1.0 / (1.0 + wrap)), 0.0) + 0.035)
@@ -198,7 +227,7 @@ class Renderer:
         rad_diffuse = diffuse * irradiance
         lum = np.array([0.2126, 0.7152, 0.0722], np.float32) @ rad_diffuse
         radiance = (rad_diffuse + spec * irradiance) * LIGHT_COLOUR[:, None]
-        return np.ascontiguousarray(radiance.T).reshape(h, w, 3), lum.reshape(h, w)
+        return radiance, lum
 
     def _unshadowed(self, points: np.ndarray, n: np.ndarray, lpos: np.ndarray, hit: np.ndarray) -> np.ndarray:
         """1 where the light is visible from the (3, N) surface points, else 0."""

@@ -118,16 +118,7 @@ def build_atlas(colon: Colon, a: AppearanceParams, rng: np.random.Generator) -> 
     rows = step * max(1, round(2 * math.pi * radius / texel / step))
     cols = step * math.ceil((float(colon.tex_u.max()) / texel + 4) / step)
 
-    # mucosa colour: base HSV colour, blended towards a yellower and a redder variant
-    c0 = hsv_colour(a.hue, a.saturation, a.value)
-    c_yellow = hsv_colour(a.hue + 9.0, a.saturation * 0.85, min(1.0, a.value * 1.02))
-    c_red = hsv_colour(a.hue - 5.0, min(1.0, a.saturation * 1.18), a.value * 0.88)
-    t = noise_2d(rng, rows, cols, 64)[..., None]
-    albedo = c0 + 0.3 * np.maximum(t, 0) * (c_yellow - c0) + 0.3 * np.maximum(-t, 0) * (c_red - c0)
-    shade = (1.0 + 0.07 * noise_2d(rng, rows, cols, 32) + 0.03 * noise_2d(rng, rows, cols, 8)
-             + 0.025 * noise_2d(rng, rows, cols, 2))
-    albedo = albedo * np.clip(shade, 0.6, 1.4)[..., None]
-
+    albedo = _mucosa(a, rng, rows, cols)
     # vessels: deep (wide, blurred, dark purple-red) and superficial capillaries (thin, red)
     deep, fine = _vessel_masks(rng, rows, cols, texel, a.vessel_size, a.vessel_density)
     deep = wrap_rows_blur(deep, 1.1)
@@ -138,8 +129,35 @@ def build_atlas(colon: Colon, a: AppearanceParams, rng: np.random.Generator) -> 
     k_fine = min(1.0, 2.2 * a.vessel_opacity)
     albedo = albedo * (1.0 - k_deep * deep[..., None] * (1.0 - tint_deep))
     albedo = albedo * (1.0 - k_fine * fine[..., None] * (1.0 - tint_fine))
+    _tint_polyps(albedo, colon, texel)
+    albedo = np.clip(albedo, 0.0, 1.0).astype(np.float32)
+    slope = _micro_relief(rng, rows, cols, deep, a.micro_relief)
 
-    # polyps: redder, slightly brighter tissue
+    rgbs = [np.ascontiguousarray(np.concatenate([albedo, slope[..., :1]], axis=-1))]
+    slope_v = [np.ascontiguousarray(slope[..., 1])]
+    for _ in range(1, MIP_LEVELS):
+        rgbs.append(_pyr_down_wrap(rgbs[-1]))
+        slope_v.append(_pyr_down_wrap(slope_v[-1]))
+    return TextureAtlas(texel=texel, rows=rows, rgbs=rgbs, slope_v=slope_v)
+
+
+def _mucosa(a: AppearanceParams, rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
+    """(rows, cols, 3) linear RGB of the bare mucosa: the base HSV colour, blended towards a
+    yellower and a redder variant, with slow and fine brightness variation."""
+    c0 = hsv_colour(a.hue, a.saturation, a.value)
+    c_yellow = hsv_colour(a.hue + 9.0, a.saturation * 0.85, min(1.0, a.value * 1.02))
+    c_red = hsv_colour(a.hue - 5.0, min(1.0, a.saturation * 1.18), a.value * 0.88)
+    t = noise_2d(rng, rows, cols, 64)[..., None]
+    albedo = c0 + 0.3 * np.maximum(t, 0) * (c_yellow - c0) + 0.3 * np.maximum(-t, 0) * (c_red - c0)
+    shade = (1.0 + 0.07 * noise_2d(rng, rows, cols, 32) + 0.03 * noise_2d(rng, rows, cols, 8)
+             + 0.025 * noise_2d(rng, rows, cols, 2))
+    return albedo * np.clip(shade, 0.6, 1.4)[..., None]
+
+
+def _tint_polyps(albedo: np.ndarray, colon: Colon, texel: float) -> None:
+    """Tint the (rows, cols, 3) atlas ``albedo`` (``texel`` m per column) redder and slightly
+    brighter around each polyp of ``colon``, in place."""
+    rows, cols = albedo.shape[:2]
     for pol in colon.polyps:
         j = int(round(pol.s / colon.ring_spacing))
         k = int(round(pol.theta / (2 * math.pi) * len(colon.theta))) % len(colon.theta)
@@ -154,23 +172,19 @@ def build_atlas(colon: Colon, a: AppearanceParams, rng: np.random.Generator) -> 
         dx = np.arange(c_lo, c_hi, dtype=np.float32)[None] - cu
         blob = np.exp(-0.5 * (dx**2 + dy**2) / (0.6 * rad) ** 2)[..., None]
         albedo[:, c_lo:c_hi] *= 1.0 + blob * np.array([0.08, -0.18, -0.12], np.float32)
-    albedo = np.clip(albedo, 0.0, 1.0).astype(np.float32)
 
-    # micro-relief: round bumps (0.5-2 mm, they give compact glints) and a finer grain;
-    # RMS slope = 0.8 * micro_relief
+
+def _micro_relief(rng: np.random.Generator, rows: int, cols: int, deep: np.ndarray,
+                  micro_relief: float) -> np.ndarray:
+    """(rows, cols, 2) float32 slopes (along u, along theta; dimensionless) of the fine bump map:
+    round bumps (0.5-2 mm, they give compact glints), a finer grain and the bulge of the
+    ``deep`` vessels; RMS slope = 0.8 * ``micro_relief``."""
     h = 1.0 * _bumps(rng, rows, cols, 7.0, 0.03) + 0.6 * _bumps(rng, rows, cols, 3.5, 0.08)
     h += 0.04 * noise_2d(rng, rows, cols, 2) + 0.3 * deep  # deep vessels bulge a little
     du = (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1)) * 0.5
     dv = (np.roll(h, -1, axis=0) - np.roll(h, 1, axis=0)) * 0.5
     rms = math.sqrt(float(np.mean(du**2 + dv**2))) + 1e-9
-    slope = (np.stack([du, dv], axis=-1) * (0.8 * a.micro_relief / rms)).astype(np.float32)
-
-    rgbs = [np.ascontiguousarray(np.concatenate([albedo, slope[..., :1]], axis=-1))]
-    slope_v = [np.ascontiguousarray(slope[..., 1])]
-    for _ in range(1, MIP_LEVELS):
-        rgbs.append(_pyr_down_wrap(rgbs[-1]))
-        slope_v.append(_pyr_down_wrap(slope_v[-1]))
-    return TextureAtlas(texel=texel, rows=rows, rgbs=rgbs, slope_v=slope_v)
+    return (np.stack([du, dv], axis=-1) * (0.8 * micro_relief / rms)).astype(np.float32)
 
 
 def _bumps(rng: np.random.Generator, rows: int, cols: int, sigma: float, density: float) -> np.ndarray:
