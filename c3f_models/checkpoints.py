@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import json
 import re
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import torch
@@ -64,6 +66,50 @@ def load_weights(
     module.load_state_dict(state)
 
 
+def _flat(options: Mapping, prefix: str = "") -> dict[str, str]:
+    """Dotted option names -> JSON text of their values (tuples as lists), groups flattened."""
+    out: dict[str, str] = {}
+    for key, value in options.items():
+        if str(key).startswith("_"):
+            continue
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(_flat(value, f"{name}."))
+        else:
+            out[name] = json.dumps(value, default=str)
+    return out
+
+
+#: options a resumed run may change: they only matter when a run starts
+RESUME_FREE = {"init_weights"}
+
+
+def check_checkpoint_model(path: str | Path, class_path: str | None, given: Mapping | None = None,
+                           option: str = "--ckpt_path") -> None:
+    """InputError unless the checkpoint at ``path`` was saved from the configured model class
+    (``class_path``), and, for a resumed ``fit`` (``given``: the configured model options),
+    unless the configuration leaves its saved model options as they were.
+
+    LightningCLI replaces the configured model with the checkpoint's class and options, so
+    without this a DepthNet config with a ContraFeat checkpoint exports a ContraFeat, and a
+    resumed fit drops ``--model.*`` overrides without a word. Checked before anything runs.
+    """
+    saved = read_checkpoint(path, option, mmap=True).get("hyper_parameters") or {}
+    saved_class = saved.get("_class_path")
+    if saved_class and class_path and saved_class != class_path:
+        raise InputError(f"{option}: {path} holds a {saved_class.rpartition('.')[2]} ({saved_class}), but the "
+                         f"config's model is {class_path}; refused, nothing was written")
+    if given is None:
+        return
+    before, after = _flat(saved), _flat(given)
+    changed = sorted(k for k in before.keys() & after.keys() if before[k] != after[k] and k not in RESUME_FREE)
+    if changed:
+        shown = "; ".join(f"model.{k}: {before[k]} in the checkpoint, {after[k]} given" for k in changed[:3])
+        raise InputError(f"{option}: a resumed run keeps the checkpoint's model options, but the configuration "
+                         f"changes them ({shown}{'; ...' if len(changed) > 3 else ''}); drop those overrides, or "
+                         "start a new run from its weights with --model.init_weights")
+
+
 def check_saved_options(path: str | Path, class_path: str | None, option: str = "--ckpt_path") -> None:
     """InputError unless every hyper-parameter saved in the checkpoint is an argument of its model class.
 
@@ -91,4 +137,6 @@ def check_saved_options(path: str | Path, class_path: str | None, option: str = 
         )
 
 
-__all__ = ["check_saved_options", "load_weights", "read_checkpoint", "read_checkpoint_weights"]
+__all__ = [
+    "check_checkpoint_model", "check_saved_options", "load_weights", "read_checkpoint", "read_checkpoint_weights",
+]

@@ -29,7 +29,7 @@ from pathlib import Path
 import lightning as L
 from lightning.pytorch.cli import ArgsType, LightningArgumentParser, LightningCLI
 
-from c3f_models.checkpoints import check_saved_options
+from c3f_models.checkpoints import check_checkpoint_model, check_saved_options
 from c3f_models.trainer import C3FTrainer
 from c3f_slam.errors import InputError
 
@@ -88,13 +88,19 @@ class C3FCLI(LightningCLI):
 
     def parse_arguments(self, parser: LightningArgumentParser, args: ArgsType) -> None:
         """Lightning's, then a check of ``--ckpt_path``: LightningCLI applies the checkpoint's saved
-        model options next, and a checkpoint with options of an older layout is refused in one line."""
+        model class and options next, so a checkpoint with options of an older layout, of another
+        model class than the config's, or (resumed ``fit``) whose options the configuration would
+        change, is refused in one line before anything runs."""
         super().parse_arguments(parser, args)
         subcommand = self.config.get("subcommand")
         ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
         if ckpt_path and Path(ckpt_path).is_file():
             model = self.config[subcommand].get("model")
-            check_saved_options(ckpt_path, getattr(model, "class_path", None))
+            class_path = getattr(model, "class_path", None)
+            check_saved_options(ckpt_path, class_path)
+            init_args = getattr(model, "init_args", None)
+            given = init_args.as_dict() if subcommand == "fit" and init_args is not None else None
+            check_checkpoint_model(ckpt_path, class_path, given)
 
 
 def wrapped_input_error(exc: BaseException) -> InputError | None:

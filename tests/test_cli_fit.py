@@ -3,6 +3,7 @@ checkpoint, and a second run resumes from that checkpoint (``--ckpt_path``)."""
 
 from pathlib import Path
 
+import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -17,7 +18,7 @@ def _scalar_steps(run_dir: Path, tag: str) -> list[int]:
     return [e.step for e in acc.Scalars(tag)] if tag in acc.Tags()["scalars"] else []
 
 
-def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch):
+def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(ROOT)
     common = [
         "--config", "configs/trainer/cpu_smoke.yaml",
@@ -37,6 +38,15 @@ def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch):
     assert ckpt.is_file()
     assert torch.load(ckpt, map_location="cpu", weights_only=True)["global_step"] == 2
     assert _scalar_steps(first, "train/loss"), "no training loss logged"
+
+    # an override the resumed run would drop is refused in one line, before anything runs
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", *common, "--trainer.max_steps", "4", "--ckpt_path", str(ckpt), "--model.loss.lambda_dc", "0.5"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "a resumed run keeps the checkpoint's model options" in err[0]
+    assert "model.loss.lambda_dc: 0.1 in the checkpoint, 0.5 given" in err[0]
+    assert not (tmp_path / "tb" / "version_1").exists()
 
     main(["fit", *common, "--trainer.max_steps", "4", "--ckpt_path", str(ckpt)])
     second = tmp_path / "tb" / "version_1"

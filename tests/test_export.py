@@ -157,6 +157,24 @@ def test_export_rejects_wrong_kind_and_wrong_architecture(tmp_path, tiny_sequenc
     assert not (tmp_path / "out").exists()
 
 
+def test_checkpoint_of_another_model_class_is_refused_by_the_cli(depth_export, tmp_path, capsys):
+    """A ContraFeat checkpoint given with a DepthNet config: LightningCLI would swap in the
+    checkpoint's class and export a ContraFeat; refused in one line, nothing written (issue 21, item 4)."""
+    run, _ = depth_export
+    cf = ContraFeat(CONTRA_16)
+    other = tmp_path / "contrafeat.ckpt"
+    hparams = {"_class_path": "c3f_models.contrafeat_module.ContraFeat", **dict(cf.hparams),
+               "_instantiator": "lightning.pytorch.cli.instantiate_module"}
+    torch.save({"state_dict": cf.state_dict(), "hyper_parameters": hparams, "global_step": 1}, other)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main(["export", "--config", str(run / "config.yaml"), "--ckpt_path", str(other), "--output_dir", str(out)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: --ckpt_path: {other} holds a ContraFeat"), err
+    assert "c3f_models.depthnet.DepthNet" in err[0] and not out.exists()
+
+
 def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
     torch.manual_seed(0)
     model = ContraFeat(CONTRA_16)
