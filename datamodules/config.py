@@ -49,6 +49,10 @@ class SplitConfig:
             names = getattr(self, name)
             if names is not None:
                 object.__setattr__(self, name, tuple(names))
+        for name in ("val_fraction", "test_fraction"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise InputError(f"data.split.{name} must be in [0, 1], got {value}")
 
     def names(self) -> dict[str, tuple[str, ...] | None]:
         """The configured names of each split (None where not given)."""
@@ -112,6 +116,12 @@ class LoaderConfig:
 
     batch_size: int = 16
     num_workers: int = 0
+
+    def __post_init__(self) -> None:
+        if self.batch_size < 1:
+            raise InputError(f"data.loader.batch_size must be >= 1, got {self.batch_size}")
+        if self.num_workers < 0:
+            raise InputError(f"data.loader.num_workers must be >= 0, got {self.num_workers}")
 
 
 __all__ = ["SPLITS", "FramesConfig", "LoaderConfig", "SplitConfig", "TupleSamplingConfig", "check_stride"]

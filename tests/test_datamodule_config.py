@@ -69,6 +69,8 @@ def test_cli_null_for_a_group_field(plane_dataset):
      "error: data.sampling.frame_offsets must contain 0 (the centre frame), got [1, 2]"),
     (["--data.frames.no_such", "1"], "no_such"),
     (["--data.size", "[32, 32]"], "size"),  # the former flat option is gone
+    (["--data.loader.batch_size", "0"], "error: data.loader.batch_size must be >= 1, got 0"),  # was a traceback
+    (["--data.split.val_fraction", "1.5"], "error: data.split.val_fraction must be in [0, 1], got 1.5"),
 ])
 def test_cli_bad_data_option_is_one_line(plane_dataset, capsys, args, message):
     with pytest.raises(SystemExit) as exc:
