@@ -30,7 +30,7 @@ import lightning as L
 from lightning.pytorch.cli import ArgsType, LightningArgumentParser, LightningCLI
 
 from c3f_models.checkpoints import check_checkpoint_model, check_saved_options
-from c3f_models.trainer import C3FTrainer
+from c3f_models.trainer import C3FTrainer, InterruptCheckpoint
 from c3f_slam.errors import InputError
 
 # Subcommands beyond Lightning's: name -> arguments of the C3FTrainer method that the CLI
@@ -134,6 +134,7 @@ def condense_parser_error(message: str) -> str:
 
 def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
     """Entry point; ``args`` lets tests drive the CLI in-process (``main(['fit', ...])``)."""
+    InterruptCheckpoint.last = None
     no_exit = {"exit_on_error": False}
     parser_kwargs = {
         "prog": "python -m c3f_models",
@@ -167,6 +168,13 @@ def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
     except FileNotFoundError as exc:
         print(f"error: {exc.filename or exc}: file not found", file=sys.stderr)
         raise SystemExit(2) from None
+    except (SystemExit, KeyboardInterrupt) as exc:  # Lightning exits with 1 after a Ctrl-C in fit
+        interrupted = InterruptCheckpoint.last
+        if isinstance(exc, SystemExit) and (exc.code != 1 or interrupted is None):
+            raise
+        InterruptCheckpoint.last = None
+        print(f"error: {interrupted.message() if interrupted else 'interrupted'}", file=sys.stderr)
+        raise SystemExit(130) from None
 
 
 __all__ = ["C3FCLI", "EXTRA_SUBCOMMANDS", "C3FArgumentParser", "main", "nulls_as_group_values", "wrapped_input_error"]

@@ -1,10 +1,54 @@
-"""The project's Trainer: Lightning's, plus the ``export`` CLI subcommand."""
+"""The project's Trainer: Lightning's, plus the ``export`` CLI subcommand and a checkpoint on Ctrl-C."""
 
 from __future__ import annotations
 
+import os
+import tempfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, ClassVar
 
 import lightning as L
+from lightning.pytorch.callbacks import Callback
+
+INTERRUPTED_CKPT = "interrupted.ckpt"
+
+
+@dataclass(frozen=True)
+class Interruption:
+    """A ``fit`` stopped by Ctrl-C: the step it reached and the checkpoint saved there (None if none)."""
+
+    step: int
+    checkpoint: Path | None
+
+    def message(self) -> str:
+        if self.checkpoint is None:
+            return f"interrupted at step {self.step}; no checkpoint could be saved"
+        return (f"interrupted at step {self.step}; checkpoint saved: {self.checkpoint} "
+                f"(resume with --ckpt_path {self.checkpoint})")
+
+
+class InterruptCheckpoint(Callback):
+    """On Ctrl-C during ``fit``, save the run as the interrupt found it to
+    ``<checkpoint dir>/interrupted.ckpt`` (written beside, then renamed) so the steps since the
+    last checkpoint are not lost. The CLI reads :attr:`last` to print one line."""
+
+    last: ClassVar[Interruption | None] = None
+
+    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
+        if not isinstance(exception, KeyboardInterrupt) or trainer.state.fn != "fit":
+            return
+        folder = Path(getattr(trainer.checkpoint_callback, "dirpath", None) or Path(trainer.default_root_dir))
+        path = folder / INTERRUPTED_CKPT
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=".interrupted.", suffix=".ckpt", dir=folder)
+            os.close(fd)
+            trainer.save_checkpoint(tmp, weights_only=False)
+            os.replace(tmp, path)
+        except Exception:  # noqa: BLE001 -- a failed save must not hide the interrupt
+            path = None
+        type(self).last = Interruption(int(trainer.global_step), path)
 
 
 class C3FTrainer(L.Trainer):
@@ -12,7 +56,16 @@ class C3FTrainer(L.Trainer):
 
     Extra subcommands of the CLI are methods of this class (LightningCLI calls
     ``trainer.<subcommand>(model=..., datamodule=..., ...)``; see ``EXTRA_SUBCOMMANDS``).
+    An :class:`InterruptCheckpoint` is always among the callbacks.
     """
+
+    def __init__(self, *args: Any, callbacks: Any = None, **kwargs: Any) -> None:
+        if callbacks is None:
+            callbacks = []
+        callbacks = list(callbacks) if isinstance(callbacks, (list, tuple)) else [callbacks]
+        if not any(isinstance(c, InterruptCheckpoint) for c in callbacks):
+            callbacks.append(InterruptCheckpoint())
+        super().__init__(*args, callbacks=callbacks, **kwargs)
 
     def export(
         self,

@@ -53,3 +53,36 @@ def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch, capsys):
     steps = _scalar_steps(second, "train/loss")
     assert steps and min(steps) >= 2, f"the second run did not resume at step 2: logged steps {steps}"
     assert torch.load(second / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)["global_step"] == 4
+
+
+def test_ctrl_c_during_fit_saves_a_checkpoint_and_is_one_line(plane_dataset, tmp_path, monkeypatch, capsys):
+    """Ctrl-C (a KeyboardInterrupt in a training step): the steps done so far are saved to
+    checkpoints/interrupted.ckpt, one error line says where, exit 130; the run resumes from it."""
+    from c3f_models.depthnet import DepthNet
+
+    monkeypatch.chdir(ROOT)
+    common = [
+        "--config", "configs/trainer/cpu_smoke.yaml", "--config", "configs/depthnet/small.yaml",
+        "--data.data_dir", str(plane_dataset), "--data.frames.size", "[32, 32]", "--data.loader.batch_size", "2",
+        "--trainer.default_root_dir", str(tmp_path), "--trainer.logger.init_args.save_dir", str(tmp_path),
+        "--trainer.enable_progress_bar", "false",
+    ]
+    step = DepthNet.training_step
+
+    def interrupted_step(self, batch, batch_idx):
+        if self.global_step == 2:
+            raise KeyboardInterrupt
+        return step(self, batch, batch_idx)
+
+    monkeypatch.setattr(DepthNet, "training_step", interrupted_step)
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", *common, "--trainer.max_steps", "4"])
+    assert exc.value.code == 130
+    ckpt = tmp_path / "tb" / "version_0" / "checkpoints" / "interrupted.ckpt"
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if line.startswith("error:")]
+    assert err == [f"error: interrupted at step 2; checkpoint saved: {ckpt} (resume with --ckpt_path {ckpt})"]
+    assert torch.load(ckpt, map_location="cpu", weights_only=True)["global_step"] == 2
+    monkeypatch.setattr(DepthNet, "training_step", step)
+    main(["fit", *common, "--trainer.max_steps", "4", "--ckpt_path", str(ckpt)])
+    steps = _scalar_steps(tmp_path / "tb" / "version_1", "train/loss")
+    assert steps and min(steps) >= 2
