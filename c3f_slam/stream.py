@@ -28,7 +28,7 @@ import numpy as np
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
-from c3f_slam.io.sequence import Sequence
+from c3f_slam.io.sequence import Sequence, read_depth_png, read_rgb
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".m4v", ".wmv", ".webm")
 
@@ -200,12 +200,16 @@ class FrameStream:
                 stamp = float(seq.timestamps[index])
             else:
                 stamp = index / self.fps if self.fps else float(index)
-            try:
-                depth = seq.read_depth(index) if (self.use_depth and seq.has_depth) else None
-                rgb = seq.read_rgb(index)
-            except InputError as exc:  # a missing or corrupt file: an unreadable frame
+            want_depth = self.use_depth and seq.has_depth
+            try:  # a missing or corrupt file: an unreadable frame
+                rgb = read_rgb(seq.rgb_paths[index])
+                depth = read_depth_png(seq.depth_paths[index], seq.camera.depth_scale) if want_depth else None
+            except InputError as exc:
                 yield StreamFrame(index, stamp, None, None, UNREADABLE, 0.0, str(exc))
                 continue
+            seq.camera.check_image(rgb.shape, str(seq.rgb_paths[index]))  # wrong intrinsics: an error
+            if depth is not None:
+                seq.camera.check_image(depth.shape, str(seq.depth_paths[index]))
             yield index, stamp, rgb, depth
 
     # ------------------------------------------------------------------ public

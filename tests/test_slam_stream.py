@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -67,16 +68,18 @@ def test_sequence_folder(tmp_path):
     assert [x.index for x in got] == [1, 3] and len(sub) == 2 and got[0].depth is None
 
 
-def test_folder_is_read_lazily(tmp_path):
+def test_folder_is_read_lazily(tmp_path, monkeypatch):
+    import c3f_slam.stream as stream_module
+
     root = plane_sequence(tmp_path / "plane", frames=6, size=24)
     stream = FrameStream(root)
     calls = []
-    original = stream.sequence.read_rgb
-    stream.sequence.read_rgb = lambda i: (calls.append(i), original(i))[1]
+    original = stream_module.read_rgb
+    monkeypatch.setattr(stream_module, "read_rgb", lambda path: (calls.append(Path(path).name), original(path))[1])
     it = iter(stream)
     assert calls == []
     next(it)
-    assert calls == [0]
+    assert calls == ["000000.png"]
 
 
 def test_video_frames_flags_and_timestamps(video):
@@ -157,3 +160,13 @@ def test_an_unreadable_folder_frame_is_yielded_marked(tmp_path):
     frames = list(open_stream(root))
     assert [f.status for f in frames] == ["ok", "ok", "unreadable", "ok", "ok", "ok"]
     assert frames[2].rgb is None and bad.name in frames[2].error and not frames[2].usable
+
+
+def test_frames_not_matching_the_intrinsics_are_an_error_not_unreadable(tmp_path):
+    """A size mismatch is wrong intrinsics (one error naming the file), not a frame to skip."""
+    root = plane_sequence(tmp_path / "plane", frames=3, size=24)
+    cam = json.loads((root / "camera.json").read_text())
+    cam.update(width=2 * cam["width"], height=2 * cam["height"])  # same aspect, twice the size
+    (root / "camera.json").write_text(json.dumps(cam))
+    with pytest.raises(InputError, match=r"rgb/000000\.png: image is 24x24 but the camera intrinsics are for 48x48"):
+        list(open_stream(root))
