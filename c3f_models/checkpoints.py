@@ -84,43 +84,31 @@ def _flat(options: Mapping, prefix: str = "") -> dict[str, str]:
 RESUME_FREE = {"init_weights"}
 
 
-def check_checkpoint_model(path: str | Path, class_path: str | None, given: Mapping | None = None,
-                           option: str = "--ckpt_path") -> None:
-    """InputError unless the checkpoint at ``path`` was saved from the configured model class
-    (``class_path``), and, for a resumed ``fit`` (``given``: the configured model options),
-    unless the configuration leaves its saved model options as they were.
+def check_checkpoint(path: str | Path, class_path: str | None, given: Mapping | None = None,
+                     option: str = "--ckpt_path") -> None:
+    """InputError (one line) unless LightningCLI may apply the checkpoint at ``path``.
 
-    LightningCLI replaces the configured model with the checkpoint's class and options, so
-    without this a DepthNet config with a ContraFeat checkpoint exports a ContraFeat, and a
-    resumed fit drops ``--model.*`` overrides without a word. Checked before anything runs.
+    LightningCLI re-applies a ``--ckpt_path``'s saved class and hyper-parameters to the model
+    (``test``, ``export`` and resumed ``fit``). Refused here, before anything runs: options of
+    the layout before the options were grouped (flat ``encoder_layers``, ``lambda_dc``, ...); a
+    class other than the config's ``class_path`` (a DepthNet config would export a ContraFeat);
+    and for a resumed ``fit`` (``given``: the configured model options) a configuration that
+    changes the saved options (the resumed run would drop them without a word).
     """
     saved = read_checkpoint(path, option, mmap=True).get("hyper_parameters") or {}
+    _check_layout(saved, path, class_path, option)
     saved_class = saved.get("_class_path")
     if saved_class and class_path and saved_class != class_path:
         raise InputError(f"{option}: {path} holds a {saved_class.rpartition('.')[2]} ({saved_class}), but the "
                          f"config's model is {class_path}; refused, nothing was written")
-    if given is None:
-        return
-    before, after = _flat(saved), _flat(given)
-    changed = sorted(k for k in before.keys() & after.keys() if before[k] != after[k] and k not in RESUME_FREE)
-    if changed:
-        shown = "; ".join(f"model.{k}: {before[k]} in the checkpoint, {after[k]} given" for k in changed[:3])
-        raise InputError(f"{option}: a resumed run keeps the checkpoint's model options, but the configuration "
-                         f"changes them ({shown}{'; ...' if len(changed) > 3 else ''}); drop those overrides, or "
-                         "start a new run from its weights with --model.init_weights")
+    if given is not None:
+        _check_resume(saved, given, option)
 
 
-def check_saved_options(path: str | Path, class_path: str | None, option: str = "--ckpt_path") -> None:
-    """InputError unless every hyper-parameter saved in the checkpoint is an argument of its model class.
-
-    LightningCLI re-applies a checkpoint's hyper-parameters to the model (``test``, ``export``
-    and resumed ``fit`` with ``--ckpt_path``). A checkpoint saved before the options were
-    grouped (flat ``encoder_layers``, ``lambda_dc``, ``max_keypoints``, ...) is refused here
-    with one line instead of failing inside the parser. The class is the checkpoint's own
-    (``_class_path``, saved by the CLI) or else ``class_path`` (the config's); one that cannot
-    be imported is left to Lightning.
-    """
-    saved = read_checkpoint(path, option, mmap=True).get("hyper_parameters") or {}
+def _check_layout(saved: Mapping, path: str | Path, class_path: str | None, option: str) -> None:
+    """Every saved hyper-parameter must be an argument of the model class: the checkpoint's own
+    (``_class_path``, saved by the CLI) or else the config's; one that cannot be imported is
+    left to Lightning."""
     module_name, _, name = str(saved.get("_class_path") or class_path or "").rpartition(".")
     try:
         model_class = getattr(importlib.import_module(module_name), name)
@@ -137,6 +125,15 @@ def check_saved_options(path: str | Path, class_path: str | None, option: str = 
         )
 
 
-__all__ = [
-    "check_checkpoint_model", "check_saved_options", "load_weights", "read_checkpoint", "read_checkpoint_weights",
-]
+def _check_resume(saved: Mapping, given: Mapping, option: str) -> None:
+    """The configured model options of a resumed run must equal the saved ones (but :data:`RESUME_FREE`)."""
+    before, after = _flat(saved), _flat(given)
+    changed = sorted(k for k in before.keys() & after.keys() if before[k] != after[k] and k not in RESUME_FREE)
+    if changed:
+        shown = "; ".join(f"model.{k}: {before[k]} in the checkpoint, {after[k]} given" for k in changed[:3])
+        raise InputError(f"{option}: a resumed run keeps the checkpoint's model options, but the configuration "
+                         f"changes them ({shown}{'; ...' if len(changed) > 3 else ''}); drop those overrides, or "
+                         "start a new run from its weights with --model.init_weights")
+
+
+__all__ = ["check_checkpoint", "load_weights", "read_checkpoint", "read_checkpoint_weights"]

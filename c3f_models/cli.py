@@ -29,7 +29,7 @@ from pathlib import Path
 import lightning as L
 from lightning.pytorch.cli import ArgsType, LightningArgumentParser, LightningCLI
 
-from c3f_models.checkpoints import check_checkpoint_model, check_saved_options
+from c3f_models.checkpoints import check_checkpoint
 from c3f_models.trainer import C3FTrainer, InterruptCheckpoint
 from c3f_slam.errors import InputError
 
@@ -96,11 +96,9 @@ class C3FCLI(LightningCLI):
         ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
         if ckpt_path and Path(ckpt_path).is_file():
             model = self.config[subcommand].get("model")
-            class_path = getattr(model, "class_path", None)
-            check_saved_options(ckpt_path, class_path)
             init_args = getattr(model, "init_args", None)
             given = init_args.as_dict() if subcommand == "fit" and init_args is not None else None
-            check_checkpoint_model(ckpt_path, class_path, given)
+            check_checkpoint(ckpt_path, getattr(model, "class_path", None), given)
 
 
 def wrapped_input_error(exc: BaseException) -> InputError | None:
