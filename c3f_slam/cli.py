@@ -49,7 +49,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--stride", type=int, default=1, help="use every K-th frame")
     r.add_argument("--no-mesh", action="store_true", help="skip TSDF fusion")
     r.add_argument("--min-correspondences", type=int,
-                   help="new fragment below this many consecutive correspondences (paper: 100)")
+                   help="new fragment below this many consecutive correspondences (default: the paper's 100 at "
+                        "512x512 scaled with the frame's pixel count, at least 15: 15 at 128 px, 25 at 256 px)")
     r.add_argument("--min-overlap", type=float, help="new fragment below this frustum overlap (paper: 0.85)")
     r.add_argument("--max-keypoints", type=int, help="SIFT keypoints per frame (default 1000)")
     r.add_argument("--ratio", type=float,

@@ -60,6 +60,6 @@ def keyframe_per_frame_slam(world: PlaceWorld, **over) -> FragmentSlam:
     reaches 10^6 correspondences): one keyframe per frame. ``over``: SlamConfig parts (dicts)."""
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
                                    **over)
-    slam = FragmentSlam(cfg, np.eye(3))
+    slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
     slam.match = world.match
     return slam

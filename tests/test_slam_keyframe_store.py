@@ -99,7 +99,7 @@ def _fake_run(world: PlaceWorld, folder: Path | None) -> tuple[FragmentSlam, lis
     records the bytes of every stored keyframe it is given."""
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
                                    candidates={"max_candidates": 6}, optimization={"small_map": 10})
-    slam = FragmentSlam(cfg, np.eye(3), keyframe_cache=folder)
+    slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3), keyframe_cache=folder)
     if folder is not None:
         slam.keyframes = KeyframeStore(folder, lru=4)  # small LRU: most candidates come from the file
     seen: list[bytes] = []
@@ -200,7 +200,7 @@ def test_unwritable_folder_is_one_input_error_line(tmp_path):
     blocker.write_text("x")
     bad = blocker / CACHE_DIR  # a folder cannot be made under a file (also as root)
     with pytest.raises(InputError) as err:
-        FragmentSlam(SlamConfig(), np.eye(3), keyframe_cache=bad)
+        FragmentSlam(SlamConfig().for_frame_size(128, 128), np.eye(3), keyframe_cache=bad)
     msg = str(err.value)
     assert str(bad) in msg and "\n" not in msg
 

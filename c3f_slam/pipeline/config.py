@@ -3,12 +3,14 @@
 All lengths are metres, angles degrees. :class:`SlamConfig` holds one small frozen dataclass
 per part: ``frontend`` (keypoints, ratio test), ``fragments`` (the new-fragment rule),
 ``candidates`` (:mod:`c3f_slam.pipeline.retrieval`), ``keyframes`` (what a keyframe keeps,
-revisits: :mod:`c3f_slam.pipeline.reuse`), ``optimization`` (the global schedule:
+revisits: :mod:`c3f_slam.pipeline.reuse`), ``rejoin`` (bridging tracking breaks:
+:mod:`c3f_slam.pipeline.rejoin`), ``optimization`` (the global schedule:
 :mod:`c3f_slam.pipeline.schedule`), ``fusion``, plus the match filter and pose-graph
 settings of :mod:`c3f_slam.matching` and :mod:`c3f_slam.posegraph`. Each part validates
 its own fields (:class:`InputError` naming ``part.field``). ``colon`` (default) and
-``room`` pick the presets; the fragment rules are the paper's (100 correspondences, 85 %
-frustum overlap) unless overridden.
+``room`` pick the presets; the fragment rules are the paper's (85 % frustum overlap, 100
+correspondences at 512 x 512 scaled with the frame's pixel count, resolved for a run by
+:meth:`SlamConfig.for_frame_size`) unless overridden.
 
 Overrides name a part and its fields, as a dict merged into the preset's part::
 
@@ -18,6 +20,7 @@ Overrides name a part and its fields, as a dict merged into the preset's part::
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
@@ -28,6 +31,8 @@ from c3f_slam.pipeline.retrieval import CandidateConfig
 from c3f_slam.posegraph import POSEGRAPH_PRESETS, PoseGraphConfig
 
 PRESETS = ("colon", "room")
+#: the paper's new-fragment rule (SPEC §4.2) is for 512 x 512 frames
+PAPER_MIN_CORRESPONDENCES, PAPER_FRAME_PIXELS = 100, 512 * 512
 MODES = ("full", "odometry")
 
 
@@ -62,17 +67,30 @@ class FrontendConfig:
 class FragmentConfig:
     """When a frame opens a new fragment (SPEC §4.2, :func:`c3f_slam.pipeline.fragments.new_fragment_reason`)."""
 
-    min_correspondences: int = 100  #: fewer filtered correspondences to the previous frame: new fragment
+    #: fewer filtered correspondences to the previous frame: new fragment. None: derived from the
+    #: frame size (:meth:`correspondences_for`; the paper's 100 at 512 x 512)
+    min_correspondences: int | None = None
     min_overlap: float = 0.85  #: lower frustum overlap with the active keyframe: new fragment
     overlap_stride: int = 4  #: pixel grid of the overlap test
     max_frames: int = 60  #: fragment length cap (memory)
     intra_all_pairs: bool = True  #: also match each frame to every frame of its fragment
 
     def __post_init__(self) -> None:
-        _at_least(self.min_correspondences, 0, "fragments.min_correspondences")
+        _at_least(self.min_correspondences, 0, "fragments.min_correspondences", "from the frame size")
         _check(0.0 <= self.min_overlap <= 1.0, f"fragments.min_overlap must be in [0, 1], got {self.min_overlap}")
         _at_least(self.overlap_stride, 1, "fragments.overlap_stride")
         _at_least(self.max_frames, 1, "fragments.max_frames")
+
+    def correspondences_for(self, width: int, height: int, min_matches: int) -> int:
+        """The new-fragment threshold for ``width`` x ``height`` frames: the configured one, else
+        the paper's 100 for 512 x 512 scaled with the pixel count (keypoints, and so
+        correspondences, grow with the image area), at least 1.5 x the match filter's
+        ``min_matches`` (so that a frame just above the filter's floor still opens a new
+        fragment): 15 at 128 px, 25 at 256 px, 100 at 512 px."""
+        if self.min_correspondences is not None:
+            return self.min_correspondences
+        scaled = PAPER_MIN_CORRESPONDENCES * width * height / PAPER_FRAME_PIXELS
+        return int(max(round(scaled), math.ceil(1.5 * min_matches)))
 
 
 @dataclass(frozen=True)
@@ -93,6 +111,22 @@ class KeyframeConfig:
         _check(self.reuse_max_offset >= 0 and 0 <= self.reuse_max_angle_deg <= 180,
                "keyframes.reuse_max_offset must be >= 0 (metres) and keyframes.reuse_max_angle_deg in [0, 180], "
                f"got {self.reuse_max_offset}, {self.reuse_max_angle_deg}")
+
+
+@dataclass(frozen=True)
+class RejoinConfig:
+    """How tracking breaks are bridged (:mod:`c3f_slam.pipeline.rejoin`; frames = processed frames)."""
+
+    enabled: bool = True  #: try to join the frames after a break to the frames before it
+    tail_frames: int = 6  #: frames before a break kept as targets (the last ones, every ``tail_step``-th)
+    tail_step: int = 3  #: spacing of the kept tail frames
+    window: int = 300  #: frames after a break during which its tail is tried (then it is dropped)
+    keypoints: int = 500  #: features a tail frame keeps (strongest first)
+    max_pending: int = 4  #: breaks remembered at once (the oldest is dropped)
+
+    def __post_init__(self) -> None:
+        for name in ("tail_frames", "tail_step", "window", "keypoints", "max_pending"):
+            _at_least(getattr(self, name), 1, f"rejoin.{name}")
 
 
 @dataclass(frozen=True)
@@ -124,8 +158,8 @@ class FusionConfig:
 
 
 #: parts of :class:`SlamConfig` that overrides may give as dicts of their fields
-SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "optimization", "match_filter", "posegraph",
-            "fusion")
+SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "optimization", "match_filter",
+            "posegraph", "fusion")
 
 #: overrides that restore the paper's literal rules at any map size: every new keyframe matched
 #: against all keyframes, all its accepted matches kept, the whole component optimised after
@@ -147,6 +181,7 @@ class SlamConfig:
     fragments: FragmentConfig = field(default_factory=FragmentConfig)
     candidates: CandidateConfig = field(default_factory=CandidateConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    rejoin: RejoinConfig = field(default_factory=RejoinConfig)
     optimization: OptimizationConfig = field(default_factory=OptimizationConfig)
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
     posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])
@@ -189,6 +224,12 @@ class SlamConfig:
         merged = {k: _merge_part(k, getattr(self, k), v) if k in SECTIONS and isinstance(v, dict) else v
                   for k, v in changes.items()}
         return replace(self, **merged)
+
+    def for_frame_size(self, width: int, height: int) -> SlamConfig:
+        """This config with the thresholds that derive from the frame size resolved
+        (``fragments.min_correspondences``: :meth:`FragmentConfig.correspondences_for`)."""
+        n = self.fragments.correspondences_for(width, height, self.match_filter.min_matches)
+        return self.with_(fragments={"min_correspondences": n})
 
     def as_dict(self) -> dict:
         """Nested plain dict (summary.json's ``config``)."""

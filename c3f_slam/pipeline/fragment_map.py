@@ -136,6 +136,7 @@ class FragmentMap:
             "odometry_edges": kinds["odometry"],
             "keyframe_edges": kinds["keyframe"],
             "loop_edges": kinds["loop"],
+            "rejoin_edges": kinds["rejoin"],
             "pruned_edges": self.graph.n_pruned(),
             "pruned_edges_intra": c.intra_pruned,
             "intra_edges": c.intra_edges + (act.n_edges if act is not None else 0),

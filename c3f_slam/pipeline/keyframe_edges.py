@@ -85,3 +85,18 @@ def place_new_frame(graph: PoseGraph, edges: list[KeyframeEdge]) -> tuple[np.nda
         G = T_wn @ invert_pose(m.T_ij) @ invert_pose(graph.pose(k))
         graph.transform_nodes(graph.component_nodes(k), G)
     return T_wn, len(by_comp) - 1
+
+
+def join_components(graph: PoseGraph, i: int, j: int, T_ij: np.ndarray) -> bool:
+    """Before adding the edge (i, j, T_ij) between two components: move the newer component
+    (its oldest node is younger) rigidly so that pose(i) @ T_ij = pose(j). Returns whether the
+    two were different components."""
+    if graph.find(i) == graph.find(j):
+        return False
+    if graph.component_oldest(i) <= graph.component_oldest(j):
+        G = graph.pose(i) @ T_ij @ invert_pose(graph.pose(j))
+        graph.transform_nodes(graph.component_nodes(j), G)
+    else:
+        G = graph.pose(j) @ invert_pose(T_ij) @ invert_pose(graph.pose(i))
+        graph.transform_nodes(graph.component_nodes(i), G)
+    return True

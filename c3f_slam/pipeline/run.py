@@ -221,6 +221,8 @@ def run_slam(
         summary.update(descriptors=inputs.descriptors, depth_source=inputs.depth_source)
         sources = open_sources(sequence, inputs, stride, max_frames)
         summary.update(sources.summary())
+        cfg = cfg.for_frame_size(sources.camera.width, sources.camera.height)
+        summary["config"] = cfg.as_dict()  # with the thresholds derived from the frame size
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
         with SlamRun(cfg, sources, outputs, timings, factory, progress) as run:
             mesh = run.run()

@@ -39,7 +39,8 @@ from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch, frame_matcher
-from c3f_slam.pipeline.keyframe_edges import KeyframeEdge, cap_keyframe_edges, place_new_frame
+from c3f_slam.pipeline.keyframe_edges import KeyframeEdge, cap_keyframe_edges, join_components, place_new_frame
+from c3f_slam.pipeline.rejoin import BreakTails
 from c3f_slam.pipeline.retrieval import Candidates, global_descriptor
 from c3f_slam.pipeline.reuse import find_host, revisit_edges
 from c3f_slam.posegraph import EdgeKind
@@ -62,6 +63,10 @@ class FragmentSlam(FragmentMap):
         self.prev: FrameFeatures | None = None  # last placed frame (in the active fragment)
         self.gap = True  # the previous streamed frame was skipped / unusable
         self.match: Matcher = frame_matcher(cfg, metric)
+        self.rejoin = BreakTails(cfg.rejoin, lambda a, b: self.match(a, b))  # self.match may be replaced (tests)
+        if cfg.fragments.min_correspondences is None:
+            raise ValueError("fragments.min_correspondences is derived from the frame size: "
+                             "pass SlamConfig.for_frame_size(width, height)")
 
     # ------------------------------------------------------------------ per frame
     def skip(self, index: int, stamp: float) -> None:
@@ -83,7 +88,25 @@ class FragmentSlam(FragmentMap):
             fid, opened = self._open_fragment(feat, depth, link, reason), True
         self._last_row = len(self.log) - 1
         self.prev, self.gap = feat, False
+        if self.rejoin.pending:
+            self._try_rejoin(feat)
         return fid, opened
+
+    def _try_rejoin(self, feat: FrameFeatures) -> None:
+        """Match the frame against the frames before a pending tracking break
+        (:mod:`.rejoin`); an accepted match merges the two components with a rejoin edge."""
+        act = self.active
+        assert act is not None
+        t0 = time.perf_counter()
+        root = self.graph.find(act.node)
+        r = self.rejoin.step(feat, act.node_pose(len(act) - 1), lambda node: self.graph.find(node) == root)
+        t0 = self.t.add("matching", t0)
+        if r is None:
+            return
+        join_components(self.graph, r.tail_node, act.node, r.T_ij)
+        self.graph.add_edge(r.tail_node, act.node, r.T_ij, points_j=r.points_j, uncertain=True, kind=EdgeKind.REJOIN)
+        self.schedule.after_keyframe(act.node, True, len(self.keyframes))
+        self.t.add("posegraph", t0)
 
     def _new_fragment_reason(self, link: PairMatch | None, n: int, depth: np.ndarray) -> str | None:
         """Why this frame opens a new fragment (None: it extends the active one)."""
@@ -138,7 +161,11 @@ class FragmentSlam(FragmentMap):
         or as a new keyframe. Returns its id."""
         self.counts.reasons[reason] += 1
         prev_frag = self.active
+        tail = list(prev_frag.features or []) if prev_frag is not None and link is None else []
         self._close_active()
+        if tail:  # a tracking break: its last frames become targets for re-joining
+            assert prev_frag is not None
+            self.rejoin.record(prev_frag.node, tail, [prev_frag.node_pose(i) for i in range(len(tail))])
         fid = self.counts.fragments
         self.counts.fragments += 1
         self._active_row = len(self.log)
@@ -246,6 +273,10 @@ class FragmentSlam(FragmentMap):
         self.schedule.after_keyframe(host, len(keep) > 1 or merged > 0, len(self.keyframes))
         self.t.add("posegraph", t0)
         return fid
+
+    def stats(self) -> dict:
+        """Counters for summary.json (:meth:`FragmentMap.stats` and the re-joining's)."""
+        return {**super().stats(), **self.rejoin.stats()}
 
     def finish(self) -> None:
         """Close the active fragment and optimise the main component one last time."""

@@ -28,6 +28,7 @@ class EdgeKind(str, Enum):
     ODOMETRY = "odometry"
     LOOP = "loop"
     KEYFRAME = "keyframe"
+    REJOIN = "rejoin"  #: a frame after a tracking break matched to a frame before it (:mod:`c3f_slam.pipeline.rejoin`)
 
 
 #: kind names (plain strings) by kind code: the code of an edge kind is its index in EdgeKind
