@@ -246,7 +246,7 @@ def test_readme_first_example_keeps_its_close_up_in_one_map(tmp_path):
     """README's first example (seq1, 300 frames, 128 px, seed 7, 15 % of the colon) at default
     settings: a close-up splits tracking; re-joining across the break keeps the frames before
     it in the map (94.7 % measured; 54.3 % without: the frames before the close-up were a lone
-    component). The close-up's own frames (up to 30 deg per frame) stay unregistered."""
+    component). The close-up's own frames (up to 32 deg per frame) stay unregistered."""
     from datamodules.synthetic.generate import generate_sequence
     from datamodules.synthetic.params import get_preset, set_param
 
