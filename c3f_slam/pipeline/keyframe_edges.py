@@ -80,11 +80,14 @@ def place_new_frame(graph: PoseGraph, edges: list[KeyframeEdge]) -> tuple[np.nda
     k, m, _ = by_comp[anchor]
     T_wn = graph.pose(k) @ m.T_ij
     for c, (k, m, _) in by_comp.items():
-        if c == anchor:
-            continue
-        G = T_wn @ invert_pose(m.T_ij) @ invert_pose(graph.pose(k))
-        graph.transform_nodes(graph.component_nodes(k), G)
+        if c != anchor:
+            _move_component(graph, k, T_wn @ invert_pose(m.T_ij))
     return T_wn, len(by_comp) - 1
+
+
+def _move_component(graph: PoseGraph, node: int, T_w_node: np.ndarray) -> None:
+    """Move the component of ``node`` rigidly so that ``node``'s pose becomes ``T_w_node``."""
+    graph.transform_nodes(graph.component_nodes(node), T_w_node @ invert_pose(graph.pose(node)))
 
 
 def join_components(graph: PoseGraph, i: int, j: int, T_ij: np.ndarray) -> bool:
@@ -94,9 +97,7 @@ def join_components(graph: PoseGraph, i: int, j: int, T_ij: np.ndarray) -> bool:
     if graph.find(i) == graph.find(j):
         return False
     if graph.component_oldest(i) <= graph.component_oldest(j):
-        G = graph.pose(i) @ T_ij @ invert_pose(graph.pose(j))
-        graph.transform_nodes(graph.component_nodes(j), G)
+        _move_component(graph, j, graph.pose(i) @ T_ij)
     else:
-        G = graph.pose(j) @ invert_pose(T_ij) @ invert_pose(graph.pose(i))
-        graph.transform_nodes(graph.component_nodes(i), G)
+        _move_component(graph, i, graph.pose(j) @ invert_pose(T_ij))
     return True

@@ -76,8 +76,9 @@ class BreakTails:
     def step(self, feat: FrameFeatures, T_node_frame: np.ndarray,
              joined: Callable[[int], bool]) -> Rejoin | None:
         """Try the current frame (``feat``, pose ``T_node_frame`` in its fragment's node) against
-        one tail frame of the newest pending break that ``joined(tail_node)`` does not report
-        as already in the current frame's component. Returns the accepted match, if any."""
+        one tail frame of one pending break (in turn over the breaks that ``joined(tail_node)``
+        does not report as already in the current frame's component; expired ones are dropped).
+        Returns the accepted match, if any."""
         for tail in self.pending:
             tail.age += 1
         self.pending = [t for t in self.pending if t.age <= self.cfg.window and not joined(t.node)]
