@@ -149,8 +149,8 @@ class KeyframeGraph:
 def draw_keyframe_graph(path: str | Path, graph: KeyframeGraph, title: str = "keyframe graph") -> None:
     """PNG top view (x vs z, cm) of keyframes and their edges, drawn with matplotlib only.
 
-    Odometry edges grey, loop edges blue, edges across tracking breaks (rejoin) green, pruned
-    edges dashed red; lone keyframes hollow.
+    Odometry edges grey, loop edges blue, edges across tracking breaks (rejoin) green, dense
+    fallback edges orange, pruned edges dashed red; lone keyframes hollow.
     """
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
@@ -159,7 +159,8 @@ def draw_keyframe_graph(path: str | Path, graph: KeyframeGraph, title: str = "ke
     ax = fig.add_subplot(1, 1, 1)
     pos = {n.id: np.asarray(n.position) * 100.0 for n in graph.nodes}
     styles = {"odometry": dict(color="0.5", lw=1.0, ls="-"), "loop": dict(color="tab:blue", lw=0.8, ls="-"),
-              "rejoin": dict(color="tab:green", lw=1.2, ls="-")}
+              "rejoin": dict(color="tab:green", lw=1.2, ls="-"),
+              "fallback": dict(color="tab:orange", lw=1.2, ls="-")}
     # one LineCollection per style (a plot call per edge takes minutes on big graphs)
     pruned_style = dict(color="tab:red", lw=0.8, ls="--")
     groups: dict[str, list] = {}

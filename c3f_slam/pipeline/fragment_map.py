@@ -137,6 +137,8 @@ class FragmentMap:
             "keyframe_edges": kinds["keyframe"],
             "loop_edges": kinds["loop"],
             "rejoin_edges": kinds["rejoin"],
+            "fallback_edges": kinds["fallback"],
+            "fallback_edges_pruned": self.graph.pruned_kind_counts().get("fallback", 0),
             "pruned_edges": self.graph.n_pruned(),
             "pruned_edges_intra": c.intra_pruned,
             "intra_edges": c.intra_edges + (act.n_edges if act is not None else 0),

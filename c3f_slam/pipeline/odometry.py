@@ -43,7 +43,8 @@ class OdometrySlam:
     def close(self) -> None:
         """Nothing to free."""
 
-    def add(self, feat: FrameFeatures, depth: np.ndarray) -> tuple[int, bool]:
+    def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
+        """Match to the last frame (``rgb`` unused: the baseline has no dense fallback)."""
         fid = len(self.log) // self.chunk  # fusion chunks
         if self.last is None:
             T = np.eye(4)

@@ -132,7 +132,7 @@ class SlamRun:
             self._skip(frame, "featureless")
             return
         self.counts.processed += 1
-        fid, _ = self.backend.add(feat, depth)
+        fid, _ = self.backend.add(feat, depth, frame.rgb)
         t0 = time.perf_counter()
         if self.fusion is not None and fid >= 0:
             self._fuse(fid, frame)
