@@ -66,6 +66,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--reuse-keyframes", action=argparse.BooleanOptionalAction, default=None,
                    help="hang a fragment that revisits a mapped place off that place's keyframe instead of adding a "
                         "keyframe (memory stays flat on long revisiting streams; SlamConfig.reuse_keyframes)")
+    r.add_argument("--component-min-frames", type=int,
+                   help="every component of the map that could not be joined to the main map and has at least N "
+                        "registered frames gets its own trajectory and mesh in OUT/components/NN/ (the 8 largest; "
+                        "default 30); 0 or negative = none")
     r.add_argument("--blas-threads", type=int,
                    help="BLAS threads NumPy may use during the run (default 1: the runtime's matrices are small); "
                         "0 = the BLAS library's own setting")
@@ -111,6 +115,8 @@ def _overrides(args: argparse.Namespace) -> dict:
         over["keyframes"]["max_loop_edges"] = args.max_loop_edges_per_keyframe or None
     if args.reuse_keyframes is not None:
         over["keyframes"]["reuse"] = args.reuse_keyframes
+    if args.component_min_frames is not None:
+        over["components"] = {"min_frames": max(args.component_min_frames, 0)}
     out: dict = {part: fields for part, fields in over.items() if fields}
     if args.blas_threads is not None:
         _check(args.blas_threads >= 0, f"--blas-threads must be >= 0, got {args.blas_threads}")
@@ -139,6 +145,11 @@ def _run(args: argparse.Namespace) -> int:
     print(f"{s['frames']} frames, {s['registered_frames']} registered ({100 * s['registered_share']:.1f} %), "
           f"{s.get('fragments', 0)} fragments, {s.get('loop_edges', 0)} loop edges, "
           f"{s.get('pruned_edges', 0)} pruned, {fps or 0:.1f} frames/s -> {args.out}")
+    written = [c for c in s.get("components", []) if not c["main"] and c["files"]]
+    if written:
+        print(f"{len(written)} part(s) not joined to the main map written to {args.out}/components/: "
+              + ", ".join(f"{c['id']:02d} ({c['frames']} frames, {c['first_frame']}-{c['last_frame']})"
+                          for c in written))
     return 0
 
 
