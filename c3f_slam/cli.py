@@ -73,6 +73,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--guided-matching", action=argparse.BooleanOptionalAction, default=None,
                    help="where sparse matching to the previous frame fails, match again near where the last "
                         "motion puts each keypoint (default on; SlamConfig.fallback.guided)")
+    r.add_argument("--component-min-frames", type=int,
+                   help="every component of the map that could not be joined to the main map and has at least N "
+                        "registered frames gets its own trajectory and mesh in OUT/components/NN/ (the 8 largest; "
+                        "default 30); 0 or negative = none")
     r.add_argument("--blas-threads", type=int,
                    help="BLAS threads NumPy may use during the run (default 1: the runtime's matrices are small); "
                         "0 = the BLAS library's own setting")
@@ -122,6 +126,8 @@ def _overrides(args: argparse.Namespace) -> dict:
         over.setdefault("fallback", {})["dense"] = args.dense_fallback
     if args.guided_matching is not None:
         over.setdefault("fallback", {})["guided"] = args.guided_matching
+    if args.component_min_frames is not None:
+        over["components"] = {"min_frames": max(args.component_min_frames, 0)}
     out: dict = {part: fields for part, fields in over.items() if fields}
     if args.blas_threads is not None:
         _check(args.blas_threads >= 0, f"--blas-threads must be >= 0, got {args.blas_threads}")
@@ -150,6 +156,11 @@ def _run(args: argparse.Namespace) -> int:
     print(f"{s['frames']} frames, {s['registered_frames']} registered ({100 * s['registered_share']:.1f} %), "
           f"{s.get('fragments', 0)} fragments, {s.get('loop_edges', 0)} loop edges, "
           f"{s.get('pruned_edges', 0)} pruned, {fps or 0:.1f} frames/s -> {args.out}")
+    written = [c for c in s.get("components", []) if not c["main"] and c["files"]]
+    if written:
+        print(f"{len(written)} part(s) not joined to the main map written to {args.out}/components/: "
+              + ", ".join(f"{c['id']:02d} ({c['frames']} frames, {c['first_frame']}-{c['last_frame']})"
+                          for c in written))
     return 0
 
 

@@ -10,6 +10,8 @@ Layout of an output folder (:class:`RunOutputs`)::
       mesh.ply              fused mesh (written with c3f_slam.fusion.write_mesh)
       trajectory.png        estimate vs ground truth (c3f_slam.trajectory_plot.plot_trajectories)
       coverage.ply          ground-truth mesh painted seen / unseen
+      components/NN/        a component not joined to the main map (c3f_slam.pipeline.components):
+                            trajectory.txt and mesh.ply in its own world frame
 
 A run folder holds one run: ``c3f_slam run`` builds it in a hidden sibling
 (``.OUT.partial-XXXX``) and moves it into place when the run ends, successfully or not
@@ -32,6 +34,8 @@ from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write, atomic_write_text, move_into_place, staging_dir
 from c3f_slam.io.tum import write_tum
 from c3f_slam.posegraph import PoseGraph
+
+COMPONENTS_DIR = "components"  #: folder of the components beside the main map (RunOutputs.component)
 
 
 def to_jsonable(obj):
@@ -274,6 +278,10 @@ class RunOutputs:
     @property
     def coverage_mesh(self) -> Path:
         return self.root / "coverage.ply"
+
+    def component(self, n: int) -> RunOutputs:
+        """The files of component ``n`` (>= 1) beside the main map: ``components/NN/``."""
+        return RunOutputs(self.root / COMPONENTS_DIR / f"{n:02d}")
 
     def write_trajectory(self, stamps: np.ndarray, poses: np.ndarray, registered: np.ndarray | None = None) -> int:
         return write_trajectory(self.trajectory, stamps, poses, registered)

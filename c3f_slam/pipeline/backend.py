@@ -18,6 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from c3f_slam.outputs import KeyframeGraph
+from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures
 
@@ -117,6 +118,10 @@ class SlamBackend(Protocol):
 
     def finish(self) -> None:
         """End of the stream: close what is open, final optimisation."""
+
+    def components(self) -> list[MapComponent]:
+        """After :meth:`finish`: every connected component with its frames, the main map
+        first, then by frames (:mod:`c3f_slam.pipeline.components`)."""
 
     def close(self) -> None:
         """Free files and folders (always called, also after errors)."""

@@ -4,8 +4,10 @@ All lengths are metres, angles degrees. :class:`SlamConfig` holds one small froz
 per part: ``frontend`` (keypoints, ratio test), ``fragments`` (the new-fragment rule),
 ``candidates`` (:mod:`c3f_slam.pipeline.retrieval`), ``keyframes`` (what a keyframe keeps,
 revisits: :mod:`c3f_slam.pipeline.reuse`), ``rejoin`` (bridging tracking breaks:
-:mod:`c3f_slam.pipeline.rejoin`), ``fallback`` (dense alignment where sparse matching
-fails: :mod:`c3f_slam.pipeline.fallback`), ``optimization`` (the global schedule:
+:mod:`c3f_slam.pipeline.rejoin`), ``fallback`` (guided and dense matching where sparse
+matching fails: :mod:`c3f_slam.pipeline.fallback`), ``components`` (the components written
+beside the main map:
+:mod:`c3f_slam.pipeline.components`), ``optimization`` (the global schedule:
 :mod:`c3f_slam.pipeline.schedule`), ``fusion``, plus the match filter and pose-graph
 settings of :mod:`c3f_slam.matching` and :mod:`c3f_slam.posegraph`. Each part validates
 its own fields (:class:`InputError` naming ``part.field``). ``colon`` (default) and
@@ -171,6 +173,32 @@ class FallbackConfig:
 
 
 @dataclass(frozen=True)
+class ComponentConfig:
+    """What becomes of the components that could not be joined to the main map
+    (:mod:`c3f_slam.pipeline.components`; frames = registered frames of a component)."""
+
+    #: a component other than the main map with at least this many frames is optimised, fused
+    #: and written to OUT/components/NN/; 0 = none is (``--component-min-frames``)
+    min_frames: int = 30
+    max_written: int = 8  #: at most this many of them, the largest ones
+
+    def __post_init__(self) -> None:
+        _at_least(self.min_frames, 0, "components.min_frames")
+        _at_least(self.max_written, 0, "components.max_written")
+
+    def writes(self, frames: int, rank: int) -> str | None:
+        """Why a component with ``frames`` frames, the ``rank``-th largest besides the main map
+        (from 1), is not written (None: it is)."""
+        if self.min_frames <= 0:
+            return "off"
+        if frames < self.min_frames:
+            return "below_min_frames"
+        if rank > self.max_written:
+            return "over_max_written"
+        return None
+
+
+@dataclass(frozen=True)
 class OptimizationConfig:
     """When and how much of the global graph is optimised (:mod:`c3f_slam.pipeline.schedule`)."""
 
@@ -199,8 +227,8 @@ class FusionConfig:
 
 
 #: parts of :class:`SlamConfig` that overrides may give as dicts of their fields
-SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "fallback", "optimization",
-            "match_filter", "posegraph", "fusion")
+SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "fallback", "components",
+            "optimization", "match_filter", "posegraph", "fusion")
 
 #: overrides that restore the paper's literal rules at any map size: every new keyframe matched
 #: against all keyframes, all its accepted matches kept, the whole component optimised after
@@ -224,6 +252,7 @@ class SlamConfig:
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     rejoin: RejoinConfig = field(default_factory=RejoinConfig)
     fallback: FallbackConfig = field(default_factory=FallbackConfig)
+    components: ComponentConfig = field(default_factory=ComponentConfig)
     optimization: OptimizationConfig = field(default_factory=OptimizationConfig)
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
     posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])

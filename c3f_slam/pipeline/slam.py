@@ -329,8 +329,18 @@ class FragmentSlam(FragmentMap):
         return {**super().stats(), **self.rejoin.stats(), "guided_links": self.guided_links, **fallback}
 
     def finish(self) -> None:
-        """Close the active fragment and optimise the main component one last time."""
+        """Close the active fragment, make the component with the most frames the main one
+        (:meth:`choose_main`) and optimise it one last time, and each other component that
+        will be written (:mod:`.components`: ``components.min_frames``, the largest
+        ``components.max_written``) on its own."""
         self._close_active()
         t0 = time.perf_counter()
-        self.schedule.finish(len(self.keyframes))
+        main = self.choose_main()
+        if main >= 0:
+            self.schedule.finish(len(self.keyframes), main)
+        rule = self.cfg.components
+        others = [node for node, rows in self._frame_groups()[1:] if rule.writes(len(rows), 1) is None]
+        for node in others[:rule.max_written]:
+            self.schedule.finish(len(self.keyframes), node)
+        self.choose_main()  # pruning may have split the main component
         self.t.add("posegraph", t0)
