@@ -119,7 +119,7 @@ class DenseFallback:
         """T_prev,cur for the current frame, verified (see the module notes), or None."""
         if self.prev is None:
             return None
-        T = self._odometry(self.prev, cur, np.eye(4) if init is None else init)
+        T = self.odometry(self.prev, cur, np.eye(4) if init is None else init)
         if T is None:
             self.outcomes["no_convergence"] += 1
             return None
@@ -142,7 +142,7 @@ class DenseFallback:
         """The trust-weighted 6x6 information matrix of a fallback edge (Open3D order)."""
         return self.cfg.trust * information_from_points(m.points_j)
 
-    def _odometry(self, prev: RgbdFrame, cur: RgbdFrame, init: np.ndarray) -> np.ndarray | None:
+    def odometry(self, prev: RgbdFrame, cur: RgbdFrame, init: np.ndarray) -> np.ndarray | None:
         """Open3D hybrid RGB-D odometry of ``cur`` (source) onto ``prev`` (target); None if it fails."""
         h, w = cur.depth.shape
         valid = cur.depth[cur.depth > 0]
