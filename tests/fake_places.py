@@ -61,7 +61,7 @@ class PlaceWorld:
 
     def use(self, slam: FragmentSlam) -> FragmentSlam:
         """``slam`` with this world's matchers (plain and guided)."""
-        slam.match, slam.match_guided = self.match, self.guided
+        slam.match, slam.recovery.guided = self.match, self.guided
         return slam
 
 

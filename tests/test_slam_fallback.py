@@ -47,7 +47,7 @@ def _run(world: PlaceWorld, places: list[int], T_break: np.ndarray | None, keyfr
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
     world.use(slam)
     if T_break is not None:
-        slam.fallback = PlantedFallback(cfg.fallback, T_break)
+        slam.recovery.dense = PlantedFallback(cfg.fallback, T_break)
         if not sparse_components:
             slam.sparse = None
     for i, place in enumerate(places):

@@ -1,6 +1,11 @@
-"""Dense RGB-D alignment of consecutive frames where sparse matching failed (issue 18).
+"""What is tried where plain sparse matching to the previous frame failed (issue 18):
+guided matching, then, optionally, dense RGB-D alignment (:class:`LinkRecovery`).
 
-When the previous frame and the current one give no accepted sparse match (too few
+Guided matching (:func:`c3f_slam.pipeline.frontend.guided_matcher`) matches again with the last
+inter-frame motion as a prior, each keypoint only against the keypoints near where the prior
+puts it; the same match filter verifies it, so its result is an ordinary link.
+
+When the previous frame and the current one still give no accepted sparse match (too few
 keypoints, blur, a texture-poor view), :class:`DenseFallback` aligns them with Open3D's
 RGB-D odometry (the hybrid photometric + geometric term, Steinbruecker et al. / Park et
 al.), starting from the last inter-frame motion, then **verifies** the result on its own
@@ -27,8 +32,8 @@ import numpy as np
 import open3d as o3d
 
 from c3f_slam.geometry import motion_magnitudes
-from c3f_slam.pipeline.config import FallbackConfig
-from c3f_slam.pipeline.frontend import PairMatch
+from c3f_slam.pipeline.config import FallbackConfig, SlamConfig
+from c3f_slam.pipeline.frontend import FrameFeatures, GuidedMatcher, PairMatch, guided_matcher
 from c3f_slam.posegraph.information import information_from_points
 
 #: pixel grid of the verification (every STRIDE-th pixel in each direction)
@@ -165,3 +170,57 @@ class DenseFallback:
         """Counters for summary.json: attempts and their outcomes."""
         return {"fallback_attempts": int(sum(self.outcomes.values())),
                 "fallback_outcomes": dict(sorted(self.outcomes.items()))}
+
+
+class LinkRecovery:
+    """Guided matching and the dense fallback of one run, with the last inter-frame motion
+    (T_prev,cur, metres) they start from. Tests may replace ``guided`` (a
+    :data:`~c3f_slam.pipeline.frontend.GuidedMatcher`) and ``dense``."""
+
+    def __init__(self, cfg: SlamConfig, K: np.ndarray, metric: str = "l2") -> None:
+        self.cfg = cfg.fallback
+        self.guided: GuidedMatcher = guided_matcher(cfg, K, metric)
+        self.dense = DenseFallback(cfg.fallback, K) if cfg.fallback.dense else None
+        self.last_motion = np.eye(4)
+        self.guided_links = 0
+
+    def guided_link(self, prev: FrameFeatures, cur: FrameFeatures, image_side: int) -> tuple[PairMatch | None, int]:
+        """Guided matching of ``cur`` to ``prev`` (``image_side``: the smaller side, px, for the
+        search radius); (None, 0) when it is off or finds nothing."""
+        if not self.cfg.guided:
+            return None, 0
+        link, n = self.guided(prev, cur, self.last_motion, self.cfg.guided_radius * image_side)
+        self.guided_links += link is not None
+        return link, n
+
+    def frame(self, rgb: np.ndarray | None, depth: np.ndarray) -> RgbdFrame | None:
+        """The frame as the dense fallback keeps it (None when it is off or has no image)."""
+        return RgbdFrame.from_rgb(rgb, depth) if self.dense is not None and rgb is not None else None
+
+    def dense_link(self, frame: RgbdFrame | None) -> PairMatch | None:
+        """The verified dense alignment T_prev,cur of ``frame`` to the previous frame, or None."""
+        if self.dense is None or frame is None:
+            return None
+        return self.dense.align(frame, self.last_motion)
+
+    def information(self, m: PairMatch) -> np.ndarray:
+        """The trust-weighted information matrix of a dense edge."""
+        assert self.dense is not None
+        return self.dense.information(m)
+
+    def settle(self, link: PairMatch | None, frame: RgbdFrame | None) -> None:
+        """The frame was placed by ``link`` (None: without one, or it opened a lone fragment)."""
+        self.last_motion = link.T_ij if link is not None else np.eye(4)
+        if self.dense is not None:
+            self.dense.remember(frame)
+
+    def gap(self) -> None:
+        """A frame was skipped: nothing to align the next one to."""
+        self.last_motion = np.eye(4)
+        if self.dense is not None:
+            self.dense.remember(None)
+
+    def stats(self) -> dict:
+        """Counters for summary.json."""
+        dense = self.dense.stats() if self.dense is not None else {"fallback_attempts": 0}
+        return {"guided_links": self.guided_links, **dense}

@@ -17,6 +17,7 @@ import numpy as np
 from c3f_slam.geometry import invert_pose
 from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.posegraph import EdgeKind, PoseGraph
+from c3f_slam.posegraph.components import Components
 
 
 class KeyframeEdge(NamedTuple):
@@ -130,3 +131,34 @@ def join_components(graph: PoseGraph, i: int, j: int, T_ij: np.ndarray) -> bool:
     else:
         _move_component(graph, i, graph.pose(j) @ invert_pose(T_ij))
     return True
+
+
+def link_new_keyframe(graph: PoseGraph, node: int, edges: list[KeyframeEdge],
+                      dense_information: Callable[[PairMatch], np.ndarray],
+                      sparse: Components | None = None) -> int:
+    """Place the new keyframe ``node`` (:func:`place_new_frame`) and add its ``edges``: odometry
+    certain, the others uncertain; a ``fallback`` edge with ``dense_information(match)`` (its
+    trust-weighted information) instead of its points'. ``sparse``: the components over
+    sparse-match edges (the node already added), kept up to date. Returns the number of
+    components merged."""
+    T_wn, merged = place_new_frame(graph, edges, sparse)
+    if T_wn is not None:
+        graph.set_pose(node, T_wn)
+    for k, m, kind in edges:
+        if kind == EdgeKind.FALLBACK:  # prunable where keyframe matches disagree
+            graph.add_edge(k, node, m.T_ij, information=dense_information(m), uncertain=True, kind=kind)
+            continue
+        graph.add_edge(k, node, m.T_ij, points_j=m.points_j, uncertain=kind != EdgeKind.ODOMETRY, kind=kind)
+        if sparse is not None:
+            sparse.union(k, node)
+    return merged
+
+
+def link_across_break(graph: PoseGraph, i: int, j: int, T_ij: np.ndarray, points_j: np.ndarray,
+                      sparse: Components | None = None) -> None:
+    """Merge the components of ``i`` and ``j`` (:func:`join_components`) and add the uncertain
+    ``rejoin`` edge p_i = T_ij p_j with the matched points of frame j."""
+    join_components(graph, i, j, T_ij)
+    if sparse is not None:
+        sparse.union(i, j)
+    graph.add_edge(i, j, T_ij, points_j=points_j, uncertain=True, kind=EdgeKind.REJOIN)

@@ -36,11 +36,17 @@ from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import invert_pose, transform_points
 from c3f_slam.pipeline.backend import Timings
 from c3f_slam.pipeline.config import SlamConfig
-from c3f_slam.pipeline.fallback import DenseFallback, RgbdFrame
+from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason
-from c3f_slam.pipeline.frontend import FrameFeatures, GuidedMatcher, Matcher, PairMatch, frame_matcher, guided_matcher
-from c3f_slam.pipeline.keyframe_edges import KeyframeEdge, cap_keyframe_edges, join_components, place_new_frame
+from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch, frame_matcher
+from c3f_slam.pipeline.keyframe_edges import (
+    KeyframeEdge,
+    cap_keyframe_edges,
+    link_across_break,
+    link_new_keyframe,
+    place_new_frame,
+)
 from c3f_slam.pipeline.rejoin import BreakTails
 from c3f_slam.pipeline.retrieval import Candidates, global_descriptor
 from c3f_slam.pipeline.reuse import find_host, revisit_edges
@@ -66,13 +72,10 @@ class FragmentSlam(FragmentMap):
         self.gap = True  # the previous streamed frame was skipped / unusable
         self.match: Matcher = frame_matcher(cfg, metric)
         self.rejoin = BreakTails(cfg.rejoin, lambda a, b: self.match(a, b))  # self.match may be replaced (tests)
-        self.fallback = DenseFallback(cfg.fallback, self.K) if cfg.fallback.dense else None
-        self.match_guided: GuidedMatcher = guided_matcher(cfg, self.K, metric)
-        self.guided_links = 0  # breaks bridged by guided matching
-        #: with the fallback: components over the edges of sparse matches only (pruning is not
-        #: reflected), so that matches across a fallback edge re-place the side after it
-        self.sparse = Components() if self.fallback is not None else None
-        self._last_motion = np.eye(4)  # T_prev,cur of the last placed frame (the fallback's first guess)
+        self.recovery = LinkRecovery(cfg, self.K, metric)  # guided matching, dense fallback
+        #: with the dense fallback: components over the edges of sparse matches only (pruning is
+        #: not reflected), so that matches across a fallback edge re-place the side after it
+        self.sparse = Components() if cfg.fallback.dense else None
         if cfg.fragments.min_correspondences is None:
             raise ValueError("fragments.min_correspondences is derived from the frame size: "
                              "pass SlamConfig.for_frame_size(width, height)")
@@ -82,8 +85,7 @@ class FragmentSlam(FragmentMap):
         """A frame that was not processed (black / saturated / featureless)."""
         self.log.append(index, stamp)
         self.gap = True
-        if self.fallback is not None:
-            self.fallback.remember(None)
+        self.recovery.gap()
 
     def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
         """Process one frame (``rgb``: its (H, W, 3) uint8 image, for the dense fallback only);
@@ -92,13 +94,12 @@ class FragmentSlam(FragmentMap):
         link, n = (None, 0)
         if self.prev is not None and not self.gap:
             link, n = self.match(self.prev, feat)
-            if link is None and self.cfg.fallback.guided:
-                radius = self.cfg.fallback.guided_radius * min(depth.shape[:2])
-                link, n = self.match_guided(self.prev, feat, self._last_motion, radius)
-                self.guided_links += link is not None
-        self.t.add("matching", t0)
-        frame = RgbdFrame.from_rgb(rgb, depth) if self.fallback is not None and rgb is not None else None
-        dense = self._dense_link(link, frame)
+            if link is None:
+                link, n = self.recovery.guided_link(self.prev, feat, min(depth.shape[:2]))
+        t0 = self.t.add("matching", t0)
+        frame = self.recovery.frame(rgb, depth)
+        dense = self.recovery.dense_link(frame) if link is None and self.prev is not None and not self.gap else None
+        self.t.add("fallback", t0)
         reason = self._new_fragment_reason(link, n, depth)
         if reason is None:
             fid, opened = self._extend_active(feat, link), False
@@ -106,22 +107,10 @@ class FragmentSlam(FragmentMap):
             fid, opened = self._open_fragment(feat, depth, link, reason, dense), True
         self._last_row = len(self.log) - 1
         self.prev, self.gap = feat, False
-        self._last_motion = (link or dense).T_ij if (link or dense) is not None else np.eye(4)
-        if self.fallback is not None:
-            self.fallback.remember(frame)
+        self.recovery.settle(link or dense, frame)
         if self.rejoin.pending:
             self._try_rejoin(feat)
         return fid, opened
-
-    def _dense_link(self, link: PairMatch | None, frame: RgbdFrame | None) -> PairMatch | None:
-        """Where sparse matching to the previous frame failed: the verified dense alignment
-        (:mod:`.fallback`), T_prev,cur, or None."""
-        if link is not None or frame is None or self.fallback is None or self.prev is None or self.gap:
-            return None
-        t0 = time.perf_counter()
-        dense = self.fallback.align(frame, self._last_motion)
-        self.t.add("fallback", t0)
-        return dense
 
     def _try_rejoin(self, feat: FrameFeatures) -> None:
         """Match the frame against the frames before a pending tracking break
@@ -134,10 +123,7 @@ class FragmentSlam(FragmentMap):
         t0 = self.t.add("matching", t0)
         if r is None:
             return
-        join_components(self.graph, r.tail_node, act.node, r.T_ij)
-        if self.sparse is not None:
-            self.sparse.union(r.tail_node, act.node)
-        self.graph.add_edge(r.tail_node, act.node, r.T_ij, points_j=r.points_j, uncertain=True, kind=EdgeKind.REJOIN)
+        link_across_break(self.graph, r.tail_node, act.node, r.T_ij, r.points_j, self.sparse)
         self.schedule.after_keyframe(act.node, True, len(self.keyframes))
         self.t.add("posegraph", t0)
 
@@ -278,19 +264,7 @@ class FragmentSlam(FragmentMap):
         self.active = Fragment(fid, feat, depth, reason, node=node)
         if self.sparse is not None:
             self.sparse.add_node()
-        T_wn, merged = place_new_frame(self.graph, edges, self.sparse)
-        if T_wn is not None:
-            self.graph.set_pose(node, T_wn)
-        for k, m, kind in edges:
-            if kind == EdgeKind.FALLBACK:  # trust-weighted information: prunable where matches disagree
-                assert self.fallback is not None
-                self.graph.add_edge(k, node, m.T_ij, information=self.fallback.information(m), uncertain=True,
-                                    kind=kind)
-            else:
-                self.graph.add_edge(k, node, m.T_ij, points_j=m.points_j, uncertain=kind != EdgeKind.ODOMETRY,
-                                    kind=kind)
-                if self.sparse is not None:
-                    self.sparse.union(k, node)
+        merged = link_new_keyframe(self.graph, node, edges, self.recovery.information, self.sparse)
         if not edges:
             self.counts.lone_created += 1
         elif link is None and prev_frag is not None:
@@ -325,8 +299,7 @@ class FragmentSlam(FragmentMap):
 
     def stats(self) -> dict:
         """Counters for summary.json (:meth:`FragmentMap.stats`, the re-joining's and the fallback's)."""
-        fallback = self.fallback.stats() if self.fallback is not None else {"fallback_attempts": 0}
-        return {**super().stats(), **self.rejoin.stats(), "guided_links": self.guided_links, **fallback}
+        return {**super().stats(), **self.rejoin.stats(), **self.recovery.stats()}
 
     def finish(self) -> None:
         """Close the active fragment, make the component with the most frames the main one
