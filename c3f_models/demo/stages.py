@@ -119,23 +119,29 @@ def _train_split(ctx: DemoContext) -> dict:
     return {"train": names, "val": [], "test": [], "val_fraction": 0.0, "test_fraction": 0.0}
 
 
-class TrainDepth(Stage):
-    """DepthNet (``configs/depthnet/small.yaml``) on the training sequences."""
+class _Training(Stage):
+    """A ``fit`` of ``model`` on the training sequences, settings from ``cfg.<group>``."""
 
-    name = "train_depth"
+    model = group = ""
     upstream = ("simulate",)
 
     def settings(self, cfg):
-        return asdict(cfg.depth)
+        return asdict(getattr(cfg, self.group))
 
     def outputs(self, ctx):
-        return [ctx.run_dir("depthnet"), ctx.log(self.name), ctx.root / "configs" / "depthnet_demo.yaml"]
+        return [ctx.run_dir(self.model), ctx.log(self.name), ctx.root / "configs" / f"{self.model}_demo.yaml"]
+
+    def probe(self, ctx):
+        return lambda: read_step_fraction(ctx.run_dir(self.model) / "progress.txt")
+
+
+class TrainDepth(_Training):
+    """DepthNet (``configs/depthnet/small.yaml``) on the training sequences."""
+
+    name, model, group = "train_depth", "depthnet", "depth"
 
     def estimate_s(self, cfg):
         return 15.0 + cfg.depth.steps * 0.5 * (cfg.depth.size / 64) ** 2 * (3 if cfg.depth.paper_extras else 1)
-
-    def probe(self, ctx):
-        return lambda: read_step_fraction(ctx.run_dir("depthnet") / "progress.txt")
 
     def run(self, ctx, done=None):
         d = ctx.cfg.depth
@@ -150,23 +156,13 @@ class TrainDepth(Stage):
         return {"configs": [str(c) for c in configs + [mine]], "checkpoint": str(_last_ckpt(ctx, "depthnet"))}
 
 
-class TrainFeatures(Stage):
+class TrainFeatures(_Training):
     """ContraFeat (``configs/contrafeat/small.yaml``) on the training sequences."""
 
-    name = "train_features"
-    upstream = ("simulate",)
-
-    def settings(self, cfg):
-        return asdict(cfg.features)
-
-    def outputs(self, ctx):
-        return [ctx.run_dir("contrafeat"), ctx.log(self.name), ctx.root / "configs" / "contrafeat_demo.yaml"]
+    name, model, group = "train_features", "contrafeat", "features"
 
     def estimate_s(self, cfg):
         return 15.0 + cfg.features.steps * 1.5 * (cfg.features.size / 128) ** 2
-
-    def probe(self, ctx):
-        return lambda: read_step_fraction(ctx.run_dir("contrafeat") / "progress.txt")
 
     def run(self, ctx, done=None):
         f = ctx.cfg.features
