@@ -34,7 +34,8 @@ class DepthTrainConfig:
     ``lambda_gt_depth``: weight of the supervised term on the simulator's true depth
     (``model.loss.lambda_gt_depth``; 0 = the paper's self-supervised objective only).
     ``paper_extras``: keep C3Fusion's extra terms (L_ph-extra, L_dc, outlier and specular
-    masks); off by default here, they triple the cost per step.
+    masks); off by default here, they triple the cost per step. ``lr``: AdamW learning rate
+    (None: the model config's, 1e-4).
     """
 
     steps: int = 300
@@ -43,6 +44,7 @@ class DepthTrainConfig:
     lambda_gt_depth: float = 1.0
     paper_extras: bool = False
     seed: int = 7
+    lr: float | None = None
 
 
 @dataclass(frozen=True)
@@ -84,7 +86,7 @@ class DemoConfig:
 def demo_config(quick: bool = False) -> DemoConfig:
     """The default preset, or the ``quick`` one: shorter sequences and fewer training steps."""
     if not quick:
-        return DemoConfig()
+        return DemoConfig(depth=DepthTrainConfig(lr=5e-4))
     return DemoConfig(
         simulate=SimulateConfig(train=(("seq1", 100),), train_frames=100, test_frames=60,
                                 train_coverage=0.05, test_coverage=0.03),

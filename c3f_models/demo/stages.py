@@ -126,7 +126,8 @@ class _Training(Stage):
     upstream = ("simulate",)
 
     def settings(self, cfg):
-        return asdict(getattr(cfg, self.group))
+        """The group's fields; those left unset (None) do not enter the key."""
+        return {k: v for k, v in asdict(getattr(cfg, self.group)).items() if v is not None}
 
     def outputs(self, ctx):
         return [ctx.run_dir(self.model), ctx.log(self.name), ctx.root / "configs" / f"{self.model}_demo.yaml"]
@@ -146,6 +147,8 @@ class TrainDepth(_Training):
     def run(self, ctx, done=None):
         d = ctx.cfg.depth
         model_args = {"loss": {"lambda_gt_depth": d.lambda_gt_depth}}
+        if d.lr is not None:
+            model_args["optim"] = {"lr": d.lr}
         data_args = {"split": _train_split(ctx), "frames": {"size": [d.size, d.size]},
                      "loader": {"batch_size": d.batch_size, "num_workers": 0}}
         mine = _fit_yaml(ctx, "depthnet", d.steps, d.seed, model_args, data_args)
