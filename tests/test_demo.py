@@ -54,8 +54,8 @@ def fake_report_inputs(root: Path) -> dict:
                         "matches": {"pair": [3, 7], "keypoints": [40, 42], "ground_truth": 20, "sift": match,
                                     "contrafeat": match, "figure": "figures/matches.png"}},
             "figures": {"depth": {"range_m": [0.01, 0.09]}, "meshes": {"gt_sift": ["mesh_gt_sift_side.png"]},
-                        "unseen": {"source": "ground_truth", "run": "ground-truth depth + SIFT", "seen_share": 0.1,
-                                   "renders": ["coverage_gt_sift_side.png"]}},
+                        "unseen": {"source": "ground_truth", "runs": [{"run": "ground-truth depth + SIFT",
+                                   "seen_share": 0.1, "renders": ["coverage_gt_sift_side.png"]}]}},
             "timings": [("simulate", 3.0, "ran")], "environment": {"python": "3.11", "seeds": "1, 2"}}
 
 

@@ -36,11 +36,14 @@ def _label(img: np.ndarray, text: str) -> np.ndarray:
 
 def depth_samples(seq_dir: Path, model_path: Path, n: int, out: Path) -> dict:
     """Rows of [frame | predicted depth | true depth] for ``n`` evenly spaced frames, one colour
-    range (the true depth's 2nd-98th percentile over those frames); returns the frames and range."""
+    range (the true depth's 2nd-98th percentile over those frames). The prediction is multiplied
+    by the metric scale the export recorded (what ``c3f_slam run`` uses), when there is one.
+    Returns the frames, the range and the scale."""
     seq, model = Sequence(seq_dir), DepthModel(model_path, threads=2)
+    scale = model.metric_scale or 1.0
     idx = np.linspace(0, len(seq) - 1, n).round().astype(int).tolist()
     rgbs = [seq.read_rgb(i) for i in idx]
-    preds = [model.predict(im, seq.camera) for im in rgbs]
+    preds = [scale * model.predict(im, seq.camera) for im in rgbs]
     gts = [seq.read_depth(i) for i in idx]
     valid = np.concatenate([g[g > 0] for g in gts])
     lo, hi = (np.percentile(valid, [2, 98]) if len(valid) else (0.0, 0.1)).tolist()
@@ -49,7 +52,7 @@ def depth_samples(seq_dir: Path, model_path: Path, n: int, out: Path) -> dict:
             for i, im, p, g in zip(idx, rgbs, preds, gts)]
     img = np.concatenate(rows, axis=0)
     write_png(out, cv2.resize(img, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST))
-    return {"frames": idx, "range_m": [lo, hi], "figure": out.name}
+    return {"frames": idx, "range_m": [lo, hi], "figure": out.name, "scale": scale}
 
 
 def mesh_renders(mesh_path: Path, out_stem: Path, size: int, near: np.ndarray | None = None,

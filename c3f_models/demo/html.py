@@ -9,8 +9,8 @@ from pathlib import Path
 
 STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
-table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
-th{background:#f2f2f2}td:first-child,th:first-child{text-align:left}.fail{color:#b00;font-weight:bold}
+table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}
+th{background:#f2f2f2}.fail{color:#b00;font-weight:bold}
 .note{background:#fff6d6;border-left:4px solid #e0b400;padding:.4em .8em}img{max-width:100%;margin:.3em 0}
 figure{display:inline-block;margin:.3em;vertical-align:top}figcaption{font-size:.85em;color:#555}
 code{background:#f4f4f4;padding:0 .2em}"""

@@ -41,7 +41,8 @@ def environment(cfg) -> dict:
 
 def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
     """The run's own coverage estimate (``coverage.json`` + ``coverage_map.png``) when it wrote one,
-    else the ground-truth coverage from ``c3f_slam evaluate`` (coverage.ply rendered near the path)."""
+    else the ground-truth coverage from ``c3f_slam evaluate`` of every configuration that ran
+    (coverage.ply rendered near the true path)."""
     ok = [n for n in SLAM_RUNS if slam.get(n, {}).get("status") == "ok"]
     for name in ok:
         cov = ctx.slam_dir(name) / "coverage.json"
@@ -49,14 +50,14 @@ def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
             c = json.loads(cov.read_text())
             return {"source": "run", "run": slam[name]["title"], "unseen_share": c.get("unseen_share"),
                     "segments": c.get("segments", []), "map": f"slam/{name}/coverage_map.png"}
-    seq = Sequence(ctx.test_seq)
+    seq, runs = Sequence(ctx.test_seq), []
     for name in ok:
         renders = mesh_renders(ctx.slam_dir(name) / "coverage.ply", ctx.root / "figures" / f"coverage_{name}",
                                ctx.cfg.report.render_size, near=seq.poses[:, :3, 3])
         if renders:
-            share = (slam[name].get("coverage") or {}).get("share")
-            return {"source": "ground_truth", "run": slam[name]["title"], "seen_share": share, "renders": renders}
-    return {}
+            runs.append({"run": slam[name]["title"], "renders": renders,
+                         "seen_share": (slam[name].get("coverage") or {}).get("share")})
+    return {"source": "ground_truth", "runs": runs} if runs else {}
 
 
 class Report(Stage):
@@ -86,6 +87,7 @@ class Report(Stage):
                               for n, r in metrics["slam"].items() if r.get("status") == "ok"},
                    "unseen": unseen_figures(ctx, metrics["slam"])}
         data = {"config": ctx.cfg.as_dict(), "metrics": metrics, "figures": figures,
-                "timings": timings, "environment": environment(ctx.cfg)}
+                "timings": [*timings, ("report", float("nan"), "this stage (running)")],
+                "environment": environment(ctx.cfg)}
         atomic_write_text(ctx.root / "report.html", build_report(ctx.root, data))
         return {"report": "report.html"}
