@@ -195,3 +195,24 @@ def test_quick_demo_rerun_skips_and_other_settings_refused(quick_demo):
     other = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out)], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert other.returncode == 2 and other.stderr.count("\n") == 1 and "other settings" in other.stderr
+
+
+@pytest.mark.slow
+def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path):
+    """SIGINT to the demo's process group (a terminal's Ctrl-C) during training: exit 130, one line,
+    the simulate stage stays recorded."""
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick"], cwd=ROOT,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    t0 = time.time()
+    while not (out / "logs" / "train_depth.log").exists() and time.time() - t0 < 300:
+        time.sleep(0.5)
+    time.sleep(10)
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 130 and err.count("\n") == 1 and "interrupted in stage train_depth" in err
+    assert list(json.loads((out / "demo_state.json").read_text())["stages"]) == ["simulate"]
