@@ -51,7 +51,7 @@ class DepthTrainConfig:
 class FeatureTrainConfig:
     """ContraFeat training (``configs/contrafeat/small.yaml``)."""
 
-    steps: int = 150
+    steps: int = 80
     size: int = 128
     batch_size: int = 2
     seed: int = 7
