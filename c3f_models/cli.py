@@ -134,8 +134,8 @@ def condense_parser_error(message: str) -> str:
 def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
     """Entry point; ``args`` lets tests drive the CLI in-process (``main(['fit', ...])``).
     ``demo`` is not a LightningCLI subcommand: it goes to :mod:`c3f_models.demo.cli`."""
-    argv = list(sys.argv[1:] if args is None else args) if args is None or isinstance(args, list) else None
-    if argv and argv[0] == "demo":
+    argv = sys.argv[1:] if args is None else args
+    if isinstance(argv, (list, tuple)) and list(argv[:1]) == ["demo"]:
         from c3f_models.demo.cli import main as demo_main
 
         raise SystemExit(demo_main(argv[1:]))
