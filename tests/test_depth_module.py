@@ -116,6 +116,39 @@ def test_depth_consistency_warmup(plane_dataset, tmp_path):
     assert float(tr.callback_metrics["train/lambda_dc"]) == pytest.approx(0.05)
 
 
+def test_supervised_depth_term(plane_dataset):
+    """loss.lambda_gt_depth adds lambda x mean |log D - log D_gt| of frame t to both losses (off by
+    default); a few steps on it lower the log-depth error; it needs true depth and lambda >= 0."""
+    dm = datamodule(plane_dataset, size=32, batch_size=2)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    torch.manual_seed(0)
+    plain = DepthNet(TINY)
+    torch.manual_seed(0)
+    model = DepthNet(TINY, LossConfig(lambda_gt_depth=0.5))
+    torch.manual_seed(1)
+    base, _ = plain.compute_loss(batch)
+    torch.manual_seed(1)
+    terms, _ = model.compute_loss(batch)
+    assert base.gt is None and float(terms.gt) > 0
+    assert float(terms.loss) == pytest.approx(float(base.loss + 0.5 * terms.gt), rel=1e-5)
+    assert terms.training_loss is terms.loss
+    opt = model.configure_optimizers()["optimizer"]
+    errors = []
+    for _ in range(8):
+        terms, _ = model.compute_loss(batch)
+        opt.zero_grad()
+        terms.training_loss.backward()
+        opt.step()
+        errors.append(float(terms.gt))
+    assert errors[-1] < 0.9 * errors[0], errors  # plane depths lie beyond TINY.max_depth: slow but steady
+    no_depth = {k: v for k, v in batch.items() if k != "depth"}
+    with pytest.raises(InputError, match="lambda_gt_depth"):
+        model.compute_loss(no_depth)
+    with pytest.raises(InputError, match="lambda_gt_depth"):
+        LossConfig(lambda_gt_depth=-1.0)
+
+
 @pytest.mark.parametrize("step", [0, 2, 4])
 def test_warmup_inside_the_objective_matches_subtracting_afterwards(plane_dataset, step):
     """The warm-up weight inside the objective gives the loss and gradients of the former way:

@@ -87,3 +87,14 @@ def masked_mean(values: torch.Tensor, mask: torch.Tensor, dims: tuple[int, ...] 
     if dims is None:
         return vals.sum() / m.sum().clamp(min=1)
     return vals.sum(dim=dims) / m.sum(dim=dims).clamp(min=1)
+
+
+def log_depth_l1(pred: torch.Tensor, gt: torch.Tensor, min_depth: float = 1e-6) -> torch.Tensor:
+    """Mean |log pred - log gt| over the pixels with ground truth (gt > ``min_depth``), depths in metres.
+
+    A supervised term on the simulator's true depth (not in the paper): scale-aware, so it fixes
+    the metric scale too. Returns 0 (with gradient) when no pixel has ground truth.
+    """
+    valid = gt > min_depth
+    err = (torch.log(pred.clamp(min=min_depth)) - torch.log(gt.clamp(min=min_depth))).abs()
+    return masked_mean(err, valid)

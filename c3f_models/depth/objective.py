@@ -66,6 +66,11 @@ class LossConfig:
             to lambda_dc (0 = constant, as the paper; validation and test always use lambda_dc).
         ssim_alpha: SSIM weight in the photometric error (1 - alpha goes to L1).
         outlier_percentile: quantile in (0, 1] above which pixels are outliers.
+        lambda_gt_depth: weight of a supervised term on ground-truth depth, mean |log D - log D_gt|
+            over frame t's pixels with true depth at every scale (beyond the paper, which is
+            self-supervised: 0 = off, the default; > 0 needs training data with depth, e.g. the
+            simulator's, and is a deviation to report). Used by the demo (``c3f_models.demo``) so
+            depth is usable within a CPU budget.
     """
 
     use_automask: bool = True
@@ -78,12 +83,15 @@ class LossConfig:
     lambda_dc_warmup_steps: int = 0
     ssim_alpha: float = 0.85
     outlier_percentile: float = 0.8
+    lambda_gt_depth: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0 < self.outlier_percentile <= 1:
             raise InputError(f"model.loss.outlier_percentile must be in (0, 1], got {self.outlier_percentile}")
         if self.lambda_dc_warmup_steps < 0:
             raise InputError(f"model.loss.lambda_dc_warmup_steps must be >= 0, got {self.lambda_dc_warmup_steps}")
+        if self.lambda_gt_depth < 0:
+            raise InputError(f"model.loss.lambda_gt_depth must be >= 0, got {self.lambda_gt_depth}")
 
     @property
     def needs_source_depth(self) -> bool:
@@ -111,7 +119,8 @@ class LossTerms:
     weighted by the warm-up (:meth:`LossConfig.dc_weight`); ``loss`` itself without a warm-up.
     ``automask``: (B, 1, H, W) bool, the auto-mask mu of frame t at the finest scale: pixels
     where a warped source beat the unwarped ones and that survived the specular and outlier
-    masks (the pixels whose L_ph drives depth and pose).
+    masks (the pixels whose L_ph drives depth and pose). ``gt``: the supervised term
+    (``LossConfig.lambda_gt_depth``; None when off), already weighted into both losses.
     """
 
     loss: torch.Tensor
@@ -120,6 +129,7 @@ class LossTerms:
     dc: torch.Tensor | None
     automask: torch.Tensor
     training_loss: torch.Tensor
+    gt: torch.Tensor | None = None
 
 
 def compose_triplet_poses(T_10: torch.Tensor, T_21: torch.Tensor) -> dict[tuple[int, int], torch.Tensor]:

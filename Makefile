@@ -1,0 +1,26 @@
+# The two commands of a fresh clone (README, top):
+#   make demo   set up .venv if missing, install as README's Quickstart says, run the demo into
+#               demo_out/ (DEMO_OUT=DIR for another folder, DEMO_ARGS=--quick for the short one)
+#   make test   set up the same way, then `ruff check .` and README's test command (what CI runs)
+PYTHON ?= python3
+VENV ?= .venv
+DEMO_OUT ?= demo_out
+DEMO_ARGS ?=
+PYTEST_ARGS ?= -n 2 --durations=15
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test setup
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install -e ".[dev]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/python -m c3f_models demo --out $(DEMO_OUT) $(DEMO_ARGS)
+
+test: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)

@@ -1,0 +1,97 @@
+"""Settings of the demo (``python -m c3f_models demo``): one small frozen dataclass per stage.
+
+Lengths are metres, frame sizes pixels (square). :func:`demo_config` gives the two presets:
+the default (about 15 min on 2 CPU cores) and ``quick`` (a few minutes, for CI).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+
+@dataclass(frozen=True)
+class SimulateConfig:
+    """Simulator sequences (``python -m datamodules.synthetic generate``).
+
+    ``train``: (preset, seed) of each training sequence; ``test``: the held-out one. ``coverage``:
+    share of the colon each path travels (``path.coverage``); at ``frames`` frames this sets the
+    motion per frame (README "Speed per frame").
+    """
+
+    train: tuple[tuple[str, int], ...] = (("seq1", 100), ("seq3", 101))
+    test: tuple[str, int] = ("seq1", 200)
+    train_frames: int = 200
+    test_frames: int = 150
+    size: int = 128
+    train_coverage: float = 0.10
+    test_coverage: float = 0.075
+
+
+@dataclass(frozen=True)
+class DepthTrainConfig:
+    """DepthNet training (``configs/depthnet/small.yaml`` + the Monodepth2 override).
+
+    ``lambda_gt_depth``: weight of the supervised term on the simulator's true depth
+    (``model.loss.lambda_gt_depth``; 0 = the paper's self-supervised objective only).
+    ``paper_extras``: keep C3Fusion's extra terms (L_ph-extra, L_dc, outlier and specular
+    masks); off by default here, they triple the cost per step. ``lr``: AdamW learning rate
+    (None: the model config's, 1e-4).
+    """
+
+    steps: int = 300
+    size: int = 64
+    batch_size: int = 4
+    lambda_gt_depth: float = 1.0
+    paper_extras: bool = False
+    seed: int = 7
+    lr: float | None = None
+
+
+@dataclass(frozen=True)
+class FeatureTrainConfig:
+    """ContraFeat training (``configs/contrafeat/small.yaml``)."""
+
+    steps: int = 80
+    size: int = 128
+    batch_size: int = 2
+    seed: int = 7
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    """What the report shows: ``sample_frames`` frames of the held-out sequence with depth,
+    the match pair ``pair`` = (i, i + gap), mesh renders of ``render_size`` pixels."""
+
+    sample_frames: int = 4
+    depth_eval_stride: int = 2
+    pair_frame: int = 20
+    pair_gap: int = 4
+    render_size: int = 360
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """All settings of one demo run (their hash decides which stages a rerun may skip)."""
+
+    simulate: SimulateConfig = field(default_factory=SimulateConfig)
+    depth: DepthTrainConfig = field(default_factory=DepthTrainConfig)
+    features: FeatureTrainConfig = field(default_factory=FeatureTrainConfig)
+    report: ReportConfig = field(default_factory=ReportConfig)
+    quick: bool = False
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def demo_config(quick: bool = False) -> DemoConfig:
+    """The default preset, or the ``quick`` one: shorter sequences and fewer training steps."""
+    if not quick:
+        return DemoConfig(depth=DepthTrainConfig(lr=5e-4))
+    return DemoConfig(
+        simulate=SimulateConfig(train=(("seq1", 100),), train_frames=100, test_frames=60,
+                                train_coverage=0.05, test_coverage=0.03),
+        depth=DepthTrainConfig(steps=40),
+        features=FeatureTrainConfig(steps=20),
+        report=ReportConfig(sample_frames=3, depth_eval_stride=3, pair_frame=10, render_size=240),
+        quick=True,
+    )

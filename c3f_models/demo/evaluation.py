@@ -1,0 +1,119 @@
+"""The demo's ``evaluate`` stage: ``c3f_slam evaluate`` of every SLAM configuration, the seven
+depth metrics of the exported DepthNet on the held-out sequence, and one frame pair's matches
+(SIFT vs ContraFeat) scored against the ground truth. Torch-free (onnxruntime), metres."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+
+from c3f_models.demo.context import SLAM_RUNS, DemoContext, StageFailed
+from c3f_models.demo.stages import Stage
+from c3f_models.metrics import METRIC_NAMES, depth_metrics
+from c3f_slam.io import Sequence
+from c3f_slam.io.atomic import atomic_write
+from c3f_slam.matching.ground_truth import ground_truth_matches
+from c3f_slam.matching.match_accuracy import match_and_evaluate, near_misses
+from c3f_slam.matching.visual import draw_matches
+from c3f_slam.models import DepthModel, DescriptorModel
+from c3f_slam.outputs import write_json
+from c3f_slam.pipeline.config import FrontendConfig
+from c3f_slam.pipeline.frontend import ContraFeatDescriptors, Frontend, SiftDescriptors
+
+PIXEL_RADIUS = 2.0  # px: a match is correct within this distance of the true position
+
+
+def slam_result(ctx: DemoContext, name: str, run_notes: dict) -> dict:
+    """Evaluate one SLAM configuration; a failed run or evaluation is returned as failed."""
+    res = dict(run_notes)
+    if res.get("status") != "ok":
+        return res
+    try:
+        ctx.run("evaluate", ["-m", "c3f_slam", "evaluate", str(ctx.slam_dir(name)), "--gt", str(ctx.test_seq)])
+    except StageFailed as exc:
+        return {**res, "status": "failed", "error": f"evaluate: {exc}"}
+    ev = json.loads((ctx.slam_dir(name) / "evaluation.json").read_text())
+    if "error" in ev:
+        return {**res, "status": "failed", "error": ev["error"], "registered_share": ev.get("registered_share")}
+    ate = ev["ate_sim3"]["rmse_m"]
+    res.update(registered_share=ev["registered_share"], ate_sim3_m=ate, ate_se3_m=ev["ate_se3"]["rmse_m"],
+               gt_length_m=ev["gt_length_m"], n_associated=ev.get("n_associated"), coverage=ev.get("coverage"))
+    if not np.isfinite(ate) or ate >= ev["gt_length_m"]:
+        res.update(status="failed", error=f"ATE {100 * ate:.2f} cm is not below the path length "
+                                          f"{100 * ev['gt_length_m']:.2f} cm: the trajectory is not usable")
+    return res
+
+
+def depth_evaluation(ctx: DemoContext) -> dict:
+    """The seven metrics (per-image median scaling, the project's protocol) and the metric error
+    without scaling, of the exported DepthNet on every ``depth_eval_stride``-th held-out frame."""
+    seq = Sequence(ctx.test_seq)
+    model = DepthModel(ctx.models / "depthnet" / "depthnet.onnx", threads=2)
+    lo, hi = model.depth_range or (1e-3, 0.3)
+    idx = list(range(0, len(seq), ctx.cfg.report.depth_eval_stride))
+    pred = np.stack([model.predict(seq.read_rgb(i), seq.camera) for i in idx])
+    gt = np.stack([seq.read_depth(i) for i in idx])
+    scaled = depth_metrics(pred, gt, median_scaling=True, min_depth=lo, max_depth=hi)
+    metric = depth_metrics(pred, gt, median_scaling=False, min_depth=lo, max_depth=hi)
+    return {"frames": idx, "median_scaled": scaled, "metric": {k: metric[k] for k in METRIC_NAMES},
+            "depth_range_m": [lo, hi], "metric_scale_in_model": model.metric_scale}
+
+
+def match_evaluation(ctx: DemoContext) -> dict:
+    """SIFT and ContraFeat matches of the pair (i, i + gap): the runtime's keypoints, mutual nearest
+    neighbours with the runtime's ratio test, scored against ground-truth matches; draws both."""
+    seq = Sequence(ctx.test_seq)
+    r = ctx.cfg.report
+    i = min(r.pair_frame, len(seq) - 1 - r.pair_gap)
+    j = i + r.pair_gap
+    rgb = [seq.read_rgb(i), seq.read_rgb(j)]
+    depth = [seq.read_depth(i), seq.read_depth(j)]
+    K, fcfg = seq.camera.K, FrontendConfig()
+    kps = [Frontend(K, SiftDescriptors(), fcfg).keypoints(im) for im in rgb]
+    gt, proj = ground_truth_matches(kps[0].xy, kps[1].xy, depth[0], depth[1], K, seq.pose(i), seq.pose(j),
+                                    pixel_radius=PIXEL_RADIUS, return_projection=True)
+    feat = ContraFeatDescriptors(DescriptorModel(ctx.models / "contrafeat" / "contrafeat.onnx", threads=2),
+                                 seq.camera)
+    out, rows = {"pair": [i, j], "keypoints": [len(kps[0]), len(kps[1])], "ground_truth": len(gt)}, []
+    for name, provider in (("sift", SiftDescriptors()), ("contrafeat", feat)):
+        desc = [provider.describe(im, kp) for im, kp in zip(rgb, kps)]
+        ev = match_and_evaluate(desc[0], desc[1], kps[0].xy, kps[1].xy, depth[0], depth[1], K, gt, proj,
+                                metric=provider.metric, ratio=fcfg.ratio, pixel_radius=PIXEL_RADIUS)
+        near, _ = near_misses(ev.matches, kps[1].xy, proj, ev.correct, PIXEL_RADIUS)
+        rows.append(draw_matches(rgb[0], rgb[1], kps[0].xy, kps[1].xy, ev.matches, ev.correct, scale=2, near=near))
+        c = ev.counts
+        out[name] = {"found": c.found, "correct": c.correct, "precision": c.precision, "recall": c.recall,
+                     "near_misses": c.near_misses}
+    path = ctx.root / "figures" / "matches.png"
+    with atomic_write(path) as tmp:
+        cv2.imwrite(str(tmp), cv2.cvtColor(np.concatenate(rows, axis=0), cv2.COLOR_RGB2BGR))
+    out["figure"] = str(path.relative_to(ctx.root))
+    return out
+
+
+class Evaluate(Stage):
+    """Metrics of every configuration, of the depth and of the matches (``DIR/metrics/*.json``)."""
+
+    name = "evaluate"
+    upstream = ("slam",)
+
+    def settings(self, cfg):
+        r = cfg.report
+        return {"depth_eval_stride": r.depth_eval_stride, "pair": [r.pair_frame, r.pair_gap]}
+
+    def outputs(self, ctx):
+        return [ctx.root / "metrics", ctx.root / "figures" / "matches.png", ctx.log(self.name)]
+
+    def estimate_s(self, cfg):
+        return 3 * 9.0 + 0.05 * cfg.simulate.test_frames + 5.0
+
+    def run(self, ctx, done=None):
+        runs = (done or {}).get("notes", {}).get("slam", {}).get("runs", {})
+        slam = {name: slam_result(ctx, name, runs.get(name, {"status": "failed", "error": "not run"}))
+                for name in SLAM_RUNS}
+        metrics = {"slam": slam, "depth": depth_evaluation(ctx), "matches": match_evaluation(ctx)}
+        for key, value in metrics.items():
+            write_json(ctx.root / "metrics" / f"{key}.json", value)
+        return {"failed": [n for n, r in slam.items() if r["status"] != "ok"]}

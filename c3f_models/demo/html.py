@@ -1,0 +1,45 @@
+"""Self-contained HTML of the demo report: every image embedded as a base64 data URI, no
+script, no link to load, so the file opens offline in any browser."""
+
+from __future__ import annotations
+
+import base64
+import html
+from pathlib import Path
+
+STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
+table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}
+th{background:#f2f2f2}.fail{color:#b00;font-weight:bold}
+.note{background:#fff6d6;border-left:4px solid #e0b400;padding:.4em .8em}img{max-width:100%;margin:.3em 0}
+figure{display:inline-block;margin:.3em;vertical-align:top}figcaption{font-size:.85em;color:#555}
+code{background:#f4f4f4;padding:0 .2em}"""
+
+
+def esc(x) -> str:
+    return html.escape(str(x))
+
+
+def image(path: Path, caption: str = "", width: int | None = None) -> str:
+    """An ``<img>`` with the PNG at ``path`` embedded (a plain note when the file is missing)."""
+    if not path.is_file():
+        return f'<p class="fail">missing image: {esc(path.name)}</p>'
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    w = f' width="{width}"' if width else ""
+    cap = f"<figcaption>{esc(caption)}</figcaption>" if caption else ""
+    return f'<figure><img alt="{esc(caption or path.name)}"{w} src="data:image/png;base64,{data}">{cap}</figure>'
+
+
+def table(header: list[str], rows: list[list]) -> str:
+    head = "".join(f"<th>{esc(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def section(sid: str, title: str, body: str) -> str:
+    return f'<section id="{sid}"><h2>{esc(title)}</h2>\n{body}\n</section>\n'
+
+
+def page(title: str, sections: list[str]) -> str:
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{esc(title)}</title>'
+            f"<style>{STYLE}</style></head><body><h1>{esc(title)}</h1>\n" + "".join(sections) + "</body></html>\n")

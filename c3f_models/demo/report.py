@@ -1,0 +1,179 @@
+"""The demo's ``report`` stage: figures into ``DIR/figures`` and ``DIR/report.html``.
+
+:func:`build_report` writes the HTML from plain inputs (the metrics JSON, the stage table, the
+figure files under the demo folder), so it is tested on tiny fake inputs; :class:`Report` makes
+the figures and gathers those inputs. Lengths are metres in the data, cm or mm on the page.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from c3f_models.demo import html as H
+
+#: section ids of the report, in order (the tests check every one is present)
+SECTIONS = ("summary", "deviations", "depth", "matches", "trajectories", "meshes", "keyframe-graph",
+            "unseen", "timings", "environment", "artefacts")
+METRIC_LABELS = {"abs_rel": "Abs Rel", "sq_rel": "Sq Rel (cm)", "rmse": "RMSE (cm)", "rmse_log": "RMSE log",
+                 "a1": "δ < 1.25", "a2": "δ < 1.25²", "a3": "δ < 1.25³"}
+ARTEFACTS = [
+    ("data/train/*, data/test/heldout", "simulator sequences: rgb/, depth/, poses.txt (TUM), camera.json, mesh.ply",
+     "any image viewer; MeshLab / Open3D for mesh.ply"),
+    ("runs/depthnet, runs/contrafeat", "training runs: TensorBoard events, config.yaml, checkpoints/last.ckpt",
+     "tensorboard --logdir DIR/runs"),
+    ("models/*/*.onnx, export.json", "ONNX exports with metadata and parity", "python -m c3f_slam inspect FILE"),
+    ("slam/NAME/trajectory.txt", "estimated camera-to-world trajectory (TUM)", "evo (evo_traj tum ...)"),
+    ("slam/NAME/mesh.ply, coverage.ply", "reconstruction; ground-truth surface painted seen / unseen",
+     "MeshLab / Open3D"),
+    ("slam/NAME/summary.json, evaluation.json, keyframe_graph.json", "run and evaluation numbers", "any text editor"),
+    ("metrics/*.json, figures/*.png", "the report's numbers and images", "any text editor / image viewer"),
+    ("logs/*.log", "the output of every command the demo ran", "any text editor"),
+]
+
+
+def _num(x, scale: float = 1.0, digits: int = 3) -> str:
+    try:
+        v = float(x) * scale
+    except (TypeError, ValueError):
+        return "n/a"
+    return f"{v:.{digits}f}" if math.isfinite(v) else "n/a"
+
+
+def _summary(d: dict) -> str:
+    rows = []
+    for name, r in d["metrics"]["slam"].items():
+        if r.get("status") == "ok":
+            rows.append([H.esc(r.get("title", name)), "ok", _num(r["ate_sim3_m"], 100, 2),
+                         _num(r["gt_length_m"], 100, 1), _num(r["registered_share"], 100, 1)])
+        else:
+            rows.append([H.esc(r.get("title", name)), '<span class="fail">FAILED</span>',
+                         f'<span class="fail">{H.esc(r.get("error", "failed"))}</span>', "", ""])
+    mode = "quick" if d["config"].get("quick") else "default"
+    return (f"<p>Simulated colon, trained DepthNet and ContraFeat on CPU, exported to ONNX, reconstructed the "
+            f"held-out sequence in three configurations ({mode} preset). ATE is the RMSE after Sim(3) "
+            "alignment, on the registered frames.</p>"
+            + H.table(["configuration", "status", "ATE (cm)", "path length (cm)", "registered (%)"], rows))
+
+
+def _deviations(d: dict) -> str:
+    dep = d["config"]["depth"]
+    items = []
+    if dep["lambda_gt_depth"] > 0:
+        items.append(f"DepthNet was trained <b>with a supervised depth term</b> on the simulator's true depth "
+                     f"(<code>model.loss.lambda_gt_depth {dep['lambda_gt_depth']}</code>); the paper's objective is "
+                     "self-supervised only. It is off by default in the paper configs.")
+    if not dep["paper_extras"]:
+        items.append("The paper's extra depth terms (L_ph-extra, L_dc, outlier and specular masks) were off "
+                     "(<code>configs/depthnet/monodepth2.yaml</code>) to fit the CPU budget.")
+    items.append("No test-time training on the held-out sequence. Networks at CPU size "
+                 f"(DepthNet {dep['size']} px, {dep['steps']} steps; ContraFeat {d['config']['features']['size']} px, "
+                 f"{d['config']['features']['steps']} steps), far from the paper's training.")
+    return '<div class="note"><ul>' + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>"
+
+
+def _depth(d: dict, root: Path) -> str:
+    m = d["metrics"]["depth"]
+    scale = {"sq_rel": 100, "rmse": 100}
+    rows = [[label, _num(m["median_scaled"][k], scale.get(k, 1)), _num(m["metric"][k], scale.get(k, 1))]
+            for k, label in METRIC_LABELS.items()]
+    fig = d["figures"].get("depth", {})
+    rng = fig.get("range_m", [0, 0])
+    return (H.image(root / "figures" / "depth_samples.png",
+                    f"held-out frames | predicted depth x {_num(fig.get('scale', 1.0), 1, 2)} (the metric scale "
+                    f"the export recorded, as SLAM uses it) | true depth; colour {_num(rng[0], 100, 1)}-"
+                    f"{_num(rng[1], 100, 1)} cm, black = no depth")
+            + f"<p>Seven depth metrics of the exported DepthNet on {len(m['frames'])} held-out frames "
+              f"(median scale true/predicted: {_num(m['median_scaled'].get('scale'), 1, 3)}).</p>"
+            + H.table(["metric", "per-image median scaling", "metric (no scaling)"], rows))
+
+
+def _matches(d: dict, root: Path) -> str:
+    m = d["metrics"]["matches"]
+    rows = [[name, m[key]["found"], m[key]["correct"], _num(m[key]["precision"], 100, 1),
+             _num(m[key]["recall"], 100, 1)] for key, name in (("sift", "SIFT"), ("contrafeat", "ContraFeat"))]
+    i, j = m["pair"]
+    return (f"<p>Frames {i} and {j} of the held-out sequence, {m['keypoints']} SIFT keypoints, "
+            f"{m['ground_truth']} ground-truth matches. Green = correct (within 2 px), yellow = near miss, "
+            "red = wrong. Top row SIFT, bottom row ContraFeat.</p>"
+            + H.table(["descriptor", "matches", "correct", "precision (%)", "recall (%)"], rows)
+            + H.image(root / m["figure"], "SIFT (top) vs ContraFeat (bottom)"))
+
+
+def _per_run(d: dict, root: Path, file: str, caption) -> str:
+    out = []
+    for name, r in d["metrics"]["slam"].items():
+        title = H.esc(r.get("title", name))
+        if r.get("status") != "ok":
+            out.append(f'<p class="fail">{title}: failed, nothing to show ({H.esc(r.get("error", ""))})</p>')
+        else:
+            out.append(f"<h3>{title}</h3>" + H.image(root / "slam" / name / file, caption(r)))
+    return "".join(out)
+
+
+def _meshes(d: dict, root: Path) -> str:
+    out = ["<p>TSDF meshes, offscreen renders (vertex colours, light at the eye).</p>"]
+    for name, r in d["metrics"]["slam"].items():
+        files = d["figures"].get("meshes", {}).get(name, [])
+        if r.get("status") != "ok" or not files:
+            out.append(f'<p class="fail">{H.esc(r.get("title", name))}: no mesh to show</p>')
+            continue
+        out.append(f"<h3>{H.esc(r.get('title', name))}</h3>" + "".join(
+            H.image(root / "figures" / f, f.rsplit("_", 1)[-1][:-4], 300) for f in files))
+    return "".join(out)
+
+
+def _unseen(d: dict, root: Path) -> str:
+    u = d["figures"].get("unseen", {})
+    if u.get("source") == "run":
+        segs = [[_num(s["start_m"], 100, 1), _num(s["end_m"], 100, 1), _num(s["unseen_share"], 100, 1)]
+                for s in u.get("segments", [])]
+        return (f"<p>Unseen share of the colon wall estimated by the run ({H.esc(u['run'])}): "
+                f"<b>{_num(u['unseen_share'], 100, 1)} %</b>.</p>" + H.image(root / u["map"], "coverage map")
+                + H.table(["from (cm)", "to (cm)", "unseen (%)"], segs))
+    if u.get("source") == "ground_truth":
+        out = ["<p><b>Ground truth</b> (not estimated by the run): the simulator's true surface near the path, "
+               "painted seen (green) / unseen (red) by each reconstruction after aligning it with the ATE's "
+               "transform (<code>c3f_slam evaluate</code>).</p>"]
+        for r in u["runs"]:
+            out.append(f"<h3>{H.esc(r['run'])}: {_num(r['seen_share'], 100, 1)} % of the whole true mesh seen</h3>"
+                       + "".join(H.image(root / "figures" / f, f.rsplit("_", 1)[-1][:-4], 300) for f in r["renders"]))
+        return "".join(out)
+    return '<p class="fail">No configuration gave a reconstruction to measure coverage with.</p>'
+
+
+def _timings(d: dict) -> str:
+    rows = [[name, _num(sec, 1, 1), H.esc(status)] for name, sec, status in d["timings"]]
+    return H.table(["stage", "seconds", "status"], rows)
+
+
+def _environment(d: dict) -> str:
+    rows = [[H.esc(k), H.esc(v)] for k, v in d["environment"].items()]
+    return H.table(["item", "value"], rows) + f"<p>Settings: <code>{H.esc(json.dumps(d['config']))}</code></p>"
+
+
+def _artefacts() -> str:
+    return H.table(["file (in the demo folder)", "what", "open with"],
+                   [[f"<code>{H.esc(a)}</code>", H.esc(b), H.esc(c)] for a, b, c in ARTEFACTS])
+
+
+def build_report(root: Path, d: dict) -> str:
+    """HTML of the report. ``d``: ``config`` (DemoConfig.as_dict), ``metrics`` (slam, depth, matches:
+    the evaluate stage's JSON), ``figures`` (depth, meshes, unseen), ``timings`` [(stage, s, status)],
+    ``environment`` {name: value}; image paths are relative to ``root``."""
+    ate = lambda r: f"ATE {_num(r.get('ate_sim3_m'), 100, 2)} cm, path {_num(r.get('gt_length_m'), 100, 1)} cm"  # noqa: E731
+    parts = {
+        "summary": ("Summary", _summary(d)),
+        "deviations": ("Deviations from the paper", _deviations(d)),
+        "depth": ("Depth", _depth(d, root)),
+        "matches": ("Matches: SIFT vs ContraFeat", _matches(d, root)),
+        "trajectories": ("Trajectories vs ground truth", _per_run(d, root, "trajectory.png", ate)),
+        "meshes": ("Reconstructed meshes", _meshes(d, root)),
+        "keyframe-graph": ("Keyframe connectivity graph", _per_run(d, root, "keyframe_graph.png", lambda r: "")),
+        "unseen": ("Unseen surface", _unseen(d, root)),
+        "timings": ("Time per stage", _timings(d)),
+        "environment": ("Versions, machine, seeds", _environment(d)),
+        "artefacts": ("Files in this folder", _artefacts()),
+    }
+    return H.page("C3Fusion demo report", [H.section(sid, *parts[sid]) for sid in SECTIONS])

@@ -1,0 +1,93 @@
+"""The ``report`` stage: figures (depth samples, mesh renders, coverage), the environment, then
+``DIR/report.html`` (:func:`c3f_models.demo.report.build_report`)."""
+
+from __future__ import annotations
+
+import importlib.metadata as md
+import json
+import os
+import platform
+import subprocess
+
+from c3f_models.demo.context import REPO, SLAM_RUNS, DemoContext
+from c3f_models.demo.figures import depth_samples, mesh_renders
+from c3f_models.demo.report import build_report
+from c3f_models.demo.stages import Stage
+from c3f_slam.io import Sequence
+from c3f_slam.io.atomic import atomic_write_text
+
+PACKAGES = ("c3fusion", "torch", "lightning", "onnxruntime", "open3d", "numpy", "opencv-python-headless")
+
+
+def environment(cfg) -> dict:
+    """Versions, machine and seeds for the report."""
+    env = {"python": platform.python_version(), "machine": f"{platform.machine()}, {os.cpu_count()} CPU cores",
+           "system": platform.platform()}
+    for pkg in PACKAGES:
+        try:
+            env[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            pass
+    try:
+        env["git commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                                           text=True, timeout=5).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        env["git commit"] = "unknown"
+    s = cfg.simulate
+    env["seeds"] = (f"simulator {[seed for _, seed in s.train]} (train), {s.test[1]} (held-out); "
+                    f"DepthNet {cfg.depth.seed}; ContraFeat {cfg.features.seed}")
+    return env
+
+
+def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
+    """The run's own coverage estimate (``coverage.json`` + ``coverage_map.png``) when it wrote one,
+    else the ground-truth coverage from ``c3f_slam evaluate`` of every configuration that ran
+    (coverage.ply rendered near the true path)."""
+    ok = [n for n in SLAM_RUNS if slam.get(n, {}).get("status") == "ok"]
+    for name in ok:
+        cov = ctx.slam_dir(name) / "coverage.json"
+        if cov.is_file():
+            c = json.loads(cov.read_text())
+            return {"source": "run", "run": slam[name]["title"], "unseen_share": c.get("unseen_share"),
+                    "segments": c.get("segments", []), "map": f"slam/{name}/coverage_map.png"}
+    seq, runs = Sequence(ctx.test_seq), []
+    for name in ok:
+        renders = mesh_renders(ctx.slam_dir(name) / "coverage.ply", ctx.root / "figures" / f"coverage_{name}",
+                               ctx.cfg.report.render_size, near=seq.poses[:, :3, 3])
+        if renders:
+            runs.append({"run": slam[name]["title"], "renders": renders,
+                         "seen_share": (slam[name].get("coverage") or {}).get("share")})
+    return {"source": "ground_truth", "runs": runs} if runs else {}
+
+
+class Report(Stage):
+    """Figures and ``DIR/report.html``."""
+
+    name = "report"
+    upstream = ("evaluate",)
+
+    def settings(self, cfg):
+        return {"sample_frames": cfg.report.sample_frames, "render_size": cfg.report.render_size}
+
+    def outputs(self, ctx):
+        return [ctx.root / "report.html"]
+
+    def estimate_s(self, cfg):
+        return 20.0
+
+    def run(self, ctx, done=None):
+        timings = (done or {}).get("timings", [])
+        metrics = {k: json.loads((ctx.root / "metrics" / f"{k}.json").read_text())
+                   for k in ("slam", "depth", "matches")}
+        figs = ctx.root / "figures"
+        figures = {"depth": depth_samples(ctx.test_seq, ctx.models / "depthnet" / "depthnet.onnx",
+                                          ctx.cfg.report.sample_frames, figs / "depth_samples.png"),
+                   "meshes": {n: mesh_renders(ctx.slam_dir(n) / "mesh.ply", figs / f"mesh_{n}",
+                                              ctx.cfg.report.render_size)
+                              for n, r in metrics["slam"].items() if r.get("status") == "ok"},
+                   "unseen": unseen_figures(ctx, metrics["slam"])}
+        data = {"config": ctx.cfg.as_dict(), "metrics": metrics, "figures": figures,
+                "timings": [*timings, ("report", float("nan"), "this stage (running)")],
+                "environment": environment(ctx.cfg)}
+        atomic_write_text(ctx.root / "report.html", build_report(ctx.root, data))
+        return {"report": "report.html"}

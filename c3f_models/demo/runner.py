@@ -1,0 +1,62 @@
+"""Runs the demo's stages in order into one folder, skipping those already done with the same
+settings (:mod:`c3f_models.demo.state`), with a progress line per stage and a time table."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from c3f_models.demo.config import DemoConfig
+from c3f_models.demo.context import DemoContext, StageFailed, check_out_dir
+from c3f_models.demo.evaluation import Evaluate
+from c3f_models.demo.progress import StageLine, time_table
+from c3f_models.demo.report_stage import Report
+from c3f_models.demo.stages import Export, Simulate, Slam, Stage, TrainDepth, TrainFeatures
+from c3f_models.demo.state import DemoState, stage_key
+
+STAGES: tuple[Stage, ...] = (Simulate(), TrainDepth(), TrainFeatures(), Export(), Slam(), Evaluate(), Report())
+
+
+class DemoInterrupted(Exception):
+    """Ctrl-C during a stage (the message names it)."""
+
+
+def run_demo(root: Path, cfg: DemoConfig, overwrite: bool = False, stream=None) -> list[tuple[str, float, str]]:
+    """Run every stage into ``root``; returns the time table rows (stage, seconds, status).
+
+    Raises InputError (a stage done with other settings, a folder that is no demo folder),
+    StageFailed (a command failed) or DemoInterrupted (Ctrl-C)."""
+    stream = stream or sys.stdout
+    check_out_dir(root)
+    state = DemoState(root, overwrite)
+    root.mkdir(parents=True, exist_ok=True)
+    ctx = DemoContext(root, cfg)
+    keys: dict[str, str] = {}
+    timings: list[tuple[str, float, str]] = []
+    for k, stage in enumerate(STAGES, 1):
+        key = keys[stage.name] = stage_key(stage.settings(cfg), [keys[u] for u in stage.upstream])
+        if state.is_done(stage.name, key):
+            timings.append((stage.name, state.stages[stage.name]["seconds"], "skipped (done earlier, same settings)"))
+            print(f"[{k}/{len(STAGES)}] {stage.name:<15} skipped: done earlier with the same settings",
+                  file=stream, flush=True)
+            continue
+        state.forget_from(stage.name)
+        stage.clean(ctx)
+        done = {"notes": {n: state.notes(n) for n in state.stages}, "timings": list(timings)}
+        start = time.monotonic()
+        try:
+            with StageLine(k, len(STAGES), stage.name, stage.estimate_s(cfg), stage.probe(ctx), stream):
+                notes = stage.run(ctx, done)
+        except KeyboardInterrupt:
+            raise DemoInterrupted(f"interrupted in stage {stage.name}; the stages before it are kept, "
+                                  "rerun the same command to resume") from None
+        seconds = time.monotonic() - start
+        state.record(stage.name, key, seconds, notes)
+        timings.append((stage.name, seconds, "ran"))
+    print(time_table(timings), file=stream, flush=True)
+    print(f"report: {root / 'report.html'}", file=stream, flush=True)
+    return timings
+
+
+__all__ = ["STAGES", "DemoInterrupted", "StageFailed", "run_demo"]

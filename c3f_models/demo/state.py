@@ -1,0 +1,76 @@
+"""Which stages of a demo folder are done, with which inputs: ``DIR/demo_state.json``.
+
+A stage's key is the SHA-256 of its settings and the keys of the stages it reads from, so a
+changed setting invalidates that stage and every stage after it. A rerun skips a stage whose
+key matches; a stage recorded with another key is refused (one line) unless ``overwrite``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from c3f_slam.errors import InputError
+from c3f_slam.io.atomic import atomic_write_text
+
+STATE_FILE = "demo_state.json"
+STATE_VERSION = 1
+
+
+def stage_key(settings: dict, upstream: list[str]) -> str:
+    """Hex SHA-256 of a stage's settings (JSON, sorted keys) and its upstream stages' keys."""
+    text = json.dumps({"settings": settings, "upstream": upstream}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+class DemoState:
+    """The state file of one demo folder: per stage its key, seconds and result notes."""
+
+    def __init__(self, root: Path, overwrite: bool = False) -> None:
+        self.root, self.overwrite = Path(root), overwrite
+        self.path = self.root / STATE_FILE
+        self.stages: dict[str, dict] = {}
+        if self.path.is_file():
+            try:
+                data = json.loads(self.path.read_text())
+            except (OSError, ValueError) as exc:
+                raise InputError(f"{self.path}: unreadable demo state ({exc}); use another --out") from None
+            self.stages = dict(data.get("stages", {}))
+        elif self.root.is_dir() and any(self.root.iterdir()):
+            raise InputError(f"--out {self.root}: not empty and not a demo folder (no {STATE_FILE}); "
+                             "choose another --out")
+
+    def is_done(self, name: str, key: str) -> bool:
+        """True when ``name`` finished with ``key``; InputError when it finished with another key
+        (unless ``overwrite``, which forgets it and every later stage)."""
+        rec = self.stages.get(name)
+        if rec is None:
+            return False
+        if rec.get("key") == key:
+            return True
+        if not self.overwrite:
+            raise InputError(f"--out {self.root}: stage {name} was made with other settings (e.g. with/without "
+                             "--quick); rerun with the same options, pass --overwrite to redo it, "
+                             "or choose another --out")
+        self.forget_from(name)
+        return False
+
+    def forget_from(self, name: str) -> None:
+        """Drop ``name`` and every stage recorded after it."""
+        names = list(self.stages)
+        if name in names:
+            for n in names[names.index(name):]:
+                del self.stages[n]
+            self.save()
+
+    def record(self, name: str, key: str, seconds: float, notes: dict | None = None) -> None:
+        self.stages[name] = {"key": key, "seconds": round(seconds, 2), "notes": notes or {}}
+        self.save()
+
+    def notes(self, name: str) -> dict:
+        return self.stages.get(name, {}).get("notes", {})
+
+    def save(self) -> None:
+        self.root.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.path, json.dumps({"version": STATE_VERSION, "stages": self.stages}, indent=2) + "\n")

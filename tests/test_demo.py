@@ -1,0 +1,218 @@
+"""The demo (``python -m c3f_models demo``): the report writer on tiny fake inputs, the resume /
+refuse / Ctrl-C logic of the runner on fake stages, and (slow) the whole ``--quick`` pipeline."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from c3f_models.demo import config as demo_cfg
+from c3f_models.demo import runner
+from c3f_models.demo.progress import clock, read_step_fraction, time_table
+from c3f_models.demo.report import SECTIONS, build_report
+from c3f_models.demo.stages import Stage
+from c3f_models.demo.state import DemoState, stage_key
+from c3f_slam.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def embedded_images(html: str) -> list[np.ndarray]:
+    """Every data-URI PNG of the page, decoded (None where it does not decode)."""
+    return [cv2.imdecode(np.frombuffer(base64.b64decode(b), np.uint8), cv2.IMREAD_COLOR)
+            for b in re.findall(r'src="data:image/png;base64,([^"]+)"', html)]
+
+
+def _png(path: Path, value: int = 128) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), np.full((8, 12, 3), value, np.uint8))
+
+
+def fake_report_inputs(root: Path) -> dict:
+    """Metrics and figure files as the stages write them: one configuration ok, one failed."""
+    for f in ("figures/depth_samples.png", "figures/matches.png", "figures/mesh_gt_sift_side.png",
+              "figures/coverage_gt_sift_side.png", "slam/gt_sift/trajectory.png", "slam/gt_sift/keyframe_graph.png"):
+        _png(root / f)
+    depth = {k: 0.1 for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")}
+    slam = {"gt_sift": {"title": "ground-truth depth + SIFT", "status": "ok", "ate_sim3_m": 0.0012,
+                        "gt_length_m": 0.05, "registered_share": 0.9, "coverage": {"share": 0.1}},
+            "paper": {"title": "predicted depth + ContraFeat", "status": "failed",
+                      "error": "error: no frame could be registered (exit 2)"}}
+    match = {"found": 10, "correct": 7, "precision": 0.7, "recall": 0.5, "near_misses": 1}
+    return {"config": demo_cfg.demo_config(quick=True).as_dict(),
+            "metrics": {"slam": slam, "depth": {"frames": [0, 2], "median_scaled": {**depth, "scale": 1.0},
+                                                "metric": depth},
+                        "matches": {"pair": [3, 7], "keypoints": [40, 42], "ground_truth": 20, "sift": match,
+                                    "contrafeat": match, "figure": "figures/matches.png"}},
+            "figures": {"depth": {"range_m": [0.01, 0.09]}, "meshes": {"gt_sift": ["mesh_gt_sift_side.png"]},
+                        "unseen": {"source": "ground_truth", "runs": [{"run": "ground-truth depth + SIFT",
+                                   "seen_share": 0.1, "renders": ["coverage_gt_sift_side.png"]}]}},
+            "timings": [("simulate", 3.0, "ran")], "environment": {"python": "3.11", "seeds": "1, 2"}}
+
+
+def test_report_writer_on_fake_inputs(tmp_path):
+    """Every section is present, every image is embedded and decodes, a failed configuration is
+    said plainly with no number, the ground-truth coverage is labelled as such, nothing is linked."""
+    html = build_report(tmp_path, fake_report_inputs(tmp_path))
+    for sid in SECTIONS:
+        assert f'<section id="{sid}">' in html, sid
+    images = embedded_images(html)
+    assert len(images) == 6 and all(im is not None and im.shape == (8, 12, 3) for im in images)
+    assert "FAILED" in html and "no frame could be registered" in html
+    assert "0.12" in html  # 1.2 mm ATE in cm
+    assert "<b>Ground truth</b>" in html and "supervised depth term" in html
+    assert "http" not in html and "<script" not in html
+
+
+def test_report_says_missing_image_and_run_coverage(tmp_path):
+    d = fake_report_inputs(tmp_path)
+    (tmp_path / "figures" / "matches.png").unlink()
+    _png(tmp_path / "slam" / "gt_sift" / "coverage_map.png")
+    d["figures"]["unseen"] = {"source": "run", "run": "x", "unseen_share": 0.25, "map": "slam/gt_sift/coverage_map.png",
+                              "segments": [{"start_m": 0.0, "end_m": 0.02, "unseen_share": 0.5}]}
+    html = build_report(tmp_path, d)
+    assert "missing image: matches.png" in html and "25.0 %" in html and "<b>Ground truth</b>" not in html
+
+
+class FakeStage(Stage):
+    def __init__(self, name, upstream=(), value=1, interrupt=False):
+        self.name, self.upstream, self.value, self.interrupt, self.calls = name, upstream, value, interrupt, 0
+
+    def settings(self, cfg):
+        return {"value": self.value}
+
+    def outputs(self, ctx):
+        return [ctx.root / f"{self.name}.txt"]
+
+    def run(self, ctx, done=None):
+        self.calls += 1
+        if self.interrupt:
+            raise KeyboardInterrupt
+        (ctx.root / f"{self.name}.txt").write_text("x")
+        return {"n": self.calls}
+
+
+def test_runner_resumes_refuses_and_stops_on_ctrl_c(tmp_path, monkeypatch, capsys):
+    a, b = FakeStage("a"), FakeStage("b", ("a",))
+    monkeypatch.setattr(runner, "STAGES", (a, b))
+    cfg = demo_cfg.demo_config(quick=True)
+    rows = runner.run_demo(tmp_path / "d", cfg)
+    assert [r[2] for r in rows] == ["ran", "ran"] and (a.calls, b.calls) == (1, 1)
+    rows = runner.run_demo(tmp_path / "d", cfg)  # same settings: both skipped
+    assert all(r[2].startswith("skipped") for r in rows) and (a.calls, b.calls) == (1, 1)
+    a.value = 2  # a's settings changed: refused, nothing rerun
+    with pytest.raises(InputError, match="stage a was made with other settings"):
+        runner.run_demo(tmp_path / "d", cfg)
+    assert (a.calls, b.calls) == (1, 1)
+    runner.run_demo(tmp_path / "d", cfg, overwrite=True)  # redo a and (its key changed) b
+    assert (a.calls, b.calls) == (2, 2)
+    b.interrupt, b.value = True, 5
+    with pytest.raises(runner.DemoInterrupted, match="interrupted in stage b"):
+        runner.run_demo(tmp_path / "d", cfg, overwrite=True)
+    state = DemoState(tmp_path / "d")
+    assert list(state.stages) == ["a"]  # b forgotten, a kept
+    assert "total" in capsys.readouterr().out
+
+
+def test_state_refuses_a_folder_that_is_no_demo(tmp_path):
+    (tmp_path / "x.txt").write_text("mine")
+    with pytest.raises(InputError, match="not a demo folder"):
+        DemoState(tmp_path)
+    assert stage_key({"a": 1}, []) != stage_key({"a": 2}, []) != stage_key({"a": 1}, ["k"])
+
+
+def test_progress_helpers(tmp_path):
+    assert clock(75) == "1:15" and clock(3725) == "1:02:05"
+    p = tmp_path / "p.txt"
+    assert read_step_fraction(p) is None
+    p.write_text("5 20\n")
+    assert read_step_fraction(p) == 0.25
+    assert "total" in time_table([("a", 1.0, "ran"), ("b", 2.0, "ran")])
+
+
+def test_cli_bad_out_is_one_line(tmp_path):
+    (tmp_path / "file").write_text("x")
+    r = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(tmp_path / "file"), "--quick"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and r.stderr.startswith("error: --out")
+
+
+@pytest.fixture(scope="module")
+def quick_demo(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """``python -m c3f_models demo --quick`` into a fresh folder (the whole pipeline, a few minutes)."""
+    out = tmp_path_factory.mktemp("demo") / "out"
+    r = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=1800)
+    return out, r
+
+
+@pytest.mark.slow
+def test_quick_demo_end_to_end(quick_demo):
+    """Files and metrics of a --quick run: every configuration either ok with a finite ATE below the
+    path length or said failed; the RGB-D reference works; the report has every section and every
+    embedded image decodes; every stage reported a time."""
+    out, r = quick_demo
+    assert r.returncode == 0, r.stderr[-2000:]
+    for f in ("report.html", "demo_state.json", "models/depthnet/depthnet.onnx", "models/contrafeat/contrafeat.onnx",
+              "runs/depthnet/tb/version_0/checkpoints/last.ckpt", "slam/gt_sift/trajectory.txt",
+              "slam/gt_sift/mesh.ply", "metrics/depth.json", "metrics/matches.json", "figures/matches.png",
+              "figures/depth_samples.png"):
+        assert (out / f).is_file(), f
+    slam = json.loads((out / "metrics" / "slam.json").read_text())
+    assert slam["gt_sift"]["status"] == "ok"
+    for name, res in slam.items():
+        if res["status"] == "ok":
+            assert math.isfinite(res["ate_sim3_m"]) and res["ate_sim3_m"] < res["gt_length_m"], (name, res)
+        else:
+            assert res["error"], name
+    depth = json.loads((out / "metrics" / "depth.json").read_text())
+    assert all(math.isfinite(depth["median_scaled"][k]) for k in ("abs_rel", "sq_rel", "rmse", "a1"))
+    html = (out / "report.html").read_text()
+    for sid in SECTIONS:
+        assert f'<section id="{sid}">' in html, sid
+    images = embedded_images(html)
+    assert len(images) >= 8 and all(im is not None and im.size > 0 for im in images)
+    state = json.loads((out / "demo_state.json").read_text())
+    assert list(state["stages"]) == [s.name for s in runner.STAGES]
+    assert "total" in r.stdout and "report:" in r.stdout
+
+
+@pytest.mark.slow
+def test_quick_demo_rerun_skips_and_other_settings_refused(quick_demo):
+    out, _ = quick_demo
+    again = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick"], cwd=ROOT,
+                           capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0 and again.stdout.count("skipped: done earlier") == len(runner.STAGES)
+    other = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out)], cwd=ROOT,
+                           capture_output=True, text=True, timeout=300)
+    assert other.returncode == 2 and other.stderr.count("\n") == 1 and "other settings" in other.stderr
+
+
+@pytest.mark.slow
+def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path):
+    """SIGINT to the demo's process group (a terminal's Ctrl-C) during training: exit 130, one line,
+    the simulate stage stays recorded."""
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick"], cwd=ROOT,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    t0 = time.time()
+    while not (out / "logs" / "train_depth.log").exists() and time.time() - t0 < 300:
+        time.sleep(0.5)
+    time.sleep(10)
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 130 and err.count("\n") == 1 and "interrupted in stage train_depth" in err
+    assert list(json.loads((out / "demo_state.json").read_text())["stages"]) == ["simulate"]
