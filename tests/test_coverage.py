@@ -87,3 +87,98 @@ def test_fold_hides_the_wall_behind_it(hole):
         assert not cov.wall.measured[_rows(cov, S0 + 1.2 * SIGMA, S0 + 2.8 * SIGMA)].any()
     plain = _forward(False)
     assert plain.unseen_share(_rows(plain, S0 + 0.5 * SIGMA, S0 + 2 * SIGMA)) < 0.05
+
+
+# ---------------------------------------------------------------------- the run stage and evaluate
+
+RUN = ["--max-frames", "8", "--min-correspondences", "15", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def sim_sequence(tmp_path_factory):
+    """128 px frames: enough correspondences to register and fuse a few frames."""
+    from datamodules.synthetic.fixture import make_tiny_sequence
+
+    return make_tiny_sequence(tmp_path_factory.mktemp("coverage") / "seq", frames=8, size=128, seed=3)
+
+
+@pytest.fixture(scope="module")
+def coverage_run(sim_sequence, tmp_path_factory):
+    from c3f_slam.cli import main
+
+    out = tmp_path_factory.mktemp("coverage_run") / "out"
+    assert main(["run", str(sim_sequence), "--out", str(out), "--coverage-segment", "0.01", *RUN]) == 0
+    return out
+
+
+def test_run_writes_coverage_outputs(coverage_run):
+    import json
+
+    import cv2
+    import open3d as o3d
+
+    cov = json.loads((coverage_run / "coverage.json").read_text())
+    assert cov["status"] == "ok" and 0 <= cov["unseen_share"] <= 1
+    assert cov["observed_share"] == pytest.approx(1 - cov["unseen_share"])
+    segs = cov["segments"]
+    assert len(segs) == 3 and segs[0]["start_m"] == 0 and segs[1]["start_m"] == pytest.approx(0.01)
+    assert segs[-1]["end_m"] == pytest.approx(cov["explored_length_m"])
+    assert all(0 <= s["unseen_share"] <= 1 and s["start_m"] < s["end_m"] for s in segs)
+    area = np.array([s["area_m2"] for s in segs])  # the overall share is the area-weighted mean
+    assert cov["unseen_share"] == pytest.approx(float(area @ [s["unseen_share"] for s in segs] / area.sum()))
+    assert cov["cells"]["observed"] + cov["cells"]["unseen"] == cov["cells"]["total"]
+    summary = json.loads((coverage_run / "summary.json").read_text())
+    assert summary["unseen_share"] == cov["unseen_share"] and summary["coverage"]["status"] == "ok"
+    img = cv2.imread(str(coverage_run / "coverage_map.png"))
+    assert img is not None and img.shape[0] > 100
+    mesh = o3d.io.read_triangle_mesh(str(coverage_run / "mesh.ply"))
+    painted = o3d.io.read_triangle_mesh(str(coverage_run / "unseen.ply"))
+    # two triangles per unseen cell on top of the reconstruction
+    assert len(painted.triangles) == len(mesh.triangles) + 2 * cov["cells"]["unseen"]
+
+
+def test_no_coverage_and_bad_segment(sim_sequence, tmp_path, capsys):
+    import json
+
+    from c3f_slam.cli import main
+
+    out = tmp_path / "off"
+    assert main(["run", str(sim_sequence), "--out", str(out), "--no-coverage", *RUN]) == 0
+    assert not {"coverage.json", "coverage_map.png", "unseen.ply"} & {p.name for p in out.iterdir()}
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["coverage"]["status"] == "off" and "unseen_share" not in summary
+    capsys.readouterr()
+    assert main(["run", str(sim_sequence), "--out", str(tmp_path / "bad"), "--coverage-segment", "0", *RUN]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --coverage-segment")
+    assert not (tmp_path / "bad").exists()
+
+
+def test_no_mesh_says_why(sim_sequence, tmp_path):
+    import json
+
+    from c3f_slam.cli import main
+
+    out = tmp_path / "nomesh"
+    assert main(["run", str(sim_sequence), "--out", str(out), "--no-mesh", *RUN]) == 0
+    cov = json.loads((out / "coverage.json").read_text())
+    assert cov["status"] == "unavailable" and "no mesh" in cov["reason"] and cov["unseen_share"] is None
+    assert not (out / "coverage_map.png").exists()
+
+
+def test_evaluate_reports_estimate_vs_truth(coverage_run, sim_sequence, capsys):
+    import json
+
+    from c3f_slam.cli import main
+
+    capsys.readouterr()
+    assert main(["evaluate", str(coverage_run), "--gt", str(sim_sequence)]) == 0
+    printed = capsys.readouterr().out
+    assert "unseen wall: estimate" in printed and "truth" in printed
+    u = json.loads((coverage_run / "evaluation.json").read_text())["unseen"]
+    cov = json.loads((coverage_run / "coverage.json").read_text())
+    assert u["status"] == "ok" and u["estimate"] == cov["unseen_share"] and 0 <= u["truth"] <= 1
+    assert u["error_pp"] == pytest.approx(100 * (u["estimate"] - u["truth"]))
+    assert len(u["segments"]) == len(cov["segments"])
+    assert u["explored_length_m"]["truth"] == pytest.approx(cov["explored_length_m"], abs=0.002)
+    assert (coverage_run / u["truth_map"]).is_file()

@@ -10,9 +10,16 @@ mesh with the unseen wall painted). Torch-free (NumPy, SciPy, Open3D, matplotlib
 
 from c3f_slam.coverage.centreline import Centreline, centreline_from_path
 from c3f_slam.coverage.config import CoverageConfig
-from c3f_slam.coverage.estimate import CoverageMap, CoverageUnavailable, compute_coverage, settings_dict
+from c3f_slam.coverage.estimate import (
+    CoverageMap,
+    CoverageUnavailable,
+    compute_coverage,
+    settings_dict,
+    settings_from_dict,
+)
 from c3f_slam.coverage.visibility import ViewSettings
 from c3f_slam.coverage.wall import WallModel, fit_wall
 
 __all__ = ["Centreline", "CoverageConfig", "CoverageMap", "CoverageUnavailable", "ViewSettings", "WallModel",
-           "centreline_from_path", "compute_coverage", "fit_wall", "settings_dict"]
+           "centreline_from_path", "compute_coverage", "fit_wall", "settings_dict",
+           "settings_from_dict"]

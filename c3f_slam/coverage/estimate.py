@@ -9,7 +9,7 @@ centreline from the first camera position (the last one ends with the explored s
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 import open3d as o3d
@@ -93,7 +93,18 @@ def compute_coverage(surface: o3d.geometry.TriangleMesh, poses: np.ndarray, K: n
     return CoverageMap(wall, seen, wall.areas(), len(frames))
 
 
-def settings_dict(cfg: CoverageConfig, view: ViewSettings) -> dict:
-    """The settings recorded beside the shares."""
+def settings_dict(cfg: CoverageConfig, view: ViewSettings, K: np.ndarray) -> dict:
+    """The settings recorded beside the shares (depth range resolved; ``K`` and ``image_size``
+    of the images tested), enough to compute the truth the same way (:func:`settings_from_dict`)."""
     return {**asdict(cfg), "depth_min": view.depth_min, "depth_max": view.depth_max,
-            "image_size": [view.width, view.height]}
+            "image_size": [view.width, view.height], "K": np.asarray(K, dtype=np.float64).tolist()}
+
+
+def settings_from_dict(d: dict) -> tuple[CoverageConfig, ViewSettings, np.ndarray]:
+    """Inverse of :func:`settings_dict`."""
+    names = {f.name for f in fields(CoverageConfig)}
+    cfg = CoverageConfig(**{k: v for k, v in d.items() if k in names})
+    w, h = d["image_size"]
+    view = ViewSettings(int(w), int(h), float(d["depth_min"]), float(d["depth_max"]), cfg.occlusion_tol,
+                        cfg.occlusion_tol_rel)
+    return cfg, view, np.asarray(d["K"], dtype=np.float64)

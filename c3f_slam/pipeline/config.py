@@ -5,7 +5,8 @@ per part: ``frontend`` (keypoints, ratio test), ``fragments`` (the new-fragment 
 ``candidates`` (:mod:`c3f_slam.pipeline.retrieval`), ``keyframes`` (what a keyframe keeps,
 revisits: :mod:`c3f_slam.pipeline.reuse`), ``rejoin`` (bridging tracking breaks:
 :mod:`c3f_slam.pipeline.rejoin`), ``optimization`` (the global schedule:
-:mod:`c3f_slam.pipeline.schedule`), ``fusion``, plus the match filter and pose-graph
+:mod:`c3f_slam.pipeline.schedule`), ``fusion``, ``coverage`` (the unseen-surface estimate:
+:mod:`c3f_slam.coverage`), plus the match filter and pose-graph
 settings of :mod:`c3f_slam.matching` and :mod:`c3f_slam.posegraph`. Each part validates
 its own fields (:class:`InputError` naming ``part.field``). ``colon`` (default) and
 ``room`` pick the presets; the fragment rules are the paper's (85 % frustum overlap, 100
@@ -24,6 +25,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
+from c3f_slam.coverage.config import CoverageConfig
 from c3f_slam.errors import InputError
 from c3f_slam.fusion import TSDF_PRESETS, TSDFConfig
 from c3f_slam.matching import MatchFilterConfig
@@ -159,7 +161,7 @@ class FusionConfig:
 
 #: parts of :class:`SlamConfig` that overrides may give as dicts of their fields
 SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "optimization", "match_filter",
-            "posegraph", "fusion")
+            "posegraph", "fusion", "coverage")
 
 #: overrides that restore the paper's literal rules at any map size: every new keyframe matched
 #: against all keyframes, all its accepted matches kept, the whole component optimised after
@@ -186,6 +188,7 @@ class SlamConfig:
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
     posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    coverage: CoverageConfig = field(default_factory=CoverageConfig)  #: the unseen-surface estimate at the end
     #: BLAS threads NumPy may use during a run (threadpoolctl); None = the library's setting.
     #: 1: the matrices are small (benchmarks/results/slam_blas_threads.md)
     blas_threads: int | None = 1

@@ -3,7 +3,9 @@
 Writes OUT/evaluation.json (lengths in metres), OUT/trajectory.png (estimate aligned with
 Sim(3) vs ground truth) and, when the sequence has mesh.ply and the run a mesh.ply,
 OUT/coverage.ply (ground truth painted seen / unseen after aligning the reconstruction with
-the ATE's transform: Sim(3), or SE(3) in RGB-D mode).
+the ATE's transform: Sim(3), or SE(3) in RGB-D mode); when the run has coverage.json, the
+truth of its unseen-surface estimate (evaluation.json ``unseen``, OUT/coverage_map_truth.png:
+:mod:`c3f_slam.pipeline.coverage_evaluation`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.fusion import write_mesh
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.outputs import RunOutputs, write_json
+from c3f_slam.pipeline.coverage_evaluation import format_unseen, unseen_truth
 from c3f_slam.surface_metrics import coverage_mesh, surface_coverage
 from c3f_slam.trajectory_metrics import associate, ate, evaluate_trajectory
 from c3f_slam.trajectory_plot import plot_trajectories
@@ -59,6 +62,8 @@ def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000
             painted = coverage_mesh(gt_mesh, recon)
             write_mesh(painted, outputs.coverage_mesh)
             res["coverage_mesh"] = outputs.coverage_mesh.name
+    if outputs.coverage_json.is_file():
+        res["unseen"] = unseen_truth(outputs, seq, summary)
     write_json(Path(out) / "evaluation.json", res)
     return res
 
@@ -81,4 +86,6 @@ def format_report(res: dict) -> str:
         c = res["coverage"]
         lines.append(f"coverage: {100 * c['share']:.1f} % of the ground-truth surface within "
                      f"{1000 * c['threshold']:.1f} mm")
+    if "unseen" in res:
+        lines += format_unseen(res["unseen"])
     return "\n".join(lines)
