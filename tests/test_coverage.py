@@ -182,3 +182,15 @@ def test_evaluate_reports_estimate_vs_truth(coverage_run, sim_sequence, capsys):
     assert len(u["segments"]) == len(cov["segments"])
     assert u["explored_length_m"]["truth"] == pytest.approx(cov["explored_length_m"], abs=0.002)
     assert (coverage_run / u["truth_map"]).is_file()
+
+
+def test_settings_are_checked_and_room_has_none():
+    from c3f_slam.errors import InputError
+    from c3f_slam.pipeline import SlamConfig
+
+    with pytest.raises(InputError, match="coverage.segment"):
+        SlamConfig.preset_config("colon", coverage={"segment": -1.0})
+    assert SlamConfig.preset_config("colon").coverage.enabled
+    assert not SlamConfig.preset_config("room").coverage.enabled
+    assert CoverageConfig().depth_range(0.001, 0.2) == (0.001, 0.2)
+    assert CoverageConfig(depth_max=0.05).depth_range(0.001, 0.2) == (0.001, 0.05)

@@ -2,7 +2,8 @@
 
 :func:`compute_coverage` builds the centreline from the camera path, fits the wall model to
 a surface (the run's fused mesh, or for the truth the true mesh) and tests each wall cell
-against the frames (:mod:`.visibility`). Shares are of wall *area* (m^2) over the explored
+against the frames (:mod:`.visibility`). Shares are of unrolled wall *area* (m^2: cell length x
+angle x the ring's mean radius, :meth:`~c3f_slam.coverage.wall.WallModel.areas`) over the explored
 segment (arc length 0 .. the farthest camera position); segments are ``segment`` metres of
 centreline from the first camera position (the last one ends with the explored segment).
 """

@@ -6,7 +6,7 @@ The wall is ``r(s, theta)``: the distance from the centreline at arc length ``s`
 (mesh vertices and triangle centroids) that fall into each cell; cells without any (wall
 that was never reconstructed) are interpolated: along the centreline across short gaps,
 then around it, then along it again. The mean colour of the points is kept per cell for the
-unrolled map. Lengths in metres, areas in m^2.
+unrolled map. Lengths in metres, areas in m^2 (of the unrolled wall: :meth:`WallModel.areas`).
 """
 
 from __future__ import annotations
@@ -63,11 +63,11 @@ class WallModel:
         return np.where(self.measured[..., None], self.anchors, self.points())
 
     def areas(self) -> np.ndarray:
-        """(S, A) wall area of each cell (m^2), from the tangents of the fitted surface."""
-        P = self.points()
-        dP_ds = np.gradient(P, self.cell_length, axis=0)
-        dP_dt = (np.roll(P, -1, axis=1) - np.roll(P, 1, axis=1)) / (2 * self.cell_angle)
-        return np.linalg.norm(np.cross(dP_ds, dP_dt), axis=-1) * self.cell_length * self.cell_angle
+        """(S, A) area of each cell on the unrolled wall (m^2): cell length x angle x the mean
+        radius of its ring. Folds are not unfolded: a fold's flanks, whose true area the
+        reconstruction cannot know where they were never seen, weigh as the wall they stand on."""
+        ring = np.mean(self.radius, axis=1, keepdims=True)
+        return np.broadcast_to(ring * self.cell_length * self.cell_angle, self.shape).copy()
 
 
 def surface_samples(mesh: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.ndarray | None]:

@@ -206,7 +206,8 @@ class SlamConfig:
     def preset_config(cls, name: str = "colon", **overrides: Any) -> SlamConfig:
         """Defaults for ``colon`` (mm scale) or ``room`` (cm scale; fusion settles after 1 m,
         spatial keyframe candidates within 1 m instead of 2 cm, keyframe reuse within 25 cm
-        of the odometry instead of 5 mm), with ``overrides`` (parts as dicts of fields)."""
+        of the odometry instead of 5 mm, no unseen-wall estimate: a room is no tube), with
+        ``overrides`` (parts as dicts of fields)."""
         _check(name in PRESETS, f"--preset must be one of {PRESETS}, got {name!r}")
         room = name == "room"
         base = cls(
@@ -216,6 +217,7 @@ class SlamConfig:
             match_filter=MatchFilterConfig.preset(name),
             posegraph=POSEGRAPH_PRESETS[name],
             fusion=FusionConfig(eps_cf_d=1.0 if room else 0.05, tsdf=TSDF_PRESETS[name]),
+            coverage=CoverageConfig(enabled=not room),  # the wall model is a tube's
         )
         return base.with_(**overrides)
 
