@@ -11,8 +11,10 @@ defaults (and with ``--min-correspondences 15``, what README used to pass, with
 
 Pace: the paper's sequences cross the 1.25 m colon in 4,500 frames (~0.28 mm per frame);
 pace p travels ``p x frames / 4500`` of it (``path.coverage``). Events are placed per 1000
-frames and their windows are a fraction of the sequence, capped at 45 frames: use at least
-1,500 frames for event timing like the paper-length sequences.
+frames; their ramps keep the simulator's rate limits (``path.max_turn_rate`` 120 deg/s,
+``path.max_event_speed`` 6 cm/s at 30 fps; ``--events unbounded`` also runs the former
+timing, ramps fixed in frames, close-ups turning up to ~38 deg per frame).
+``--depth-model`` adds a run on predicted depth.
 
     python -m benchmarks.slam_tracking --presets seq1 seq3 seq2 --seeds 1 2 --paces 1 3 \\
         --frames 1500 --sizes 128 --work /tmp/slam_tracking --baseline /tmp/before
@@ -21,6 +23,7 @@ frames and their windows are a fraction of the sequence, capped at 45 frames: us
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import subprocess
@@ -38,6 +41,8 @@ from c3f_slam.trajectory_metrics import evaluate_trajectory
 from datamodules.synthetic.generate import read_event_labels
 
 PAPER_FRAMES = 4500  #: frames of the paper's sequences over the whole colon
+#: simulator overrides per event timing (``--events``)
+EVENT_TIMINGS = {"bounded": (), "unbounded": ("path.max_turn_rate=none", "path.max_event_speed=none")}
 
 
 @dataclass(frozen=True)
@@ -52,7 +57,8 @@ class Variant:
 def run_variant(v: Variant, seq: Path, out: Path) -> dict:
     """Run the CLI of ``v`` on ``seq`` into ``out`` (replaced) and return its summary plus the
     ATE against the sequence's ground truth (None where nothing registered)."""
-    cmd = [sys.executable, "-m", "c3f_slam", "run", str(seq), "--depth-source", "files", "--descriptors", "sift",
+    depth = () if "--depth-model" in v.options else ("--depth-source", "files")
+    cmd = [sys.executable, "-m", "c3f_slam", "run", str(seq), *depth, "--descriptors", "sift",
            "--no-mesh", "--quiet", "--overwrite", "--out", str(out), *v.options]
     env = {**os.environ, "PYTHONPATH": str(v.checkout)}
     proc = subprocess.run(cmd, cwd=v.checkout, env=env, capture_output=True, text=True)
@@ -96,29 +102,32 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--baseline", type=Path, help="checkout of the code to compare with (run from its folder)")
     ap.add_argument("--baseline-tuned", action="store_true",
                     help="also run the baseline with --min-correspondences 15 (README's former advice)")
+    ap.add_argument("--events", nargs="+", choices=sorted(EVENT_TIMINGS), default=["bounded"],
+                    help="bounded: the simulator's event ramps within path.max_turn_rate / max_event_speed (its "
+                         "defaults); unbounded: ramps fixed in frames (the simulator before the bounds)")
+    ap.add_argument("--depth-model", type=Path, help="also run with predicted depth from this DepthNet ONNX")
     ap.add_argument("--report", type=Path, default=RESULTS / "slam_tracking.md")
     a = ap.parse_args(argv)
     variants = [Variant("this code, defaults", ROOT)]
+    if a.depth_model:
+        variants.append(Variant("this code, predicted depth", ROOT, ("--depth-model", str(a.depth_model.resolve()))))
     if a.baseline:
         variants.append(Variant("before, defaults", a.baseline))
         if a.baseline_tuned:
             variants.append(Variant("before, --min-correspondences 15", a.baseline, ("--min-correspondences", "15")))
     lines = ["| sequence | events % | code | min corr. | registered % of usable | ATE Sim(3) cm | ATE % of path "
              "| path cm | breaks / re-joined | frames/s |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for size in a.sizes:
-        for pace in a.paces:
-            for preset in a.presets:
-                for seed in a.seeds:
-                    cov = min(1.0, pace * a.frames / PAPER_FRAMES)
-                    spec = SimSequence(preset, seed, a.frames, size, (f"path.coverage={cov:.4f}",))
-                    name = f"{preset}_s{seed}_{size}px_pace{pace:g}"
-                    seq = ensure_sequence(spec, a.work / name, echo=True)
-                    events = read_event_labels(seq)
-                    ev_share = sum(1 for e in events if e) / max(len(events), 1)
-                    for k, v in enumerate(variants):
-                        s = run_variant(v, seq, a.work / "runs" / f"{name}_{k}")
-                        lines.append(row(name, v, s, ev_share))
-                        print(lines[-1], flush=True)
+    for timing, size, pace, preset, seed in itertools.product(a.events, a.sizes, a.paces, a.presets, a.seeds):
+        cov = min(1.0, pace * a.frames / PAPER_FRAMES)
+        spec = SimSequence(preset, seed, a.frames, size, (f"path.coverage={cov:.4f}", *EVENT_TIMINGS[timing]))
+        name = f"{preset}_s{seed}_{size}px_pace{pace:g}" + ("" if timing == "bounded" else "_unbounded")
+        seq = ensure_sequence(spec, a.work / name, echo=True)
+        events = read_event_labels(seq)
+        ev_share = sum(1 for e in events if e) / max(len(events), 1)
+        for k, v in enumerate(variants):
+            s = run_variant(v, seq, a.work / "runs" / f"{name}_{k}")
+            lines.append(row(name, v, s, ev_share))
+            print(lines[-1], flush=True)
     rep = Report(__file__, "Tracking at default settings on sequences with events")
     body = [f"- {a.frames} frames per sequence; pace 1 = the paper's (1.25 m in {PAPER_FRAMES} frames); "
             "ground-truth depth, SIFT, no mesh; events on (the presets' rates).",

@@ -71,6 +71,17 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--reuse-keyframes", action=argparse.BooleanOptionalAction, default=None,
                    help="hang a fragment that revisits a mapped place off that place's keyframe instead of adding a "
                         "keyframe (memory stays flat on long revisiting streams; SlamConfig.reuse_keyframes)")
+    r.add_argument("--dense-fallback", action=argparse.BooleanOptionalAction, default=None,
+                   help="where sparse matching to the previous frame fails, align the two frames densely (Open3D "
+                        "RGB-D odometry, verified on its residuals) and add a low-trust, prunable fallback edge "
+                        "(default off: inaccurate on the simulator's colon frames; SlamConfig.fallback.dense)")
+    r.add_argument("--guided-matching", action=argparse.BooleanOptionalAction, default=None,
+                   help="where sparse matching to the previous frame fails, match again near where the last "
+                        "motion puts each keypoint (default on; SlamConfig.fallback.guided)")
+    r.add_argument("--component-min-frames", type=int,
+                   help="every component of the map that could not be joined to the main map and has at least N "
+                        "registered frames gets its own trajectory and mesh in OUT/components/NN/ (the 8 largest; "
+                        "default 30); 0 or negative = none")
     r.add_argument("--blas-threads", type=int,
                    help="BLAS threads NumPy may use during the run (default 1: the runtime's matrices are small); "
                         "0 = the BLAS library's own setting")
@@ -121,6 +132,12 @@ def _overrides(args: argparse.Namespace) -> dict:
         over["keyframes"]["max_loop_edges"] = args.max_loop_edges_per_keyframe or None
     if args.reuse_keyframes is not None:
         over["keyframes"]["reuse"] = args.reuse_keyframes
+    if args.dense_fallback is not None:
+        over.setdefault("fallback", {})["dense"] = args.dense_fallback
+    if args.guided_matching is not None:
+        over.setdefault("fallback", {})["guided"] = args.guided_matching
+    if args.component_min_frames is not None:
+        over["components"] = {"min_frames": max(args.component_min_frames, 0)}
     out: dict = {part: fields for part, fields in over.items() if fields}
     if args.blas_threads is not None:
         _check(args.blas_threads >= 0, f"--blas-threads must be >= 0, got {args.blas_threads}")
@@ -151,6 +168,11 @@ def _run(args: argparse.Namespace) -> int:
           f"{s.get('fragments', 0)} fragments, {s.get('loop_edges', 0)} loop edges, "
           f"{s.get('pruned_edges', 0)} pruned, {fps or 0:.1f} frames/s"
           + (f", unseen wall {100 * unseen:.1f} %" if unseen is not None else "") + f" -> {args.out}")
+    written = [c for c in s.get("components", []) if not c["main"] and c["files"]]
+    if written:
+        print(f"{len(written)} part(s) not joined to the main map written to {args.out}/components/: "
+              + ", ".join(f"{c['id']:02d} ({c['frames']} frames, {c['first_frame']}-{c['last_frame']})"
+                          for c in written))
     return 0
 
 

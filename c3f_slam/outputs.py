@@ -13,6 +13,8 @@ Layout of an output folder (:class:`RunOutputs`)::
       coverage.json         unseen share of the wall, overall and per segment (c3f_slam.pipeline.coverage_stage)
       coverage_map.png      the unrolled wall, unseen parts flagged
       unseen.ply            mesh.ply with the unseen wall added as painted patches
+      components/NN/        a component not joined to the main map (c3f_slam.pipeline.components):
+                            trajectory.txt and mesh.ply in its own world frame
 
 A run folder holds one run: ``c3f_slam run`` builds it in a hidden sibling
 (``.OUT.partial-XXXX``) and moves it into place when the run ends, successfully or not
@@ -35,6 +37,8 @@ from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write, atomic_write_text, move_into_place, staging_dir
 from c3f_slam.io.tum import write_tum
 from c3f_slam.posegraph import PoseGraph
+
+COMPONENTS_DIR = "components"  #: folder of the components beside the main map (RunOutputs.component)
 
 
 def to_jsonable(obj):
@@ -152,8 +156,8 @@ class KeyframeGraph:
 def draw_keyframe_graph(path: str | Path, graph: KeyframeGraph, title: str = "keyframe graph") -> None:
     """PNG top view (x vs z, cm) of keyframes and their edges, drawn with matplotlib only.
 
-    Odometry edges grey, loop edges blue, edges across tracking breaks (rejoin) green, pruned
-    edges dashed red; lone keyframes hollow.
+    Odometry edges grey, loop edges blue, edges across tracking breaks (rejoin) green, dense
+    fallback edges orange, pruned edges dashed red; lone keyframes hollow.
     """
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
@@ -162,7 +166,8 @@ def draw_keyframe_graph(path: str | Path, graph: KeyframeGraph, title: str = "ke
     ax = fig.add_subplot(1, 1, 1)
     pos = {n.id: np.asarray(n.position) * 100.0 for n in graph.nodes}
     styles = {"odometry": dict(color="0.5", lw=1.0, ls="-"), "loop": dict(color="tab:blue", lw=0.8, ls="-"),
-              "rejoin": dict(color="tab:green", lw=1.2, ls="-")}
+              "rejoin": dict(color="tab:green", lw=1.2, ls="-"),
+              "fallback": dict(color="tab:orange", lw=1.2, ls="-")}
     # one LineCollection per style (a plot call per edge takes minutes on big graphs)
     pruned_style = dict(color="tab:red", lw=0.8, ls="--")
     groups: dict[str, list] = {}
@@ -288,6 +293,10 @@ class RunOutputs:
     @property
     def unseen_mesh(self) -> Path:
         return self.root / "unseen.ply"
+
+    def component(self, n: int) -> RunOutputs:
+        """The files of component ``n`` (>= 1) beside the main map: ``components/NN/``."""
+        return RunOutputs(self.root / COMPONENTS_DIR / f"{n:02d}")
 
     def write_trajectory(self, stamps: np.ndarray, poses: np.ndarray, registered: np.ndarray | None = None) -> int:
         return write_trajectory(self.trajectory, stamps, poses, registered)

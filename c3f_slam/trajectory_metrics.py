@@ -202,6 +202,12 @@ def frame_motion(poses: np.ndarray, delta: int = 1) -> RPEResult:
     return RPEResult(delta, ErrorStats.of(trans), ErrorStats.of(rot))
 
 
+def path_length(positions: np.ndarray) -> float:
+    """Length (metres) of the polyline through ``positions`` (N, 3), in order; 0 for N < 2."""
+    P = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    return float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
+
+
 def registered_share(n_registered: int, n_frames: int) -> float:
     """Share of input frames that ended up registered (in the main component), in [0, 1]."""
     if n_frames <= 0:
@@ -235,7 +241,7 @@ def evaluate_trajectory(
     out["ate_sim3"] = a_sim3.as_dict()
     out["ate_se3"] = a_se3.as_dict()
     out["rpe"] = rpe(E, G, rpe_delta, scale=a_sim3.scale).as_dict()
-    out["gt_length_m"] = float(np.linalg.norm(np.diff(G[:, :3, 3], axis=0), axis=1).sum())
+    out["gt_length_m"] = path_length(G[:, :3, 3])
     return out
 
 

@@ -54,12 +54,20 @@ class PlaceWorld:
         n = N_POINTS - abs(pa - pb) if self.graded else N_POINTS
         return PairMatch(g.relative_pose(self.poses[pa], self.poses[pb]), self.pts[:n].astype(float), n), n
 
+    def guided(self, a: FrameFeatures, b: FrameFeatures, T_prior: np.ndarray, radius_px: float
+               ) -> tuple[PairMatch | None, int]:
+        """Guided matching in this world: exact, the prior changes nothing (:meth:`match`)."""
+        return self.match(a, b)
+
+    def use(self, slam: FragmentSlam) -> FragmentSlam:
+        """``slam`` with this world's matchers (plain and guided)."""
+        slam.match, slam.recovery.guided = self.match, self.guided
+        return slam
+
 
 def keyframe_per_frame_slam(world: PlaceWorld, **over) -> FragmentSlam:
     """A FragmentSlam on ``world``'s matcher in which every frame opens a fragment (no frame
     reaches 10^6 correspondences): one keyframe per frame. ``over``: SlamConfig parts (dicts)."""
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
                                    **over)
-    slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
-    slam.match = world.match
-    return slam
+    return world.use(FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3)))

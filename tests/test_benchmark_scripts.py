@@ -190,3 +190,24 @@ def test_report_rewrites_only_its_generated_section(tmp_path):
     plain.write_text(plain.read_text() * 2)
     with pytest.raises(SystemExit, match="plain.md: holds 2 generated report sections"):
         report.write(plain, first)
+
+
+def test_fallback_pairs_compares_plain_guided_and_dense(tmp_path):
+    """benchmarks/slam_fallback_pairs.py's pair table on a tiny 128 px sequence (every pair tried):
+    plain matching links every pair of the slow insertion, guided matching from the last
+    motion finds matches too, the dense odometry's verdict is one of the fallback's outcomes,
+    and the errors are against the true motion."""
+    import numpy as np
+
+    from benchmarks.slam_fallback_pairs import pair_rows, summary_line
+    from c3f_slam.io import Sequence
+    from datamodules.synthetic.fixture import make_tiny_sequence
+
+    rows = pair_rows(Sequence(make_tiny_sequence(tmp_path / "seq", frames=8, size=128, seed=3)), step=1)
+    assert len(rows) == 7 and not any(r["plain_failed"] for r in rows)
+    assert all(r["guided"][0] >= 10 for r in rows), [r["guided"] for r in rows]
+    assert {r["dense"][0] for r in rows} <= {"accepted", "no_convergence", "implausible_motion", "low_overlap",
+                                             "photometric_residual"}
+    motion = np.array([r["motion"][0] for r in rows])
+    assert (motion > 1.0).all() and (np.array([r["plain"][1] for r in rows]) < 0.5 * motion).all()
+    assert summary_line("tiny", rows).startswith("| tiny | 7 | 0 | 0 |")

@@ -226,6 +226,33 @@ def test_event_labels_cover_the_fast_motion():
     assert rot[~plain].max() > 2 * rot[plain].max()
 
 
+def test_event_ramps_keep_the_rate_limits():
+    """Ramps lengthen until events turn the view at most ``path.max_turn_rate`` deg/s and move at most
+    ``path.max_event_speed`` m/s (bursts excepted) at the path's fps; without limits (None) the
+    ramps keep their length in frames and close-ups turn several times faster."""
+    colon = build_colon(ColonParams(length=0.4, polyps=0), stream(5, 1))
+    scene = make_scene(colon)
+    events = {"path.frames": 600, "path.coverage": 0.3, "path.closeups": 6, "path.bursts": 4,
+              "path.occlusions": 6, "path.roll_events": 4}
+    rot_max = {}
+    for limits in ({}, {"path.max_turn_rate": None, "path.max_event_speed": None}):
+        p = apply_overrides(SimParams(), {**events, **limits}).path
+        path = plan_path(colon, p, stream(5, 4), scene)
+        trans, rot = relative_motion(path.poses)
+        label = [path.labels[i] or path.labels[i + 1] for i in range(len(rot))]
+        fast = {k: (max(r for r, x in zip(rot, label) if x == k),
+                    max(t for t, x in zip(trans, label) if x == k)) for k in set(label) if k}
+        rot_max[bool(limits)] = fast["closeup"][0]
+        if not limits:
+            assert {"closeup", "burst", "occluded", "roll"} <= set(fast), fast
+            plain_rot = max(r for r, x in zip(rot, label) if not x)
+            for k, (deg, metres) in fast.items():  # 120 deg/s = 4 deg/frame, 6 cm/s = 2 mm/frame at 30 fps
+                assert deg < 1.2 * max(4.0, plain_rot), (k, deg)
+                if k in ("closeup", "occluded"):
+                    assert metres < 1.3 * 0.002 + max(t for t, x in zip(trans, label) if not x), (k, metres)
+    assert rot_max[True] > 2.5 * rot_max[False], rot_max
+
+
 def test_read_event_labels(tiny, tmp_path):
     """frames.csv's event column in frame order: the tiny fixture has no events; a missing file gives []."""
     assert read_event_labels(tiny) == [""] * len(Sequence(tiny))
@@ -239,7 +266,7 @@ def test_events_look_like_what_they_claim(tmp_path):
     """Close-up and fold-occlusion frames see the wall much nearer than plain frames."""
     p = apply_overrides(tiny_params(frames=90, size=48, seed=2), {
         "colon.length": 0.35, "path.kind": "random", "path.closeups": 25, "path.occlusions": 25,
-        "path.max_step": 0.003})
+        "path.max_step": 0.003, "path.max_turn_rate": None, "path.max_event_speed": None})  # short ramps: 90 frames
     scene = build_scene(p)
     cam = scene.camera
     med = {}

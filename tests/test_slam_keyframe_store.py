@@ -150,11 +150,11 @@ def test_run_slam_identical_and_cache_removed(seq, tmp_path):
     seen = {}
 
     class Spy(FragmentSlam):
-        def add(self, feat, depth):
+        def add(self, feat, depth, rgb=None):
             seen["on_disk"] = self.keyframes.on_disk
             seen["file"] = seen.get("file") or (self.keyframes.folder is not None
                                                 and (self.keyframes.folder / DATA_FILE).is_file())
-            return super().add(feat, depth)
+            return super().add(feat, depth, rgb)
 
     outs = {}
     for cache in (True, False):
@@ -177,12 +177,12 @@ def test_run_slam_removes_cache_on_error(seq, tmp_path):
     out = tmp_path / "boom"
 
     class Boom(FragmentSlam):
-        def add(self, feat, depth):
+        def add(self, feat, depth, rgb=None):
             if len(self.keyframes) >= 2:  # the cache is in the run being built (beside OUT)
                 assert self.keyframes.folder.name == CACHE_DIR and self.keyframes.folder.parent.parent == tmp_path
                 assert (self.keyframes.folder / DATA_FILE).stat().st_size > 0
                 raise RuntimeError("planted failure")
-            return super().add(feat, depth)
+            return super().add(feat, depth, rgb)
 
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False})
     with pytest.raises(RuntimeError, match="planted failure"):

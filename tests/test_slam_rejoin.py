@@ -24,7 +24,7 @@ def _run(world: PlaceWorld, places: list[int], **rejoin) -> FragmentSlam:
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
                                    rejoin=rejoin)
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
-    slam.match = world.match
+    world.use(slam)
     for i, place in enumerate(places):
         slam.add(world.frame(i, place), np.full((8, 8), 0.03))
     slam.finish()

@@ -24,7 +24,7 @@ def _slam(world: PlaceWorld, reuse: bool, candidates: dict | None = None, **keyf
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
                                    keyframes={"reuse": reuse, **keyframes}, candidates=candidates or {})
     slam = FragmentSlam(cfg, K)
-    slam.match = world.match
+    world.use(slam)
     return slam
 
 

@@ -40,6 +40,7 @@ def mutual_nearest_neighbours(
     metric: str = "cosine",
     ratio: float | None = None,
     max_distance: float | None = None,
+    allowed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Mutual nearest neighbours between two descriptor sets.
 
@@ -49,6 +50,9 @@ def mutual_nearest_neighbours(
         ratio: optional Lowe ratio test: keep a match when its distance is below
             ``ratio`` x the distance to the second-nearest neighbour (in j).
         max_distance: optional absolute distance cap.
+        allowed: optional (N_i, N_j) bool mask of the pairs that may match (guided matching:
+            the pairs near where a motion prior puts them); the nearest neighbours and the
+            ratio test's second neighbour are taken among the allowed pairs only.
 
     Returns:
         (M, 2) int64 matches (index in i, index in j), sorted by distance (best first), and
@@ -58,6 +62,8 @@ def mutual_nearest_neighbours(
     if n_i == 0 or n_j == 0:
         return np.zeros((0, 2), np.int64), np.zeros(0, np.float32)
     dist = descriptor_distances(desc_i, desc_j, metric)
+    if allowed is not None:
+        dist = np.where(allowed, dist, np.inf)
     nn_ij = dist.argmin(axis=1)
     nn_ji = dist.argmin(axis=0)
     a = np.arange(n_i)
@@ -69,6 +75,8 @@ def mutual_nearest_neighbours(
         keep = keep & (d_best < ratio * second)
     if max_distance is not None:
         keep = keep & (d_best <= max_distance)
+    if allowed is not None:
+        keep = keep & np.isfinite(d_best)
     a = a[keep]
     matches = np.stack([a, nn_ij[keep]], axis=1).astype(np.int64)
     d = d_best[keep].astype(np.float32)

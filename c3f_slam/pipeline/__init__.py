@@ -7,7 +7,9 @@
 - :mod:`.slam`: the full back-end (fragments + global keyframe graph), built from
   :mod:`.fragments` (the new-fragment rule, intra-fragment graphs), :mod:`.retrieval`
   (keyframe candidates), :mod:`.keyframe_edges` (edge cap, placing a keyframe),
-  :mod:`.reuse` (revisits), :mod:`.schedule` (global optimisation), :mod:`.keyframe_store`;
+  :mod:`.reuse` (revisits), :mod:`.rejoin` (tracking breaks), :mod:`.schedule` (global
+  optimisation), :mod:`.keyframe_store`;
+- :mod:`.components`: the components of the map beside the main one (``OUT/components/``);
 - :mod:`.odometry`: the frame-to-frame baseline back-end;
 - :mod:`.fusion_frames`: where fusion re-reads frames (sequence files, or the predicted-depth cache);
 - :mod:`.run`: :func:`run_slam` and the :class:`SlamRun` that owns a run's resources;

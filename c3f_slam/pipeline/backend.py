@@ -18,14 +18,16 @@ from typing import Protocol
 import numpy as np
 
 from c3f_slam.outputs import KeyframeGraph
+from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures
 
 
 class Timings:
-    """Seconds per stage (io, depth, keypoints incl. descriptors, matching, posegraph, fusion)."""
+    """Seconds per stage (io, depth, keypoints incl. descriptors, matching, the dense fallback,
+    posegraph, fusion)."""
 
-    STAGES = ("io", "depth", "keypoints", "matching", "posegraph", "fusion")
+    STAGES = ("io", "depth", "keypoints", "matching", "fallback", "posegraph", "fusion")
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
@@ -98,8 +100,9 @@ class SlamBackend(Protocol):
     def skip(self, index: int, stamp: float) -> None:
         """A streamed frame that was not processed (black / saturated / featureless)."""
 
-    def add(self, feat: FrameFeatures, depth: np.ndarray) -> tuple[int, bool]:
-        """Process one frame; (fragment id for fusion, -1 = not placed; opened a new fragment)."""
+    def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
+        """Process one frame (``rgb``: its image, for back-ends that align images); (fragment id
+        for fusion, -1 = not placed; opened a new fragment)."""
 
     def pose_of_log(self, row: int) -> np.ndarray | None:
         """Camera-to-world pose of log row ``row`` now (None when unregistered)."""
@@ -115,6 +118,10 @@ class SlamBackend(Protocol):
 
     def finish(self) -> None:
         """End of the stream: close what is open, final optimisation."""
+
+    def components(self) -> list[MapComponent]:
+        """After :meth:`finish`: every connected component with its frames, the main map
+        first, then by frames (:mod:`c3f_slam.pipeline.components`)."""
 
     def close(self) -> None:
         """Free files and folders (always called, also after errors)."""

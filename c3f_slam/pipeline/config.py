@@ -4,7 +4,10 @@ All lengths are metres, angles degrees. :class:`SlamConfig` holds one small froz
 per part: ``frontend`` (keypoints, ratio test), ``fragments`` (the new-fragment rule),
 ``candidates`` (:mod:`c3f_slam.pipeline.retrieval`), ``keyframes`` (what a keyframe keeps,
 revisits: :mod:`c3f_slam.pipeline.reuse`), ``rejoin`` (bridging tracking breaks:
-:mod:`c3f_slam.pipeline.rejoin`), ``optimization`` (the global schedule:
+:mod:`c3f_slam.pipeline.rejoin`), ``fallback`` (guided and dense matching where sparse
+matching fails: :mod:`c3f_slam.pipeline.fallback`), ``components`` (the components written
+beside the main map:
+:mod:`c3f_slam.pipeline.components`), ``optimization`` (the global schedule:
 :mod:`c3f_slam.pipeline.schedule`), ``fusion``, ``coverage`` (the unseen-surface estimate:
 :mod:`c3f_slam.coverage`), plus the match filter and pose-graph
 settings of :mod:`c3f_slam.matching` and :mod:`c3f_slam.posegraph`. Each part validates
@@ -132,6 +135,72 @@ class RejoinConfig:
 
 
 @dataclass(frozen=True)
+class FallbackConfig:
+    """What is tried where sparse matching found no accepted match to the previous frame
+    (:mod:`c3f_slam.pipeline.fallback`).
+
+    ``guided`` (on): match again with the last inter-frame motion as a prior, each keypoint
+    only against the keypoints near where the prior puts it (search by projection), through the
+    same match filter; an accepted match is an ordinary odometry link. ``dense`` (off): align
+    the frames with Open3D's RGB-D odometry, verified on its residuals; its edge is an
+    uncertain ``fallback`` edge whose information is ``trust`` x that of its verified points,
+    and keyframe matches that reach across it re-place the side after it, so that the pose
+    graph prunes a wrong one. Off by default: on the simulator's colon frames Open3D's dense
+    odometry is off by about the inter-frame motion itself, and such results pass the
+    residual checks (benchmarks/results/slam_tracking.md).
+    """
+
+    guided: bool = True
+    guided_radius: float = 0.05  #: search radius around the predicted pixel, share of the smaller image side
+    dense: bool = False
+    trust: float = 0.05  #: information of a dense edge relative to sparse inliers at the same points
+    points: int = 300  #: verified points (evenly subsampled) that make its information
+    max_step: float = 0.01  #: metres: a larger aligned motion between consecutive frames is rejected ...
+    max_turn_deg: float = 15.0  #: ... as is a larger rotation (degrees)
+    min_inlier_share: float = 0.6  #: of the frame's valid depth pixels that must land on the previous frame ...
+    max_depth_residual: float = 0.05  #: ... with |depth difference| below this share of the depth ...
+    max_photometric_rmse: float = 0.06  #: ... and an intensity RMSE (0..1 grey) below this
+
+    def __post_init__(self) -> None:
+        _check(0 < self.guided_radius <= 1, f"fallback.guided_radius must be in (0, 1], got {self.guided_radius}")
+        _check(0 < self.trust <= 1, f"fallback.trust must be in (0, 1], got {self.trust}")
+        _at_least(self.points, 6, "fallback.points")
+        _check(self.max_step > 0 and 0 < self.max_turn_deg <= 180,
+               f"fallback.max_step must be > 0 (metres) and fallback.max_turn_deg in (0, 180], "
+               f"got {self.max_step}, {self.max_turn_deg}")
+        _check(0 < self.min_inlier_share <= 1 and self.max_depth_residual > 0 and self.max_photometric_rmse > 0,
+               "fallback.min_inlier_share must be in (0, 1], fallback.max_depth_residual and "
+               f"fallback.max_photometric_rmse > 0, got {self.min_inlier_share}, {self.max_depth_residual}, "
+               f"{self.max_photometric_rmse}")
+
+
+@dataclass(frozen=True)
+class ComponentConfig:
+    """What becomes of the components that could not be joined to the main map
+    (:mod:`c3f_slam.pipeline.components`; frames = registered frames of a component)."""
+
+    #: a component other than the main map with at least this many frames is optimised, fused
+    #: and written to OUT/components/NN/; 0 = none is (``--component-min-frames``)
+    min_frames: int = 30
+    max_written: int = 8  #: at most this many of them, the largest ones
+
+    def __post_init__(self) -> None:
+        _at_least(self.min_frames, 0, "components.min_frames")
+        _at_least(self.max_written, 0, "components.max_written")
+
+    def writes(self, frames: int, rank: int) -> str | None:
+        """Why a component with ``frames`` frames, the ``rank``-th largest besides the main map
+        (from 1), is not written (None: it is)."""
+        if self.min_frames <= 0:
+            return "off"
+        if frames < self.min_frames:
+            return "below_min_frames"
+        if rank > self.max_written:
+            return "over_max_written"
+        return None
+
+
+@dataclass(frozen=True)
 class OptimizationConfig:
     """When and how much of the global graph is optimised (:mod:`c3f_slam.pipeline.schedule`)."""
 
@@ -160,8 +229,8 @@ class FusionConfig:
 
 
 #: parts of :class:`SlamConfig` that overrides may give as dicts of their fields
-SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "optimization", "match_filter",
-            "posegraph", "fusion", "coverage")
+SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "fallback", "components",
+            "optimization", "match_filter", "posegraph", "fusion", "coverage")
 
 #: overrides that restore the paper's literal rules at any map size: every new keyframe matched
 #: against all keyframes, all its accepted matches kept, the whole component optimised after
@@ -184,6 +253,8 @@ class SlamConfig:
     candidates: CandidateConfig = field(default_factory=CandidateConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     rejoin: RejoinConfig = field(default_factory=RejoinConfig)
+    fallback: FallbackConfig = field(default_factory=FallbackConfig)
+    components: ComponentConfig = field(default_factory=ComponentConfig)
     optimization: OptimizationConfig = field(default_factory=OptimizationConfig)
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
     posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])
@@ -214,6 +285,7 @@ class SlamConfig:
             preset=name,
             candidates=CandidateConfig(spatial_radius=1.0 if room else 0.02),
             keyframes=KeyframeConfig(reuse_max_offset=0.25 if room else 0.005),
+            fallback=FallbackConfig(max_step=0.1 if room else 0.01),
             match_filter=MatchFilterConfig.preset(name),
             posegraph=POSEGRAPH_PRESETS[name],
             fusion=FusionConfig(eps_cf_d=1.0 if room else 0.05, tsdf=TSDF_PRESETS[name]),

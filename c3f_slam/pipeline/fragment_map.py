@@ -5,7 +5,12 @@ closed, the node it hangs off and its node-from-frame pose), the global keyframe
 (camera-to-world node poses, metres), the stored keyframes and their appearance index, which
 node each fragment hangs off, and the active fragment. Queries: which fragments are registered
 (their node in the main component), each frame's world pose, the trajectory, the keyframe
-graph and the counters for summary.json. :class:`FragmentSlam` adds the per-frame tracking.
+graph, the components (:meth:`FragmentMap.components`) and the counters for summary.json.
+:class:`FragmentSlam` adds the per-frame tracking.
+
+The main component is, while the stream runs, the one with the most keyframes (O(1) to keep,
+:class:`~c3f_slam.posegraph.PoseGraph`); at the end (:meth:`FragmentMap.choose_main`) the one
+with the most registered frames.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import numpy as np
 
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog
+from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fragments import Fragment
 from c3f_slam.pipeline.keyframe_store import KeyframeStore
@@ -60,15 +66,60 @@ class FragmentMap:
         self.schedule = OptimizationSchedule(cfg.optimization, cfg.posegraph, self.graph)
         self.active: Fragment | None = None
         self._last_row = -1  # log row of the last placed frame
+        self._main_node = -1  # once chosen (choose_main): a node of the main component
+
+    def _node_in_main(self, node: int) -> bool:
+        """``node`` lies in the main component (the graph's, until :meth:`choose_main`); O(1)."""
+        if self._main_node < 0:
+            return self.graph.in_main(node)
+        return 0 <= node < self.graph.n_nodes and self.graph.connected(node, self._main_node)
 
     def main_fragments(self) -> set[int]:
         """Fragments whose node is in the main component (a new set, O(fragments))."""
-        in_main = self.graph.in_main
+        in_main = self._node_in_main
         return {f for f, node in enumerate(self.frag_node) if in_main(node)}
 
     def in_main(self, fid: int) -> bool:
         """Fragment ``fid`` is registered (its node is in the main component); O(1)."""
-        return self.graph.in_main(self.frag_node[fid])
+        return self._node_in_main(self.frag_node[fid])
+
+    def _frame_groups(self) -> list[tuple[int, np.ndarray]]:
+        """Per component of the graph with a placed frame: (its oldest node, the log rows of
+        its frames in stream order), by frames (most first; ties: the oldest node first)."""
+        fragment = self._log_fragments()
+        rows = np.flatnonzero(fragment >= 0)
+        if not len(rows):
+            return []
+        oldest = np.array([self.graph.component_oldest(k) for k in range(self.graph.n_nodes)], np.int64)
+        row_comp = oldest[np.asarray(self.frag_node, np.int64)[fragment[rows]]]
+        order = np.argsort(row_comp, kind="stable")  # by component, stream order within
+        labels, starts = np.unique(row_comp[order], return_index=True)
+        groups = [(int(c), rows[part]) for c, part in zip(labels.tolist(), np.split(order, starts[1:]))]
+        return sorted(groups, key=lambda g: (-len(g[1]), g[0]))
+
+    def _log_fragments(self) -> np.ndarray:
+        """Fragment id per log row (-1: not placed), a copy (a view would pin the log's array)."""
+        return np.frombuffer(self.log.fragment, dtype=np.int64).copy() if len(self.log) else np.zeros(0, np.int64)
+
+    def choose_main(self) -> int:
+        """Make the component with the most registered frames the main one (ties: the one
+        with the oldest keyframe); returns its oldest node (-1 without frames)."""
+        groups = self._frame_groups()
+        self._main_node = groups[0][0] if groups else -1
+        return self._main_node
+
+    def components(self) -> list[MapComponent]:
+        """Every component with its frames and their current poses (camera-to-world, in
+        the component's world frame), by frames (after :meth:`finish`, which chose it, the
+        main one first). Call it after :meth:`finish` (every fragment closed); O(frames)."""
+        out = []
+        fragment = self._log_fragments()
+        for node, rows in self._frame_groups():
+            poses = np.stack([self.graph.pose(self.log.node[r]) @ self.log.node_pose(r) for r in rows.tolist()])
+            members = self.graph.component_nodes(node)
+            frags = frozenset(fragment[rows].tolist())
+            out.append(MapComponent(rows, poses, frags, len(members)))
+        return out
 
     def pose_of_log(self, row: int) -> np.ndarray | None:
         """World pose of the frame in log row ``row`` (None when unregistered)."""
@@ -76,10 +127,10 @@ class FragmentMap:
             return None
         node = self.log.node[row]
         if node >= 0:  # its fragment is closed
-            return self.graph.pose(node) @ self.log.node_pose(row) if self.graph.in_main(node) else None
+            return self.graph.pose(node) @ self.log.node_pose(row) if self._node_in_main(node) else None
         act = self.active  # a frame of the active fragment
         assert act is not None and act.id == self.log.fragment[row]
-        if not self.graph.in_main(act.node):
+        if not self._node_in_main(act.node):
             return None
         return self.graph.pose(act.node) @ act.node_pose(self.log.local[row])
 
@@ -118,7 +169,7 @@ class FragmentMap:
             return None
         return KeyframeGraph.from_posegraph(
             pg, self.keyframes.frame_indices.tolist(), self.keyframes.timestamps.tolist(),
-            lone={k for k in range(pg.n_nodes) if not pg.in_main(k)}, fragments=self.node_fragment.tolist())
+            lone={k for k in range(pg.n_nodes) if not self._node_in_main(k)}, fragments=self.node_fragment.tolist())
 
     def stats(self) -> dict:
         """Counters for summary.json."""
@@ -137,6 +188,8 @@ class FragmentMap:
             "keyframe_edges": kinds["keyframe"],
             "loop_edges": kinds["loop"],
             "rejoin_edges": kinds["rejoin"],
+            "fallback_edges": kinds["fallback"],
+            "fallback_edges_pruned": self.graph.pruned_kind_counts().get("fallback", 0),
             "pruned_edges": self.graph.n_pruned(),
             "pruned_edges_intra": c.intra_pruned,
             "intra_edges": c.intra_edges + (act.n_edges if act is not None else 0),

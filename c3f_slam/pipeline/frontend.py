@@ -22,6 +22,7 @@ import numpy as np
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
+from c3f_slam.geometry import invert_pose
 from c3f_slam.matching import (
     Keypoints,
     MatchFilterConfig,
@@ -251,19 +252,35 @@ class MatchAttempt:
     reason: str
 
 
+def projection_mask(fi: FrameFeatures, fj: FrameFeatures, T_ij: np.ndarray, K: np.ndarray,
+                    radius_px: float) -> np.ndarray:
+    """(N_i, N_j) bool: frame i's keypoints (their 3D points) moved into frame j by the motion
+    prior ``T_ij`` (p_i = T_ij p_j) land within ``radius_px`` of frame j's keypoint (guided
+    matching, as ORB-SLAM's search by projection); keypoints without depth match nothing."""
+    T_ji = invert_pose(np.asarray(T_ij, dtype=np.float64))
+    p = fi.points.astype(np.float64) @ T_ji[:3, :3].T + T_ji[:3, 3]
+    ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 1e-6)
+    uv = np.full((len(p), 2), np.inf)
+    uv[ok] = (p[ok] @ K.T)[:, :2] / p[ok, 2:3]
+    d2 = np.square(uv[:, None, :] - fj.xy.astype(np.float64)[None, :, :]).sum(axis=2)
+    return (d2 <= radius_px**2) & np.isfinite(fj.points).all(axis=1)[None, :]
+
+
 def explain_match(
     fi: FrameFeatures,
     fj: FrameFeatures,
     cfg: MatchFilterConfig,
     metric: str = "l2",
     ratio: float | None = 0.9,
+    allowed: np.ndarray | None = None,
 ) -> MatchAttempt:
-    """Mutual NN (+ ratio test) then :func:`filter_matches`, with the outcome of each step
+    """Mutual NN (+ ratio test; among the ``allowed`` pairs only, if given:
+    :func:`projection_mask`) then :func:`filter_matches`, with the outcome of each step
     (the runtime's pair matching; :func:`match_frames` returns its result only)."""
     if len(fi) < cfg.min_matches or len(fj) < cfg.min_matches:
         return MatchAttempt(0, 0, None, f"too few keypoints ({len(fi)}, {len(fj)} < {cfg.min_matches})")
     m, dist = mutual_nearest_neighbours(
-        fi.descriptors.astype(np.float32), fj.descriptors.astype(np.float32), metric, ratio=ratio
+        fi.descriptors.astype(np.float32), fj.descriptors.astype(np.float32), metric, ratio=ratio, allowed=allowed
     )
     if len(m) < cfg.min_matches:
         return MatchAttempt(len(m), 0, None, f"too few descriptor matches ({len(m)} < {cfg.min_matches})")
@@ -294,3 +311,20 @@ Matcher = Callable[[FrameFeatures, FrameFeatures], "tuple[PairMatch | None, int]
 def frame_matcher(cfg: SlamConfig, metric: str = "l2") -> Matcher:
     """:func:`match_frames` with the run's match filter and ratio test."""
     return lambda a, b: match_frames(a, b, cfg.match_filter, metric, cfg.frontend.ratio)
+
+
+#: matches frames i and j near where a motion prior T_ij (p_i = T_ij p_j) puts them, within a
+#: radius (px): (match or None, number of inliers)
+GuidedMatcher = Callable[[FrameFeatures, FrameFeatures, np.ndarray, float], "tuple[PairMatch | None, int]"]
+
+
+def guided_matcher(cfg: SlamConfig, K: np.ndarray, metric: str = "l2") -> GuidedMatcher:
+    """Guided matching (:func:`projection_mask`) through the run's match filter and ratio test."""
+    K = np.asarray(K, dtype=np.float64)
+
+    def match(fi: FrameFeatures, fj: FrameFeatures, T_ij: np.ndarray, radius_px: float):
+        a = explain_match(fi, fj, cfg.match_filter, metric, cfg.frontend.ratio,
+                          allowed=projection_mask(fi, fj, T_ij, K, radius_px))
+        return a.match, (a.match.n if a.match is not None else 0)
+
+    return match

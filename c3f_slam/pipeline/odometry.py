@@ -10,6 +10,7 @@ import numpy as np
 
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog, Timings
+from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, frame_matcher
 
@@ -43,7 +44,8 @@ class OdometrySlam:
     def close(self) -> None:
         """Nothing to free."""
 
-    def add(self, feat: FrameFeatures, depth: np.ndarray) -> tuple[int, bool]:
+    def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
+        """Match to the last frame (``rgb`` unused: the baseline has no dense fallback)."""
         fid = len(self.log) // self.chunk  # fusion chunks
         if self.last is None:
             T = np.eye(4)
@@ -83,6 +85,12 @@ class OdometrySlam:
         poses = np.array(self.poses).reshape(-1, 4, 4)
         reg = np.isfinite(poses).all(axis=(1, 2))
         return np.asarray(self.log.index), np.asarray(self.log.stamp), poses, reg
+
+    def components(self) -> list[MapComponent]:
+        """One component: the tracked frames (the baseline never starts another)."""
+        _, _, poses, reg = self.trajectory()
+        rows = np.flatnonzero(reg)
+        return [MapComponent(rows, poses[rows], frozenset(self._fids), 0)] if len(rows) else []
 
     def stats(self) -> dict:
         return {"fragments": 0, "keyframes": 0, "lost_frames": self.n_lost, "loop_edges": 0, "pruned_edges": 0}

@@ -9,10 +9,12 @@ DepthNet ONNX), the frontend keeps only keypoints, descriptors (SIFT or ContraFe
 3D points, the back-end (:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame,
 and fusion integrates settled fragments, re-reading their frames through
 :mod:`c3f_slam.pipeline.fusion_frames` (the sequence's files, or the on-disk cache of
-predicted depth, removed at the end). The global stage keeps its keyframes' features in
-``OUT/.keyframe_cache`` (removed at the end, also on errors; ``keyframes.cache=False``
-keeps them in RAM). Whatever happens, the outputs so far (trajectory.txt, summary.json with
-the error, keyframe graph) are written atomically before the error is passed on.
+predicted depth, removed at the end). At the end, the components of the map that could not
+be joined to the main map are written beside it (:mod:`c3f_slam.pipeline.components`).
+The global stage keeps its keyframes' features in ``OUT/.keyframe_cache`` (removed at the
+end, also on errors; ``keyframes.cache=False`` keeps them in RAM). Whatever happens, the
+outputs so far (trajectory.txt, summary.json with the error, keyframe graph) are written
+atomically before the error is passed on.
 """
 
 from __future__ import annotations
@@ -31,6 +33,13 @@ from c3f_slam.errors import InputError
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
 from c3f_slam.outputs import RunFolder, RunOutputs
 from c3f_slam.pipeline.backend import BackendFactory, SlamBackend, Timings
+from c3f_slam.pipeline.components import (
+    ComponentEntry,
+    MapComponent,
+    component_summary,
+    plan_components,
+    write_components,
+)
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.coverage_stage import run_coverage
 from c3f_slam.pipeline.frontend import Frontend
@@ -73,8 +82,9 @@ class SlamRun:
 
     def __init__(self, cfg: SlamConfig, sources: RunSources, outputs: RunOutputs, timings: Timings,
                  factory: BackendFactory, progress: bool) -> None:
-        self.cfg, self.sources, self.timings = cfg, sources, timings
+        self.cfg, self.sources, self.timings, self.outputs = cfg, sources, timings, outputs
         self.counts = FrameCounts()
+        self.components: list[ComponentEntry] | None = None  #: after finish(): the map's components
         self.backend: SlamBackend | None = None
         self.frames: FusionFrames | None = None
         self.fusion: FragmentFusion | None = None
@@ -133,7 +143,7 @@ class SlamRun:
             self._skip(frame, "featureless")
             return
         self.counts.processed += 1
-        fid, _ = self.backend.add(feat, depth)
+        fid, _ = self.backend.add(feat, depth, frame.rgb)
         t0 = time.perf_counter()
         if self.fusion is not None and fid >= 0:
             self._fuse(fid, frame)
@@ -162,14 +172,23 @@ class SlamRun:
             self.fusion.step(row, T, self.backend.pose_of_log, eligible=self.backend.in_main)
 
     def finish(self) -> TriangleMesh | None:
-        """End of the stream: the back-end's final optimisation and the mesh of the main map."""
+        """End of the stream: the back-end's final optimisation, the components beside the
+        main map written (:mod:`.components`), and the mesh of the main map."""
         self.backend.finish()
+        self.components = plan_components(self.backend.components(), self.cfg.components, self.outputs)
+        t0 = time.perf_counter()
+        fuse = self._fuse_component if self.fusion is not None else None
+        write_components(self.components, np.asarray(self.backend.log.stamp), fuse)
         if self.fusion is None:
             return None
-        t0 = time.perf_counter()
         mesh = self.fusion.finalize(self.backend.pose_of_log, self.backend.main_fragments())
         self.timings.add("fusion", t0)
         return mesh
+
+    def _fuse_component(self, comp: MapComponent) -> TriangleMesh:
+        """The mesh of one component (its frames re-fused with their final poses)."""
+        assert self.fusion is not None
+        return self.fusion.finalize(comp.pose_of, comp.fragments)
 
     def close(self) -> None:
         """Free the resources (BLAS limit, progress bar, fusion's frame cache, the back-end's
@@ -289,6 +308,8 @@ def write_run_outputs(outputs: RunOutputs, run: SlamRun | None, summary: dict, t
             summary["registered_share"] = n / counts.frames if counts.frames else 0.0
             summary["registered_share_of_usable"] = n / counts.processed if counts.processed else 0.0
             summary.update(backend.stats())
+            if run.components is not None:
+                summary["components"] = component_summary(run.components, np.asarray(backend.log.index), outputs)
             graph = backend.keyframe_graph()
             if graph is not None:
                 outputs.write_graph(graph)

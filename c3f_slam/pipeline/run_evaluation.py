@@ -3,9 +3,11 @@
 Writes OUT/evaluation.json (lengths in metres), OUT/trajectory.png (estimate aligned with
 Sim(3) vs ground truth) and, when the sequence has mesh.ply and the run a mesh.ply,
 OUT/coverage.ply (ground truth painted seen / unseen after aligning the reconstruction with
-the ATE's transform: Sim(3), or SE(3) in RGB-D mode); when the run has coverage.json, the
-truth of its unseen-surface estimate (evaluation.json ``unseen``, OUT/coverage_map_truth.png:
-:mod:`c3f_slam.pipeline.coverage_evaluation`).
+the ATE's transform: Sim(3), or SE(3) in RGB-D mode). When the run wrote components beside
+the main map (OUT/components/NN/, :mod:`c3f_slam.pipeline.components`), ``components`` gives
+the ATE of each of them and of the main map, each aligned on its own (Sim(3)). When the run
+has coverage.json, ``unseen`` gives the truth of its unseen-surface estimate
+(OUT/coverage_map_truth.png: :mod:`c3f_slam.pipeline.coverage_evaluation`).
 """
 
 from __future__ import annotations
@@ -62,10 +64,34 @@ def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000
             painted = coverage_mesh(gt_mesh, recon)
             write_mesh(painted, outputs.coverage_mesh)
             res["coverage_mesh"] = outputs.coverage_mesh.name
+    res["components"] = component_ates(outputs, seq, summary.get("components", []))
     if outputs.coverage_json.is_file():
         res["unseen"] = unseen_truth(outputs, seq, summary)
     write_json(Path(out) / "evaluation.json", res)
     return res
+
+
+def component_ates(outputs: RunOutputs, seq: Sequence, components: list[dict]) -> list[dict]:
+    """Per component of summary.json's ``components`` with a trajectory file: frames, ATE
+    (Sim(3), the component aligned on its own; metres) and that ATE as a share of the
+    ground-truth path length over its frames."""
+    out = []
+    for c in components:
+        traj = next((f for f in c.get("files", []) if f.endswith("trajectory.txt")), None)
+        if traj is None:
+            continue
+        stamps, poses = read_tum(outputs.root / traj)
+        ev = evaluate_trajectory(stamps, poses, seq.timestamps, seq.poses)
+        row = {"id": c["id"], "main": c["main"], "trajectory": traj, "frames": len(stamps),
+               "n_associated": ev["n_associated"]}
+        if "error" in ev:
+            row["error"] = ev["error"]
+        else:
+            rmse, length = ev["ate_sim3"]["rmse_m"], ev["gt_length_m"]
+            row.update(ate_sim3_rmse_m=rmse, scale=ev["ate_sim3"]["scale"], gt_length_m=length,
+                       ate_share_of_length=rmse / length if length > 0 else None)
+        out.append(row)
+    return out
 
 
 def format_report(res: dict) -> str:
@@ -86,6 +112,25 @@ def format_report(res: dict) -> str:
         c = res["coverage"]
         lines.append(f"coverage: {100 * c['share']:.1f} % of the ground-truth surface within "
                      f"{1000 * c['threshold']:.1f} mm")
+    comps = res.get("components", [])
+    if any(not c["main"] for c in comps):
+        lines += _component_table(comps)
     if "unseen" in res:
         lines += format_unseen(res["unseen"])
     return "\n".join(lines)
+
+
+def _component_table(comps: list[dict]) -> list[str]:
+    """The per-component ATE lines of :func:`format_report` (lengths in cm)."""
+    lines = ["components (ATE Sim(3), each aligned on its own; path: its ground-truth path length):",
+             f"  {'id':<7} {'frames':>6} {'ATE [cm]':>9} {'% of path':>9} {'path [cm]':>9}  trajectory"]
+    for c in comps:
+        name = f"{c['id']}{' main' if c['main'] else ''}"
+        if "error" in c:
+            lines.append(f"  {name:<7} {c['frames']:>6} {'-':>9} {'-':>9} {'-':>9}  {c['trajectory']} ({c['error']})")
+            continue
+        share = c["ate_share_of_length"]
+        pct = f"{100 * share:.2f}" if share is not None else "-"
+        lines.append(f"  {name:<7} {c['frames']:>6} {100 * c['ate_sim3_rmse_m']:>9.3f} {pct:>9} "
+                     f"{100 * c['gt_length_m']:>9.1f}  {c['trajectory']}")
+    return lines

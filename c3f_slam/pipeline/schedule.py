@@ -11,7 +11,8 @@ runs at the next due keyframe. A component larger than ``max_nodes`` is optimise
 bounded window (breadth first over the graph from the new keyframe(s)) with the rest held
 fixed, because Open3D's solver is dense (cubic in the nodes); ``window_boundary_edges``
 bounds, per window node, the edges to fixed newer keyframes. At the end the main component
-is optimised whole when it has at most ``final_nodes`` keyframes, else by one sweep of
+(and each other component that is written, :mod:`c3f_slam.pipeline.components`) is
+optimised whole when it has at most ``final_nodes`` keyframes, else by one sweep of
 overlapping ``max_nodes`` windows in keyframe order.
 """
 
@@ -85,18 +86,19 @@ class OptimizationSchedule:
         whole = cap is None or len(window) <= cap  # reachable() found the whole component
         return self._run(window if whole else window[:cap], whole, g.component_oldest(node), n_keyframes)
 
-    def finish(self, n_keyframes: int) -> None:
-        """The final optimisation of the main component (whole, or one sweep of windows)."""
+    def finish(self, n_keyframes: int, node: int | None = None) -> None:
+        """The final optimisation of the component of ``node`` (None: the main one), whole
+        or by one sweep of windows."""
         g = self.graph
         if not g.edges:
             return
-        oldest = g.component_oldest(g.main_root)
+        oldest = g.component_oldest(g.main_root if node is None else node)
         cap = self.cfg.final_nodes
         comp = g.reachable([oldest], None if cap is None else cap + 1)
         if cap is None or len(comp) <= cap:
             self._run(comp, True, oldest, n_keyframes)
             return
-        members = g.main_component()
+        members = g.component_nodes(oldest)
         w = min(self.cfg.max_nodes or cap, cap)
         step = max(w // 2, 1)
         for start in range(0, max(len(members) - w, 0) + step, step):

@@ -36,14 +36,22 @@ from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import invert_pose, transform_points
 from c3f_slam.pipeline.backend import Timings
 from c3f_slam.pipeline.config import SlamConfig
+from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch, frame_matcher
-from c3f_slam.pipeline.keyframe_edges import KeyframeEdge, cap_keyframe_edges, join_components, place_new_frame
+from c3f_slam.pipeline.keyframe_edges import (
+    KeyframeEdge,
+    cap_keyframe_edges,
+    link_across_break,
+    link_new_keyframe,
+    place_new_frame,
+)
 from c3f_slam.pipeline.rejoin import BreakTails
 from c3f_slam.pipeline.retrieval import Candidates, global_descriptor
 from c3f_slam.pipeline.reuse import find_host, revisit_edges
 from c3f_slam.posegraph import EdgeKind
+from c3f_slam.posegraph.components import Components
 
 
 class FragmentSlam(FragmentMap):
@@ -64,6 +72,10 @@ class FragmentSlam(FragmentMap):
         self.gap = True  # the previous streamed frame was skipped / unusable
         self.match: Matcher = frame_matcher(cfg, metric)
         self.rejoin = BreakTails(cfg.rejoin, lambda a, b: self.match(a, b))  # self.match may be replaced (tests)
+        self.recovery = LinkRecovery(cfg, self.K, metric)  # guided matching, dense fallback
+        #: with the dense fallback: components over the edges of sparse matches only (pruning is
+        #: not reflected), so that matches across a fallback edge re-place the side after it
+        self.sparse = Components() if cfg.fallback.dense else None
         if cfg.fragments.min_correspondences is None:
             raise ValueError("fragments.min_correspondences is derived from the frame size: "
                              "pass SlamConfig.for_frame_size(width, height)")
@@ -73,21 +85,29 @@ class FragmentSlam(FragmentMap):
         """A frame that was not processed (black / saturated / featureless)."""
         self.log.append(index, stamp)
         self.gap = True
+        self.recovery.gap()
 
-    def add(self, feat: FrameFeatures, depth: np.ndarray) -> tuple[int, bool]:
-        """Process one frame; returns (fragment id, opened a new fragment)."""
+    def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
+        """Process one frame (``rgb``: its (H, W, 3) uint8 image, for the dense fallback only);
+        returns (fragment id, opened a new fragment)."""
         t0 = time.perf_counter()
         link, n = (None, 0)
         if self.prev is not None and not self.gap:
             link, n = self.match(self.prev, feat)
-        self.t.add("matching", t0)
+            if link is None:
+                link, n = self.recovery.guided_link(self.prev, feat, min(depth.shape[:2]))
+        t0 = self.t.add("matching", t0)
+        frame = self.recovery.frame(rgb, depth)
+        dense = self.recovery.dense_link(frame) if link is None and self.prev is not None and not self.gap else None
+        self.t.add("fallback", t0)
         reason = self._new_fragment_reason(link, n, depth)
         if reason is None:
             fid, opened = self._extend_active(feat, link), False
         else:
-            fid, opened = self._open_fragment(feat, depth, link, reason), True
+            fid, opened = self._open_fragment(feat, depth, link, reason, dense), True
         self._last_row = len(self.log) - 1
         self.prev, self.gap = feat, False
+        self.recovery.settle(link or dense, frame)
         if self.rejoin.pending:
             self._try_rejoin(feat)
         return fid, opened
@@ -103,8 +123,7 @@ class FragmentSlam(FragmentMap):
         t0 = self.t.add("matching", t0)
         if r is None:
             return
-        join_components(self.graph, r.tail_node, act.node, r.T_ij)
-        self.graph.add_edge(r.tail_node, act.node, r.T_ij, points_j=r.points_j, uncertain=True, kind=EdgeKind.REJOIN)
+        link_across_break(self.graph, r.tail_node, act.node, r.T_ij, r.points_j, self.sparse)
         self.schedule.after_keyframe(act.node, True, len(self.keyframes))
         self.t.add("posegraph", t0)
 
@@ -156,12 +175,15 @@ class FragmentSlam(FragmentMap):
         poses = frag.rel_poses if frag.base is None else frag.base @ frag.rel_poses
         self.log.settle(self._active_row, frag.node, poses)
 
-    def _open_fragment(self, feat: FrameFeatures, depth: np.ndarray, link: PairMatch | None, reason: str) -> int:
+    def _open_fragment(self, feat: FrameFeatures, depth: np.ndarray, link: PairMatch | None, reason: str,
+                       dense: PairMatch | None = None) -> int:
         """Close the active fragment and open one on ``feat``: on an earlier keyframe (reuse)
-        or as a new keyframe. Returns its id."""
+        or as a new keyframe. ``dense``: the fallback's T_prev,cur where sparse ``link`` is
+        None. Returns its id."""
         self.counts.reasons[reason] += 1
         prev_frag = self.active
-        tail = list(prev_frag.features or []) if prev_frag is not None and link is None else []
+        broken = prev_frag is not None and link is None and dense is None
+        tail = list(prev_frag.features or []) if broken else []
         self._close_active()
         if tail:  # a tracking break: its last frames become targets for re-joining
             assert prev_frag is not None
@@ -173,24 +195,26 @@ class FragmentSlam(FragmentMap):
         kf = feat.subset(self.cfg.keyframes.keypoints)
         t0 = time.perf_counter()
         g = global_descriptor(kf.descriptors)
-        edges = self._keyframe_edges(kf, g, link, prev_frag)
-        host = self._reuse_host(edges, depth, reason, prev_frag) if self.cfg.keyframes.reuse else None
+        edges = self._keyframe_edges(kf, g, link, prev_frag, dense)
+        sparse = [e for e in edges if e.kind != EdgeKind.FALLBACK]  # a revisit is found by sparse matches only
+        host = self._reuse_host(sparse, depth, reason, prev_frag) if self.cfg.keyframes.reuse else None
         self.t.add("matching", t0)
         if host is not None:
-            return self._attach(fid, feat, depth, reason, edges, host, prev_frag)
-        return self._add_keyframe(fid, feat, kf, g, depth, reason, edges, link, prev_frag)
+            return self._attach(fid, feat, depth, reason, sparse, host, prev_frag)
+        return self._add_keyframe(fid, feat, kf, g, depth, reason, edges, link or dense, prev_frag)
 
     def _keyframe_edges(self, kf: FrameFeatures, g: np.ndarray, link: PairMatch | None,
-                        prev_frag: Fragment | None) -> list[KeyframeEdge]:
-        """Edges of a new keyframe: odometry to the previous fragment's node, then its
-        accepted matches to the candidate keyframes."""
+                        prev_frag: Fragment | None, dense: PairMatch | None = None) -> list[KeyframeEdge]:
+        """Edges of a new keyframe: odometry to the previous fragment's node (or the dense
+        fallback's edge in its place), then its accepted matches to the candidate keyframes."""
         edges: list[KeyframeEdge] = []
-        if link is not None and prev_frag is not None:
-            T = prev_frag.node_pose(len(prev_frag) - 1) @ link.T_ij  # previous node <- new keyframe
-            edges.append(KeyframeEdge(prev_frag.node, PairMatch(T, link.points_j, link.n), EdgeKind.ODOMETRY))
+        step, kind = (link, EdgeKind.ODOMETRY) if link is not None else (dense, EdgeKind.FALLBACK)
+        if step is not None and prev_frag is not None:
+            T = prev_frag.node_pose(len(prev_frag) - 1) @ step.T_ij  # previous node <- new keyframe
+            edges.append(KeyframeEdge(prev_frag.node, PairMatch(T, step.points_j, step.n), kind))
         same_as_link = link is not None and prev_frag is not None and self.prev is not None \
             and prev_frag.base is None and prev_frag.keyframe == self.prev.index
-        cands = self._candidates(g, link, prev_frag)
+        cands = self._candidates(g, link or dense, prev_frag)
         for k in cands.ids:
             if same_as_link and prev_frag is not None and k == prev_frag.node:  # the link is this pair
                 continue
@@ -238,12 +262,9 @@ class FragmentSlam(FragmentMap):
         self.node_fragment.append(fid)
         self.frag_node.append(node)
         self.active = Fragment(fid, feat, depth, reason, node=node)
-        T_wn, merged = place_new_frame(self.graph, edges)
-        if T_wn is not None:
-            self.graph.set_pose(node, T_wn)
-        for k, m, kind in edges:
-            self.graph.add_edge(k, node, m.T_ij, points_j=m.points_j, uncertain=kind != EdgeKind.ODOMETRY,
-                                kind=kind)
+        if self.sparse is not None:
+            self.sparse.add_node()
+        merged = link_new_keyframe(self.graph, node, edges, self.recovery.information, self.sparse)
         if not edges:
             self.counts.lone_created += 1
         elif link is None and prev_frag is not None:
@@ -260,8 +281,10 @@ class FragmentSlam(FragmentMap):
         t0 = time.perf_counter()
         keep = revisit_edges(self.graph, edges, host, prev_frag is not None and prev_frag.base is None)
         m_host = keep[0].match
-        _, merged = place_new_frame(self.graph, keep)
+        _, merged = place_new_frame(self.graph, keep, self.sparse)
         for k, m, _ in keep[1:]:
+            if self.sparse is not None:
+                self.sparse.union(host, k)
             T_hk = m_host.T_ij @ invert_pose(m.T_ij)
             pts_k = transform_points(m.T_ij, m.points_j)  # the match's points in frame k
             self.graph.add_edge(host, k, T_hk, points_j=pts_k, uncertain=True, kind=EdgeKind.LOOP)
@@ -275,12 +298,22 @@ class FragmentSlam(FragmentMap):
         return fid
 
     def stats(self) -> dict:
-        """Counters for summary.json (:meth:`FragmentMap.stats` and the re-joining's)."""
-        return {**super().stats(), **self.rejoin.stats()}
+        """Counters for summary.json (:meth:`FragmentMap.stats`, the re-joining's and the fallback's)."""
+        return {**super().stats(), **self.rejoin.stats(), **self.recovery.stats()}
 
     def finish(self) -> None:
-        """Close the active fragment and optimise the main component one last time."""
+        """Close the active fragment, make the component with the most frames the main one
+        (:meth:`choose_main`) and optimise it one last time, and each other component that
+        will be written (:mod:`.components`: ``components.min_frames``, the largest
+        ``components.max_written``) on its own."""
         self._close_active()
         t0 = time.perf_counter()
-        self.schedule.finish(len(self.keyframes))
+        main = self.choose_main()
+        if main >= 0:
+            self.schedule.finish(len(self.keyframes), main)
+        rule = self.cfg.components
+        others = [node for node, rows in self._frame_groups()[1:] if rule.writes(len(rows), 1) is None]
+        for node in others[:rule.max_written]:
+            self.schedule.finish(len(self.keyframes), node)
+        self.choose_main()  # pruning may have split the main component
         self.t.add("posegraph", t0)

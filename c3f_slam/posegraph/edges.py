@@ -29,6 +29,7 @@ class EdgeKind(str, Enum):
     LOOP = "loop"
     KEYFRAME = "keyframe"
     REJOIN = "rejoin"  #: a frame after a tracking break matched to a frame before it (:mod:`c3f_slam.pipeline.rejoin`)
+    FALLBACK = "fallback"  #: consecutive frames aligned densely (:mod:`c3f_slam.pipeline.fallback`)
 
 
 #: kind names (plain strings) by kind code: the code of an edge kind is its index in EdgeKind
@@ -193,6 +194,11 @@ class EdgeStore:
     def kind_counts(self) -> dict[str, int]:
         """Edges per kind name, kinds present only."""
         counts = np.bincount(self.kind[: self.m], minlength=len(_KIND_NAMES))
+        return {name: int(c) for name, c in zip(_KIND_NAMES, counts) if c}
+
+    def pruned_kind_counts(self) -> dict[str, int]:
+        """Pruned edges per kind name, kinds present only."""
+        counts = np.bincount(self.kind[: self.m][self.pruned[: self.m]], minlength=len(_KIND_NAMES))
         return {name: int(c) for name, c in zip(_KIND_NAMES, counts) if c}
 
     def has_uncertain(self) -> bool:

@@ -118,8 +118,12 @@ class PoseGraph:
         return self._edges.n_pruned()
 
     def kind_counts(self) -> dict[str, int]:
-        """Edges per kind (``odometry``, ``loop``, ``keyframe``), kinds present only."""
+        """Edges per kind (``odometry``, ``loop``, ``keyframe``, ...), kinds present only."""
         return self._edges.kind_counts()
+
+    def pruned_kind_counts(self) -> dict[str, int]:
+        """Pruned edges per kind, kinds present only."""
+        return self._edges.pruned_kind_counts()
 
     def has_uncertain(self) -> bool:
         return self._edges.has_uncertain()

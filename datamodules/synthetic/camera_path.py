@@ -34,6 +34,7 @@ from datamodules.synthetic.colon import Colon
 from datamodules.synthetic.noise import smooth_1d
 from datamodules.synthetic.params import PathParams
 from datamodules.synthetic.path_events import (
+    EventLimits,
     PathSignals,
     add_bursts,
     add_closeups,
@@ -180,15 +181,16 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator,
     taken = np.zeros(n, bool)
 
     sig = _base_signals(p, rng, n, corr)
-    # events that change the speed and view
-    add_closeups(sig, p, rng, taken, labels)
-    add_bursts(sig, p, rng, taken, labels)
-    add_roll_events(sig, p, rng, taken, labels)
+    # events that change the speed and view, their ramps within the path's rate limits
+    limits = EventLimits.from_params(p, float(np.mean(colon.radius)))
+    add_closeups(sig, p, rng, taken, labels, limits)
+    add_bursts(sig, p, rng, taken, labels, limits)
+    add_roll_events(sig, p, rng, taken, labels, limits)
     occlusions = place_occlusions(p, rng, taken)
 
     s = _arc_length(sig.v, p, s_lo, s_hi)
     for window in occlusions:
-        s = add_occlusion(colon, p, sig, s, labels, window, s_hi)
+        s = add_occlusion(colon, p, sig, s, labels, window, s_hi, limits)
     s = np.clip(s, 0.5 * START_MARGIN, L - 0.5 * END_MARGIN)
 
     ctl = Controls(s=s, m=sig.m, phi=sig.phi, beta=sig.beta, psi=sig.psi, roll=sig.roll)

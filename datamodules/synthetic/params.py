@@ -99,6 +99,13 @@ class PathParams:
     occlusions: float = 2.0  # approaches that fill the view with a fold
     roll_events: float = 3.0  # quick roll turns
     burst_factor: float = 4.0  # speed multiplier during a burst
+    #: fastest turn of the view during an event's ramps (close-ups, fold approaches, burst jolts,
+    #: roll turns), degrees per second at ``fps``; ramps lengthen to respect it. None: ramps
+    #: fixed in frames (the simulator before 2026-12; close-ups then turn up to ~38 deg/frame)
+    max_turn_rate: float | None = 120.0
+    #: fastest camera motion during the ramps of close-ups and fold approaches, m/s at ``fps``
+    #: (bursts are fast on purpose and keep ``burst_factor``); None: no bound
+    max_event_speed: float | None = 0.06
     min_wall_distance: float = 0.004  # the camera keeps at least this distance to the mesh, m
 
 
@@ -185,7 +192,12 @@ _GROUP_TYPES = {
 
 
 def _convert(value: Any, typ: Any, name: str) -> Any:
-    """Convert ``value`` (possibly a CLI string) to the field type ``typ``."""
+    """Convert ``value`` (possibly a CLI string) to the field type ``typ``; an optional field
+    (``float | None``) also takes None / ``none`` / ``null``."""
+    if isinstance(typ, str) and typ.endswith(" | None"):
+        if value is None or (isinstance(value, str) and value.strip().lower() in ("none", "null")):
+            return None
+        typ = typ[: -len(" | None")]
     typ = {"float": float, "int": int, "bool": bool, "str": str}.get(typ, typ) if isinstance(typ, str) else typ
     try:
         if typ is bool:
@@ -390,6 +402,10 @@ def _validate_path(path: PathParams, c: ColonParams) -> None:
         v = getattr(path, name)
         _check(0 <= v <= 100, f"path.{name}: events per 1000 frames must be in [0, 100], got {v}")
     _check(1 <= path.burst_factor <= 10, f"path.burst_factor: must be in [1, 10], got {path.burst_factor}")
+    _check(path.max_turn_rate is None or 1 <= path.max_turn_rate <= 10000,
+           f"path.max_turn_rate: must be in [1, 10000] degrees per second (or None), got {path.max_turn_rate}")
+    _check(path.max_event_speed is None or 0.001 <= path.max_event_speed <= 10,
+           f"path.max_event_speed: must be in [0.001, 10] m/s (or None), got {path.max_event_speed}")
     # the camera on the axis must clear the highest fold by min_wall_distance
     axis_clearance = (c.radius - c.radius_variation) * (1 - c.taenia_depth) * (1 - c.fold_height) - 3 * c.relief
     _check(0 < path.min_wall_distance < 0.7 * axis_clearance,

@@ -1,0 +1,226 @@
+"""What is tried where plain sparse matching to the previous frame failed (issue 18):
+guided matching, then, optionally, dense RGB-D alignment (:class:`LinkRecovery`).
+
+Guided matching (:func:`c3f_slam.pipeline.frontend.guided_matcher`) matches again with the last
+inter-frame motion as a prior, each keypoint only against the keypoints near where the prior
+puts it; the same match filter verifies it, so its result is an ordinary link.
+
+When the previous frame and the current one still give no accepted sparse match (too few
+keypoints, blur, a texture-poor view), :class:`DenseFallback` aligns them with Open3D's
+RGB-D odometry (the hybrid photometric + geometric term, Steinbruecker et al. / Park et
+al.), starting from the last inter-frame motion, then **verifies** the result on its own
+residuals: the current frame's depth pixels, moved into the previous frame, must land on its
+depth (relative depth difference) with matching intensity, on a large enough share of the
+pixels, and the motion must be plausible for consecutive frames. A verified alignment
+becomes an uncertain ``fallback`` edge whose information matrix is ``trust`` x that of its
+verified points (:func:`c3f_slam.posegraph.information.information_from_points`): it keeps
+the map in one piece when nothing contradicts it, and the line process prunes it when loop or
+rejoin edges disagree.
+
+Only the previous processed frame's grey image and depth are kept (one frame of memory).
+Poses and transforms follow :mod:`c3f_slam.posegraph`: ``T_ij`` maps frame-j (current)
+points into frame i (previous), p_i = T_ij p_j, metres.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import open3d as o3d
+
+from c3f_slam.geometry import motion_magnitudes
+from c3f_slam.pipeline.config import FallbackConfig, SlamConfig
+from c3f_slam.pipeline.frontend import FrameFeatures, GuidedMatcher, PairMatch, guided_matcher
+from c3f_slam.posegraph.information import information_from_points
+
+#: pixel grid of the verification (every STRIDE-th pixel in each direction)
+STRIDE = 2
+
+
+@dataclass
+class RgbdFrame:
+    """A frame as the fallback keeps it: grey (H, W) float32 in 0..1, depth (H, W) float32 metres (NaN/0 = none)."""
+
+    gray: np.ndarray
+    depth: np.ndarray
+
+    @classmethod
+    def from_rgb(cls, rgb: np.ndarray, depth: np.ndarray) -> RgbdFrame:
+        gray = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
+        d = np.nan_to_num(np.asarray(depth, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+        return cls(gray, np.where(d > 0, d, 0.0).astype(np.float32))
+
+
+@dataclass(frozen=True)
+class Verification:
+    """Residuals of an alignment: share of the current frame's sampled depth pixels that land on
+    the previous frame's depth, their intensity RMSE (0..1), and the aligned motion."""
+
+    inlier_share: float
+    photometric_rmse: float
+    step_m: float
+    turn_deg: float
+    points_j: np.ndarray  # (N, 3) inlier points of the current frame j, metres
+
+    def failure(self, cfg: FallbackConfig) -> str | None:
+        """Why the alignment is rejected (None: accepted)."""
+        if self.step_m > cfg.max_step or self.turn_deg > cfg.max_turn_deg:
+            return "implausible_motion"
+        if self.inlier_share < cfg.min_inlier_share:
+            return "low_overlap"
+        if self.photometric_rmse > cfg.max_photometric_rmse:
+            return "photometric_residual"
+        return None
+
+
+def verify_alignment(T_ij: np.ndarray, prev: RgbdFrame, cur: RgbdFrame, K: np.ndarray,
+                     max_depth_residual: float) -> Verification:
+    """Move the current frame's depth pixels (every :data:`STRIDE`-th) by ``T_ij`` into the
+    previous frame and compare depth (|dz| <= ``max_depth_residual`` x depth) and intensity."""
+    h, w = cur.depth.shape
+    v, u = np.mgrid[0:h:STRIDE, 0:w:STRIDE]
+    z = cur.depth[v, u]
+    ok = z > 0
+    u, v, z = u[ok].astype(np.float64), v[ok].astype(np.float64), z[ok].astype(np.float64)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    pts_j = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z], axis=1)
+    step, turn = (float(x[0]) for x in motion_magnitudes(T_ij[None]))
+    if len(pts_j) == 0:
+        return Verification(0.0, float("inf"), step, turn, np.zeros((0, 3)))
+    p_i = pts_j @ T_ij[:3, :3].T + T_ij[:3, 3]
+    front = p_i[:, 2] > 1e-6
+    ui = np.full(len(p_i), -1, np.int64)
+    vi = np.full(len(p_i), -1, np.int64)
+    ui[front] = np.round(fx * p_i[front, 0] / p_i[front, 2] + cx).astype(np.int64)
+    vi[front] = np.round(fy * p_i[front, 1] / p_i[front, 2] + cy).astype(np.int64)
+    inside = front & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    z_prev = np.zeros(len(p_i))
+    z_prev[inside] = prev.depth[vi[inside], ui[inside]]
+    inlier = inside & (z_prev > 0) & (np.abs(z_prev - p_i[:, 2]) <= max_depth_residual * p_i[:, 2])
+    if not inlier.any():
+        return Verification(0.0, float("inf"), step, turn, np.zeros((0, 3)))
+    di = prev.gray[vi[inlier], ui[inlier]] - cur.gray[v[inlier].astype(np.int64), u[inlier].astype(np.int64)]
+    rmse = float(np.sqrt(np.mean(np.square(di - np.mean(di)))))  # a global brightness change is not a misfit
+    return Verification(float(inlier.mean()), rmse, step, turn, pts_j[inlier])
+
+
+class DenseFallback:
+    """Keeps the previous processed frame and aligns the current one to it on demand."""
+
+    def __init__(self, cfg: FallbackConfig, K: np.ndarray) -> None:
+        self.cfg = cfg
+        self.K = np.asarray(K, dtype=np.float64)
+        self.prev: RgbdFrame | None = None
+        self.outcomes: Counter[str] = Counter()
+
+    def remember(self, frame: RgbdFrame | None) -> None:
+        """The frame just processed becomes the one the next alignment starts from (None: a gap)."""
+        self.prev = frame
+
+    def align(self, cur: RgbdFrame, init: np.ndarray | None = None) -> PairMatch | None:
+        """T_prev,cur for the current frame, verified (see the module notes), or None."""
+        if self.prev is None:
+            return None
+        T = self.odometry(self.prev, cur, np.eye(4) if init is None else init)
+        if T is None:
+            self.outcomes["no_convergence"] += 1
+            return None
+        check = verify_alignment(T, self.prev, cur, self.K, self.cfg.max_depth_residual)
+        why = check.failure(self.cfg)
+        self.outcomes[why or "accepted"] += 1
+        if why is not None:
+            return None
+        pts = check.points_j
+        if len(pts) > self.cfg.points:
+            pts = pts[np.linspace(0, len(pts) - 1, self.cfg.points).astype(int)]
+        return PairMatch(T, pts, self.strength(len(pts)))
+
+    def strength(self, n_points: int) -> int:
+        """The inlier count a fallback edge of ``n_points`` verified points ranks as beside sparse
+        matches (``trust`` x points, at least 1)."""
+        return max(1, round(self.cfg.trust * n_points))
+
+    def information(self, m: PairMatch) -> np.ndarray:
+        """The trust-weighted 6x6 information matrix of a fallback edge (Open3D order)."""
+        return self.cfg.trust * information_from_points(m.points_j)
+
+    def odometry(self, prev: RgbdFrame, cur: RgbdFrame, init: np.ndarray) -> np.ndarray | None:
+        """Open3D hybrid RGB-D odometry of ``cur`` (source) onto ``prev`` (target); None if it fails."""
+        h, w = cur.depth.shape
+        valid = cur.depth[cur.depth > 0]
+        if len(valid) < 100:
+            return None
+        depth_max = float(np.percentile(valid, 99)) * 1.5
+        intr = o3d.camera.PinholeCameraIntrinsic(w, h, self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2])
+        option = o3d.pipelines.odometry.OdometryOption(  # depth_diff_max ~ 10 % of the depth
+            o3d.utility.IntVector([20, 10, 5]), 0.1 * float(np.median(valid)), 0.0, depth_max)
+        src, dst = (o3d.geometry.RGBDImage.create_from_color_and_depth(
+            o3d.geometry.Image(f.gray), o3d.geometry.Image(f.depth), depth_scale=1.0, depth_trunc=depth_max,
+            convert_rgb_to_intensity=False) for f in (cur, prev))
+        ok, T, _ = o3d.pipelines.odometry.compute_rgbd_odometry(
+            src, dst, intr, np.asarray(init, dtype=np.float64),
+            o3d.pipelines.odometry.RGBDOdometryJacobianFromHybridTerm(), option)
+        T = np.asarray(T, dtype=np.float64)
+        return T if ok and np.all(np.isfinite(T)) else None
+
+    def stats(self) -> dict:
+        """Counters for summary.json: attempts and their outcomes."""
+        return {"fallback_attempts": int(sum(self.outcomes.values())),
+                "fallback_outcomes": dict(sorted(self.outcomes.items()))}
+
+
+class LinkRecovery:
+    """Guided matching and the dense fallback of one run, with the last inter-frame motion
+    (T_prev,cur, metres) they start from. Tests may replace ``guided`` (a
+    :data:`~c3f_slam.pipeline.frontend.GuidedMatcher`) and ``dense``."""
+
+    def __init__(self, cfg: SlamConfig, K: np.ndarray, metric: str = "l2") -> None:
+        self.cfg = cfg.fallback
+        self.guided: GuidedMatcher = guided_matcher(cfg, K, metric)
+        self.dense = DenseFallback(cfg.fallback, K) if cfg.fallback.dense else None
+        self.last_motion = np.eye(4)
+        self.guided_links = 0
+
+    def guided_link(self, prev: FrameFeatures, cur: FrameFeatures, image_side: int) -> tuple[PairMatch | None, int]:
+        """Guided matching of ``cur`` to ``prev`` (``image_side``: the smaller side, px, for the
+        search radius); (None, 0) when it is off or finds nothing."""
+        if not self.cfg.guided:
+            return None, 0
+        link, n = self.guided(prev, cur, self.last_motion, self.cfg.guided_radius * image_side)
+        self.guided_links += link is not None
+        return link, n
+
+    def frame(self, rgb: np.ndarray | None, depth: np.ndarray) -> RgbdFrame | None:
+        """The frame as the dense fallback keeps it (None when it is off or has no image)."""
+        return RgbdFrame.from_rgb(rgb, depth) if self.dense is not None and rgb is not None else None
+
+    def dense_link(self, frame: RgbdFrame | None) -> PairMatch | None:
+        """The verified dense alignment T_prev,cur of ``frame`` to the previous frame, or None."""
+        if self.dense is None or frame is None:
+            return None
+        return self.dense.align(frame, self.last_motion)
+
+    def information(self, m: PairMatch) -> np.ndarray:
+        """The trust-weighted information matrix of a dense edge."""
+        assert self.dense is not None
+        return self.dense.information(m)
+
+    def settle(self, link: PairMatch | None, frame: RgbdFrame | None) -> None:
+        """The frame was placed by ``link`` (None: without one, or it opened a lone fragment)."""
+        self.last_motion = link.T_ij if link is not None else np.eye(4)
+        if self.dense is not None:
+            self.dense.remember(frame)
+
+    def gap(self) -> None:
+        """A frame was skipped: nothing to align the next one to."""
+        self.last_motion = np.eye(4)
+        if self.dense is not None:
+            self.dense.remember(None)
+
+    def stats(self) -> dict:
+        """Counters for summary.json."""
+        dense = self.dense.stats() if self.dense is not None else {"fallback_attempts": 0}
+        return {"guided_links": self.guided_links, **dense}
