@@ -2,6 +2,7 @@
 
     python -m c3f_slam run SEQUENCE_DIR --depth-source files --descriptors sift --out OUT
         [--preset colon|room] [--baseline odometry] [--max-frames N] [--stride K] [--no-mesh]
+        [--no-coverage] [--coverage-segment METRES]
     python -m c3f_slam run SEQUENCE_DIR|VIDEO --depth-model depth.onnx --feature-model feat.onnx --out OUT
         [--camera camera.json] [--threads N]
     python -m c3f_slam evaluate OUT --gt SEQUENCE_DIR
@@ -47,7 +48,11 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--baseline", choices=("odometry",), help="frame-to-frame odometry only (no fragments/loops)")
     r.add_argument("--max-frames", type=int, help="process at most N frames")
     r.add_argument("--stride", type=int, default=1, help="use every K-th frame")
-    r.add_argument("--no-mesh", action="store_true", help="skip TSDF fusion")
+    r.add_argument("--no-mesh", action="store_true", help="skip TSDF fusion (and so the unseen-surface estimate)")
+    r.add_argument("--no-coverage", action="store_true",
+                   help="skip the unseen-surface estimate (coverage.json, coverage_map.png, unseen.ply)")
+    r.add_argument("--coverage-segment", type=float, metavar="METRES",
+                   help="segment length along the centreline for the per-segment unseen shares (default 0.05)")
     r.add_argument("--min-correspondences", type=int,
                    help="new fragment below this many consecutive correspondences (default: the paper's 100 at "
                         "512x512 scaled with the frame's pixel count, at least 15: 15 at 128 px, 25 at 256 px)")
@@ -98,7 +103,12 @@ def _overrides(args: argparse.Namespace) -> dict:
     """SlamConfig overrides (parts as dicts) of the run command's tuning options."""
     from c3f_slam.pipeline import PAPER_RULES
 
-    over: dict[str, dict] = {"fragments": {}, "frontend": {}, "keyframes": {}, "candidates": {}}
+    over: dict[str, dict] = {"fragments": {}, "frontend": {}, "keyframes": {}, "candidates": {}, "coverage": {}}
+    if args.no_coverage:
+        over["coverage"]["enabled"] = False
+    if args.coverage_segment is not None:
+        _check(args.coverage_segment > 0, f"--coverage-segment must be > 0 (metres), got {args.coverage_segment}")
+        over["coverage"]["segment"] = args.coverage_segment
     if args.min_correspondences is not None:
         over["fragments"]["min_correspondences"] = args.min_correspondences
     if args.min_overlap is not None:
@@ -153,9 +163,11 @@ def _run(args: argparse.Namespace) -> int:
     s = run_slam(args.sequence, args.out, cfg, inputs, max_frames=args.max_frames, stride=args.stride,
                  progress=not args.quiet, overwrite=args.overwrite)
     fps = s["timings"]["total"]["frames_per_second"]
+    unseen = s.get("unseen_share")
     print(f"{s['frames']} frames, {s['registered_frames']} registered ({100 * s['registered_share']:.1f} %), "
           f"{s.get('fragments', 0)} fragments, {s.get('loop_edges', 0)} loop edges, "
-          f"{s.get('pruned_edges', 0)} pruned, {fps or 0:.1f} frames/s -> {args.out}")
+          f"{s.get('pruned_edges', 0)} pruned, {fps or 0:.1f} frames/s"
+          + (f", unseen wall {100 * unseen:.1f} %" if unseen is not None else "") + f" -> {args.out}")
     written = [c for c in s.get("components", []) if not c["main"] and c["files"]]
     if written:
         print(f"{len(written)} part(s) not joined to the main map written to {args.out}/components/: "

@@ -207,6 +207,28 @@ def project(points: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uv, z
 
 
+# ---------------------------------------------------------------------- curves
+
+
+def transport_frames(tangents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation-minimising (parallel-transport) frames along a curve.
+
+    ``tangents``: (N, 3) unit tangents at consecutive samples. Returns normals N and binormals
+    B = T x N, (N, 3) each: N starts perpendicular to T[0] (from the world z axis, or x when
+    T[0] is near z) and is carried along by projecting it onto each next normal plane, so the
+    frame does not twist about the curve.
+    """
+    t = np.asarray(tangents, dtype=np.float64)
+    n = np.empty_like(t)
+    a = np.array([0.0, 0.0, 1.0]) if abs(t[0, 2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    n0 = a - t[0] * (a @ t[0])
+    n[0] = n0 / np.linalg.norm(n0)
+    for j in range(1, len(t)):
+        v = n[j - 1] - t[j] * (n[j - 1] @ t[j])
+        n[j] = v / np.linalg.norm(v)
+    return n, np.cross(t, n)
+
+
 # ---------------------------------------------------------------------- motion between poses
 
 

@@ -9,7 +9,10 @@ Layout of an output folder (:class:`RunOutputs`)::
       keyframe_graph.png    top view (x vs z, cm) of the keyframe graph
       mesh.ply              fused mesh (written with c3f_slam.fusion.write_mesh)
       trajectory.png        estimate vs ground truth (c3f_slam.trajectory_plot.plot_trajectories)
-      coverage.ply          ground-truth mesh painted seen / unseen
+      coverage.ply          ground-truth mesh painted seen / unseen (evaluate)
+      coverage.json         unseen share of the wall, overall and per segment (c3f_slam.pipeline.coverage_stage)
+      coverage_map.png      the unrolled wall, unseen parts flagged
+      unseen.ply            mesh.ply with the unseen wall added as painted patches
       components/NN/        a component not joined to the main map (c3f_slam.pipeline.components):
                             trajectory.txt and mesh.ply in its own world frame
 
@@ -278,6 +281,18 @@ class RunOutputs:
     @property
     def coverage_mesh(self) -> Path:
         return self.root / "coverage.ply"
+
+    @property
+    def coverage_json(self) -> Path:
+        return self.root / "coverage.json"
+
+    @property
+    def coverage_png(self) -> Path:
+        return self.root / "coverage_map.png"
+
+    @property
+    def unseen_mesh(self) -> Path:
+        return self.root / "unseen.ply"
 
     def component(self, n: int) -> RunOutputs:
         """The files of component ``n`` (>= 1) beside the main map: ``components/NN/``."""

@@ -62,3 +62,44 @@ def plane_sequence(
         poses.append(T)
     writer.finish(np.stack(poses))
     return root
+
+
+def tube_mesh(length: float = 0.1, radius: float = 0.025, fold: tuple[float, float, float] | None = None,
+              margin: float = 0.02, ds: float = 0.0005, n_theta: int = 180, drop=None):
+    """Open3D mesh of a straight tube along world +z from -``margin`` to ``length`` + ``margin``
+    (metres), radius ``radius``; ``fold`` = (s0, height as a fraction of the radius, sigma):
+    a ring ridge r = R (1 - h exp(-(z - s0)^2 / 2 sigma^2)). ``drop(z, theta)`` -> bool removes
+    the triangles whose first vertex it flags (a hole, as fusion leaves unseen wall)."""
+    import open3d as o3d
+
+    z = np.arange(-margin, length + margin + ds / 2, ds)
+    th = np.linspace(-np.pi, np.pi, n_theta, endpoint=False)
+    Z, TH = np.meshgrid(z, th, indexing="ij")
+    R = np.full_like(Z, radius)
+    if fold is not None:
+        s0, h, sigma = fold
+        R = radius * (1 - h * np.exp(-((Z - s0) ** 2) / (2 * sigma**2)))
+    V = np.stack([R * np.cos(TH), R * np.sin(TH), Z], axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(len(z) - 1), np.arange(n_theta), indexing="ij")
+    a, b = i * n_theta + j, i * n_theta + (j + 1) % n_theta
+    c, d = a + n_theta, b + n_theta
+    F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)])
+    if drop is not None:
+        F = F[~drop(V[F[:, 0], 2], np.arctan2(V[F[:, 0], 1], V[F[:, 0], 0]))]
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.tile([0.8, 0.4, 0.35], (len(V), 1)))
+    return mesh.remove_unreferenced_vertices()
+
+
+def tube_views(stations: np.ndarray, angles_deg: np.ndarray | None = None) -> np.ndarray:
+    """Camera-to-world poses on the axis of :func:`tube_mesh` at heights ``stations`` (metres):
+    looking radially at each of ``angles_deg`` (image up = +z), or along +z when None."""
+    poses = []
+    for zc in stations:
+        eye = np.array([0.0, 0.0, zc])
+        if angles_deg is None:
+            poses.append(g.look_at(eye, eye + [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]))
+            continue
+        for a in np.radians(angles_deg):
+            poses.append(g.look_at(eye, eye + [np.cos(a), np.sin(a), 0.0], [0.0, 0.0, 1.0]))
+    return np.stack(poses)

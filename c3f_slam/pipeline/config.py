@@ -8,7 +8,8 @@ revisits: :mod:`c3f_slam.pipeline.reuse`), ``rejoin`` (bridging tracking breaks:
 matching fails: :mod:`c3f_slam.pipeline.fallback`), ``components`` (the components written
 beside the main map:
 :mod:`c3f_slam.pipeline.components`), ``optimization`` (the global schedule:
-:mod:`c3f_slam.pipeline.schedule`), ``fusion``, plus the match filter and pose-graph
+:mod:`c3f_slam.pipeline.schedule`), ``fusion``, ``coverage`` (the unseen-surface estimate:
+:mod:`c3f_slam.coverage`), plus the match filter and pose-graph
 settings of :mod:`c3f_slam.matching` and :mod:`c3f_slam.posegraph`. Each part validates
 its own fields (:class:`InputError` naming ``part.field``). ``colon`` (default) and
 ``room`` pick the presets; the fragment rules are the paper's (85 % frustum overlap, 100
@@ -27,6 +28,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
+from c3f_slam.coverage.config import CoverageConfig
 from c3f_slam.errors import InputError
 from c3f_slam.fusion import TSDF_PRESETS, TSDFConfig
 from c3f_slam.matching import MatchFilterConfig
@@ -228,7 +230,7 @@ class FusionConfig:
 
 #: parts of :class:`SlamConfig` that overrides may give as dicts of their fields
 SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "fallback", "components",
-            "optimization", "match_filter", "posegraph", "fusion")
+            "optimization", "match_filter", "posegraph", "fusion", "coverage")
 
 #: overrides that restore the paper's literal rules at any map size: every new keyframe matched
 #: against all keyframes, all its accepted matches kept, the whole component optimised after
@@ -257,6 +259,7 @@ class SlamConfig:
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
     posegraph: PoseGraphConfig = field(default_factory=lambda: POSEGRAPH_PRESETS["colon"])
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    coverage: CoverageConfig = field(default_factory=CoverageConfig)  #: the unseen-surface estimate at the end
     #: BLAS threads NumPy may use during a run (threadpoolctl); None = the library's setting.
     #: 1: the matrices are small (benchmarks/results/slam_blas_threads.md)
     blas_threads: int | None = 1
@@ -274,7 +277,8 @@ class SlamConfig:
     def preset_config(cls, name: str = "colon", **overrides: Any) -> SlamConfig:
         """Defaults for ``colon`` (mm scale) or ``room`` (cm scale; fusion settles after 1 m,
         spatial keyframe candidates within 1 m instead of 2 cm, keyframe reuse within 25 cm
-        of the odometry instead of 5 mm), with ``overrides`` (parts as dicts of fields)."""
+        of the odometry instead of 5 mm, no unseen-wall estimate: a room is no tube), with
+        ``overrides`` (parts as dicts of fields)."""
         _check(name in PRESETS, f"--preset must be one of {PRESETS}, got {name!r}")
         room = name == "room"
         base = cls(
@@ -285,6 +289,7 @@ class SlamConfig:
             match_filter=MatchFilterConfig.preset(name),
             posegraph=POSEGRAPH_PRESETS[name],
             fusion=FusionConfig(eps_cf_d=1.0 if room else 0.05, tsdf=TSDF_PRESETS[name]),
+            coverage=CoverageConfig(enabled=not room),  # the wall model is a tube's
         )
         return base.with_(**overrides)
 

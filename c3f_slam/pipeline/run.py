@@ -41,6 +41,7 @@ from c3f_slam.pipeline.components import (
     write_components,
 )
 from c3f_slam.pipeline.config import SlamConfig
+from c3f_slam.pipeline.coverage_stage import run_coverage
 from c3f_slam.pipeline.frontend import Frontend
 from c3f_slam.pipeline.fusion_frames import FusionFrames, fusion_frames
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
@@ -249,6 +250,7 @@ def run_slam(
             if len(mesh.triangles):
                 write_mesh(mesh, outputs.mesh)
             summary["mesh_triangles"] = int(len(mesh.triangles))
+        summary.update(run_coverage(outputs, mesh, run.backend, sources, cfg))
         summary["status"] = "ok"
     except BaseException as exc:  # write what we have, then pass the error on
         summary["status"] = "error"

@@ -5,7 +5,9 @@ Sim(3) vs ground truth) and, when the sequence has mesh.ply and the run a mesh.p
 OUT/coverage.ply (ground truth painted seen / unseen after aligning the reconstruction with
 the ATE's transform: Sim(3), or SE(3) in RGB-D mode). When the run wrote components beside
 the main map (OUT/components/NN/, :mod:`c3f_slam.pipeline.components`), ``components`` gives
-the ATE of each of them and of the main map, each aligned on its own (Sim(3)).
+the ATE of each of them and of the main map, each aligned on its own (Sim(3)). When the run
+has coverage.json, ``unseen`` gives the truth of its unseen-surface estimate
+(OUT/coverage_map_truth.png: :mod:`c3f_slam.pipeline.coverage_evaluation`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.fusion import write_mesh
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.outputs import RunOutputs, write_json
+from c3f_slam.pipeline.coverage_evaluation import format_unseen, unseen_truth
 from c3f_slam.surface_metrics import coverage_mesh, surface_coverage
 from c3f_slam.trajectory_metrics import associate, ate, evaluate_trajectory
 from c3f_slam.trajectory_plot import plot_trajectories
@@ -62,6 +65,8 @@ def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000
             write_mesh(painted, outputs.coverage_mesh)
             res["coverage_mesh"] = outputs.coverage_mesh.name
     res["components"] = component_ates(outputs, seq, summary.get("components", []))
+    if outputs.coverage_json.is_file():
+        res["unseen"] = unseen_truth(outputs, seq, summary)
     write_json(Path(out) / "evaluation.json", res)
     return res
 
@@ -110,6 +115,8 @@ def format_report(res: dict) -> str:
     comps = res.get("components", [])
     if any(not c["main"] for c in comps):
         lines += _component_table(comps)
+    if "unseen" in res:
+        lines += format_unseen(res["unseen"])
     return "\n".join(lines)
 
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from c3f_slam.geometry import transport_frames
 from datamodules.synthetic.noise import random_sines
 from datamodules.synthetic.params import ColonParams
 
@@ -127,7 +128,7 @@ def build_colon(p: ColonParams, rng: np.random.Generator) -> Colon:
     n = max(int(round(p.length / p.ring_spacing)), 8) + 1
     s = np.linspace(0.0, p.length, n)
     centre, tangent = _centreline(p, rng, s)
-    normal, binormal = _transport_frames(tangent)
+    normal, binormal = transport_frames(tangent)
     theta = np.arange(p.ring_vertices) * (2 * np.pi / p.ring_vertices)
     radius, phase, folds, polyps = _radius_field(p, rng, s, theta)
 
@@ -272,18 +273,6 @@ def _no_self_contact(c: np.ndarray, s: np.ndarray, r_out: float) -> bool:
     d = np.linalg.norm(cs[:, None] - cs[None], axis=2)
     far = np.abs(ss[:, None] - ss[None]) > 3.5 * r_out
     return bool(np.all(d[far] > 2 * r_out + 0.01))
-
-
-def _transport_frames(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation-minimising (parallel-transport) normals N and binormals B = T x N."""
-    n = np.empty_like(t)
-    a = np.array([0.0, 0.0, 1.0]) if abs(t[0, 2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    n0 = a - t[0] * (a @ t[0])
-    n[0] = n0 / np.linalg.norm(n0)
-    for j in range(1, len(t)):
-        v = n[j - 1] - t[j] * (n[j - 1] @ t[j])
-        n[j] = v / np.linalg.norm(v)
-    return n, np.cross(t, n)
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:

@@ -1,0 +1,55 @@
+"""Settings of the unseen-surface estimate (:mod:`c3f_slam.coverage`); lengths in metres."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from c3f_slam.errors import InputError
+
+
+@dataclass(frozen=True)
+class CoverageConfig:
+    """How the wall is modelled and when a wall cell counts as observed.
+
+    The wall is cut into cells of ``cell_length`` metres of centreline by ``angle_bins``
+    angles around it. A cell is observed when at least one registered frame has it inside
+    its image, at a depth (z) in [``depth_min``, ``depth_max``] (None: the range TSDF fusion
+    integrates), and not hidden by the reconstructed surface (a ray cast that stops more than
+    ``occlusion_tol`` + ``occlusion_tol_rel`` x distance before it). With ``require_surface``
+    a cell also needs surface of the mesh in it: what fusion saw it reconstructed, so a hole
+    in the reconstruction is unseen wall whatever the filled-in wall model predicts (the
+    true mesh of the ground truth has surface everywhere).
+    """
+
+    enabled: bool = True  #: False = --no-coverage
+    segment: float = 0.05  #: segment length along the centreline for the per-segment shares
+    cell_length: float = 0.002  #: wall cell length along the centreline
+    angle_bins: int = 90  #: wall cells around the centreline
+    node_spacing: float = 0.005  #: the centreline grows by a node per this much forward camera travel
+    smoothing: float = 0.01  #: Gaussian sigma (metres of centreline) smoothing the camera path
+    max_radius: float = 0.06  #: surface farther from the centreline is not wall of this segment
+    fill_gap: float = 0.02  #: unobserved wall up to this long is interpolated along the centreline first
+    depth_min: float | None = None  #: None: the fusion's depth range
+    depth_max: float | None = None
+    occlusion_tol: float = 0.001
+    occlusion_tol_rel: float = 0.02
+    require_surface: bool = True
+    max_frames: int = 600  #: frames tested for visibility (evenly spaced subset of the registered ones)
+
+    def __post_init__(self) -> None:
+        for name in ("segment", "cell_length", "node_spacing", "max_radius"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"coverage.{name} must be > 0 (metres), got {getattr(self, name)}")
+        if self.angle_bins < 8 or self.max_frames < 1:
+            raise InputError(f"coverage.angle_bins must be >= 8 and coverage.max_frames >= 1, got "
+                             f"{self.angle_bins}, {self.max_frames}")
+        if self.smoothing < 0 or self.fill_gap < 0 or self.occlusion_tol < 0 or self.occlusion_tol_rel < 0:
+            raise InputError("coverage.smoothing, fill_gap, occlusion_tol and occlusion_tol_rel must be >= 0")
+
+    def depth_range(self, fusion_min: float, fusion_max: float) -> tuple[float, float]:
+        """(near, far) metres: the configured range, else fusion's."""
+        near = fusion_min if self.depth_min is None else self.depth_min
+        far = fusion_max if self.depth_max is None else self.depth_max
+        if not 0 <= near < far:
+            raise InputError(f"coverage depth range must satisfy 0 <= near < far, got {near}, {far}")
+        return near, far
