@@ -11,6 +11,8 @@ from typing import Any, ClassVar
 import lightning as L
 from lightning.pytorch.callbacks import Callback
 
+from c3f_models.resume import ExactResume
+
 INTERRUPTED_CKPT = "interrupted.ckpt"
 
 
@@ -56,15 +58,17 @@ class C3FTrainer(L.Trainer):
 
     Extra subcommands of the CLI are methods of this class (LightningCLI calls
     ``trainer.<subcommand>(model=..., datamodule=..., ...)``; see ``EXTRA_SUBCOMMANDS``).
-    An :class:`InterruptCheckpoint` is always among the callbacks.
+    An :class:`InterruptCheckpoint` and a :class:`c3f_models.resume.ExactResume` (RNG states in
+    every checkpoint, for an exact resume) are always among the callbacks.
     """
 
     def __init__(self, *args: Any, callbacks: Any = None, **kwargs: Any) -> None:
         if callbacks is None:
             callbacks = []
         callbacks = list(callbacks) if isinstance(callbacks, (list, tuple)) else [callbacks]
-        if not any(isinstance(c, InterruptCheckpoint) for c in callbacks):
-            callbacks.append(InterruptCheckpoint())
+        for kind in (InterruptCheckpoint, ExactResume):
+            if not any(isinstance(c, kind) for c in callbacks):
+                callbacks.append(kind())
         super().__init__(*args, callbacks=callbacks, **kwargs)
 
     def export(
