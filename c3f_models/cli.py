@@ -32,6 +32,7 @@ from lightning.pytorch.cli import ArgsType, LightningArgumentParser, LightningCL
 
 from c3f_models.checkpoints import check_checkpoint
 from c3f_models.resume import run_version_of
+from c3f_models.run_folder import RunFolderGuard
 from c3f_models.trainer import C3FTrainer, InterruptCheckpoint
 from c3f_slam.errors import InputError
 
@@ -103,6 +104,18 @@ class C3FCLI(LightningCLI):
             check_checkpoint(ckpt_path, getattr(model, "class_path", None), given)
             if subcommand == "fit":
                 continue_run_folder(self.config.fit.trainer, ckpt_path)
+
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        """Lightning's; a run refused for bad input (an InputError, e.g. from the model's ``setup``)
+        leaves no log folder: what it created there is removed (:class:`RunFolderGuard`)."""
+        guard = RunFolderGuard.before(self.trainer.log_dir)
+        try:
+            super()._run_subcommand(subcommand)
+        except Exception as exc:
+            if guard is not None and wrapped_input_error(exc) is not None:
+                guard.roll_back()
+            raise
 
 
 def continue_run_folder(trainer_config: Any, ckpt_path: str) -> None:
