@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -202,6 +203,7 @@ def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
         if isinstance(exc, SystemExit) and (exc.code != 1 or interrupted is None):
             raise
         InterruptCheckpoint.last = None
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # Lightning ignores further Ctrl-C from here on
         print(f"error: {interrupted.message() if interrupted else 'interrupted'}", file=sys.stderr)
         raise SystemExit(130) from None
 

@@ -18,12 +18,16 @@ INTERRUPTED_CKPT = "interrupted.ckpt"
 
 @dataclass(frozen=True)
 class Interruption:
-    """A ``fit`` stopped by Ctrl-C: the step it reached and the checkpoint saved there (None if none)."""
+    """A run stopped by Ctrl-C: the step it reached and the checkpoint saved there (None if none);
+    ``stage``: ``fit``, ``validate``, ``test`` or ``predict`` (only ``fit`` saves a checkpoint)."""
 
     step: int
     checkpoint: Path | None
+    stage: str = "fit"
 
     def message(self) -> str:
+        if self.stage != "fit":
+            return f"interrupted during {self.stage}; its results are incomplete, nothing was saved"
         if self.checkpoint is None:
             return f"interrupted at step {self.step}; no checkpoint could be saved"
         return (f"interrupted at step {self.step}; checkpoint saved: {self.checkpoint} "
@@ -38,7 +42,11 @@ class InterruptCheckpoint(Callback):
     last: ClassVar[Interruption | None] = None
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
-        if not isinstance(exception, KeyboardInterrupt) or trainer.state.fn != "fit":
+        if not isinstance(exception, KeyboardInterrupt):
+            return
+        if trainer.state.fn != "fit":
+            stage = str(getattr(trainer.state.fn, "value", trainer.state.fn))
+            type(self).last = Interruption(int(trainer.global_step), None, stage)
             return
         folder = Path(getattr(trainer.checkpoint_callback, "dirpath", None) or Path(trainer.default_root_dir))
         path = folder / INTERRUPTED_CKPT

@@ -125,7 +125,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted: no sequence was written", file=sys.stderr)
+        what = "no contact sheet" if args.command == "contact-sheet" else "no sequence"
+        print(f"error: interrupted; {what} was written", file=sys.stderr)
         return 130
     return 0
 
