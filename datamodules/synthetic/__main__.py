@@ -17,11 +17,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from c3f_slam.cli_parser import OneLineParser
 from c3f_slam.errors import InputError
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m datamodules.synthetic", description=__doc__.split("\n")[0])
+    ap = OneLineParser(prog="python -m datamodules.synthetic", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
 
     g = sub.add_parser("generate", help="simulate a sequence into a folder")
