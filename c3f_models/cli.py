@@ -23,14 +23,18 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import lightning as L
 from lightning.pytorch.cli import ArgsType, LightningArgumentParser, LightningCLI
 
 from c3f_models.checkpoints import check_checkpoint
+from c3f_models.resume import run_version_of
+from c3f_models.run_folder import RunFolderGuard
 from c3f_models.trainer import C3FTrainer, InterruptCheckpoint
 from c3f_slam.errors import InputError
 
@@ -100,6 +104,34 @@ class C3FCLI(LightningCLI):
             init_args = getattr(model, "init_args", None)
             given = init_args.as_dict() if subcommand == "fit" and init_args is not None else None
             check_checkpoint(ckpt_path, getattr(model, "class_path", None), given)
+            if subcommand == "fit":
+                continue_run_folder(self.config.fit.trainer, ckpt_path)
+
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        """Lightning's; a run refused for bad input (an InputError, e.g. from the model's ``setup``)
+        leaves no log folder: what it created there is removed (:class:`RunFolderGuard`)."""
+        guard = RunFolderGuard.before(self.trainer.log_dir)
+        try:
+            super()._run_subcommand(subcommand)
+        except Exception as exc:
+            if guard is not None and wrapped_input_error(exc) is not None:
+                guard.roll_back()
+            raise
+
+
+def continue_run_folder(trainer_config: Any, ckpt_path: str) -> None:
+    """A resumed ``fit`` logs into the TensorBoard run folder its checkpoint is in (same version,
+    step numbers continuing): the configured TensorBoardLogger's ``version``, unless given, is
+    set to that folder's (:func:`c3f_models.resume.run_version_of`)."""
+    logger = trainer_config.get("logger")
+    init_args = getattr(logger, "init_args", None)
+    if not str(getattr(logger, "class_path", "")).endswith("TensorBoardLogger") or init_args is None:
+        return
+    if init_args.get("version") is None:
+        version = run_version_of(ckpt_path, init_args.get("save_dir"), init_args.get("name", "lightning_logs"))
+        if version is not None:
+            init_args.version = version
 
 
 def wrapped_input_error(exc: BaseException) -> InputError | None:
@@ -178,6 +210,7 @@ def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
         if isinstance(exc, SystemExit) and (exc.code != 1 or interrupted is None):
             raise
         InterruptCheckpoint.last = None
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # Lightning ignores further Ctrl-C from here on
         print(f"error: {interrupted.message() if interrupted else 'interrupted'}", file=sys.stderr)
         raise SystemExit(130) from None
 

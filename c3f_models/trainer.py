@@ -11,17 +11,23 @@ from typing import Any, ClassVar
 import lightning as L
 from lightning.pytorch.callbacks import Callback
 
+from c3f_models.resume import ExactResume
+
 INTERRUPTED_CKPT = "interrupted.ckpt"
 
 
 @dataclass(frozen=True)
 class Interruption:
-    """A ``fit`` stopped by Ctrl-C: the step it reached and the checkpoint saved there (None if none)."""
+    """A run stopped by Ctrl-C: the step it reached and the checkpoint saved there (None if none);
+    ``stage``: ``fit``, ``validate``, ``test`` or ``predict`` (only ``fit`` saves a checkpoint)."""
 
     step: int
     checkpoint: Path | None
+    stage: str = "fit"
 
     def message(self) -> str:
+        if self.stage != "fit":
+            return f"interrupted during {self.stage}; its results are incomplete, nothing was saved"
         if self.checkpoint is None:
             return f"interrupted at step {self.step}; no checkpoint could be saved"
         return (f"interrupted at step {self.step}; checkpoint saved: {self.checkpoint} "
@@ -36,7 +42,11 @@ class InterruptCheckpoint(Callback):
     last: ClassVar[Interruption | None] = None
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
-        if not isinstance(exception, KeyboardInterrupt) or trainer.state.fn != "fit":
+        if not isinstance(exception, KeyboardInterrupt):
+            return
+        if trainer.state.fn != "fit":
+            stage = str(getattr(trainer.state.fn, "value", trainer.state.fn))
+            type(self).last = Interruption(int(trainer.global_step), None, stage)
             return
         folder = Path(getattr(trainer.checkpoint_callback, "dirpath", None) or Path(trainer.default_root_dir))
         path = folder / INTERRUPTED_CKPT
@@ -56,15 +66,17 @@ class C3FTrainer(L.Trainer):
 
     Extra subcommands of the CLI are methods of this class (LightningCLI calls
     ``trainer.<subcommand>(model=..., datamodule=..., ...)``; see ``EXTRA_SUBCOMMANDS``).
-    An :class:`InterruptCheckpoint` is always among the callbacks.
+    An :class:`InterruptCheckpoint` and a :class:`c3f_models.resume.ExactResume` (RNG states in
+    every checkpoint, for an exact resume) are always among the callbacks.
     """
 
     def __init__(self, *args: Any, callbacks: Any = None, **kwargs: Any) -> None:
         if callbacks is None:
             callbacks = []
         callbacks = list(callbacks) if isinstance(callbacks, (list, tuple)) else [callbacks]
-        if not any(isinstance(c, InterruptCheckpoint) for c in callbacks):
-            callbacks.append(InterruptCheckpoint())
+        for kind in (InterruptCheckpoint, ExactResume):
+            if not any(isinstance(c, kind) for c in callbacks):
+                callbacks.append(kind())
         super().__init__(*args, callbacks=callbacks, **kwargs)
 
     def export(

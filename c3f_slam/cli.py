@@ -21,11 +21,12 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from c3f_slam.cli_parser import OneLineParser
 from c3f_slam.errors import InputError
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m c3f_slam", description="C3Fusion SLAM runtime")
+    ap = OneLineParser(prog="python -m c3f_slam", description="C3Fusion SLAM runtime")
     sub = ap.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run SLAM on a sequence folder and write trajectory, mesh, graph, summary")
     r.add_argument("sequence", help="sequence folder (rgb/, depth/, camera.json), or a video with --depth-model")

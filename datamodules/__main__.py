@@ -17,6 +17,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from c3f_slam.cli_parser import OneLineParser
 from c3f_slam.errors import InputError
 
 DATASETS = ("uts", "simcol3d", "c3vd", "colon10k")
@@ -24,7 +25,7 @@ _OPTIONS = {"uts": ("fov",), "simcol3d": (), "c3vd": ("calibration", "pinhole_fo
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m datamodules", description=__doc__.split("\n")[0])
+    ap = OneLineParser(prog="python -m datamodules", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
     for name, text in (("convert", "convert a published data set into the project's layout"),
                        ("list", "list the sequences the loader finds")):

@@ -43,6 +43,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.preprocess import center_crop_resize, prepare_network_input
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.formats import SequenceFormat, find_sequences
+from datamodules.resumable import ResumableLoader, ResumableSampler
 
 # the defaults of the groups (frozen, so one instance serves every module)
 DEFAULT_SPLIT, DEFAULT_SAMPLING, DEFAULT_FRAMES = SplitConfig(), TupleSamplingConfig(), FramesConfig()
@@ -185,6 +186,9 @@ class SequenceDataModule(L.LightningDataModule):
         min_frames: a sequence with fewer frames is an error (a triplet needs three).
     """
 
+    #: the training sampler yields (index, draw) pairs (the dataset makes its random choices from the draw)
+    keyed_samples: bool = False
+
     def __init__(
         self,
         data_dir: str,
@@ -280,19 +284,31 @@ class SequenceDataModule(L.LightningDataModule):
 
     # ----------------------------------------------------------- loaders
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        """The loader of ``split``: training over a :class:`ResumableSampler` (order from the run's
+        seed and the epoch; a checkpoint keeps its position), the others in order. No loader draws
+        from the global RNG (each has its own generator for its processes' seeds)."""
         if split not in self.datasets:
             raise InputError(
                 f"no {split} sequences in {self.data_dir} (set data.split.{split} or the split fractions)"
             )
-        workers = self.loader_config.num_workers
-        return DataLoader(
-            self.datasets[split],
-            batch_size=self.loader_config.batch_size,
-            shuffle=shuffle,
-            num_workers=workers,
-            persistent_workers=workers > 0,
-            drop_last=False,
-        )
+        dataset, workers = self.datasets[split], self.loader_config.num_workers
+        options = {"batch_size": self.loader_config.batch_size, "num_workers": workers,
+                   "persistent_workers": workers > 0, "drop_last": False}
+        seed = torch.initial_seed()  # the run's seed (seed_everything), else this process's random one
+        if split == "train":
+            sampler = ResumableSampler(len(dataset), seed, shuffle, self.keyed_samples,
+                                       lambda: self._train_progress()[0])
+            return ResumableLoader(dataset, sampler, self._train_progress, **options)
+        return DataLoader(dataset, shuffle=False, generator=torch.Generator().manual_seed(seed), **options)
+
+    def _train_progress(self) -> tuple[int, int]:
+        """(epoch, batches of it done) as the attached trainer counts them, a complete epoch as the
+        next one's start; (0, 0) without a trainer."""
+        trainer = getattr(self, "trainer", None)
+        if trainer is None:
+            return 0, 0
+        epoch, done = trainer.current_epoch, trainer.fit_loop.epoch_loop.batch_progress.current.processed
+        return (epoch + 1, 0) if done >= trainer.num_training_batches else (epoch, done)
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", shuffle=True)

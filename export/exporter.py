@@ -13,6 +13,8 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
+import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,13 +27,16 @@ from c3f_models.checkpoints import load_weights, read_checkpoint_weights
 from c3f_models.contrafeat_module import ContraFeat
 from c3f_models.depthnet import DepthNet
 from c3f_slam.errors import InputError
-from c3f_slam.io.atomic import atomic_write_text
+from c3f_slam.io.atomic import atomic_write_text, staging_dir
 from c3f_slam.models.metadata import ModelMetadata, Preprocessing
 from export.calibration import metric_scale
 from export.frames import frames_from_source, parity_source
 from export.graphs import DepthGraph, DescriptorGraph, GraphSpec, PoseGraph
 from export.onnx_io import OPSET, OPSET_DEFORM, has_deform_conv, to_onnx, write_onnx
 from export.parity import check_parity
+
+#: the export's manifest (files, hashes, parity), moved into the output folder last
+MANIFEST = "export.json"
 
 # state-dict prefixes that identify each model kind in a checkpoint
 CHECKPOINT_KINDS = {"DepthNet": ("depth_net.", "pose_net."), "ContraFeat": ("net.",)}
@@ -227,14 +232,31 @@ def _graph_metadata(spec: GraphSpec, pre: Preprocessing, dynamic_size: bool, dep
 
 def _write_export(staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]], out: Path,
                   provenance: _Provenance) -> list[Path]:
-    """Write the checked graphs and ``export.json`` (files, hashes, parity) into ``out``."""
+    """Write the checked graphs and ``export.json`` (files, hashes, parity) into ``out``.
+
+    Everything is written into a hidden folder beside ``out`` first, then moved in: ``out``'s
+    old ``export.json`` goes first and the new one comes last, so an interrupted export leaves a
+    folder without ``export.json`` (incomplete), never an old manifest beside new graphs.
+    Other files in ``out`` are left alone.
+    """
     if out.exists() and not out.is_dir():
         raise InputError(f"--output_dir: {out} exists and is not a folder")
-    written = [write_onnx(proto, meta, out / spec.file_name) for spec, proto, meta in staged]
-    manifest = {
-        "project_version": __version__, "created": provenance.created, "checkpoint": provenance.checkpoint,
-        "files": {p.name: {"kind": m.kind, "sha256": sha256(p), "opset": m.opset, "parity": m.parity}
-                  for p, (_, _, m) in zip(written, staged)},
-    }
-    atomic_write_text(out / "export.json", json.dumps(manifest, indent=2) + "\n")
-    return written
+    for spec, _, _ in staged:
+        if (out / spec.file_name).is_dir():
+            raise InputError(f"--output_dir: {out / spec.file_name} is a folder, expected an .onnx file path")
+    tmp = staging_dir(out)
+    try:
+        files = [write_onnx(proto, meta, tmp / spec.file_name) for spec, proto, meta in staged]
+        manifest = {
+            "project_version": __version__, "created": provenance.created, "checkpoint": provenance.checkpoint,
+            "files": {p.name: {"kind": m.kind, "sha256": sha256(p), "opset": m.opset, "parity": m.parity}
+                      for p, (_, _, m) in zip(files, staged)},
+        }
+        atomic_write_text(tmp / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+        out.mkdir(parents=True, exist_ok=True)
+        (out / MANIFEST).unlink(missing_ok=True)
+        for path in [*files, tmp / MANIFEST]:
+            os.replace(path, out / path.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return [out / p.name for p in files]

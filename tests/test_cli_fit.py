@@ -49,10 +49,11 @@ def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "tb" / "version_1").exists()
 
     main(["fit", *common, "--trainer.max_steps", "4", "--ckpt_path", str(ckpt)])
-    second = tmp_path / "tb" / "version_1"
-    steps = _scalar_steps(second, "train/loss")
-    assert steps and min(steps) >= 2, f"the second run did not resume at step 2: logged steps {steps}"
-    assert torch.load(second / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)["global_step"] == 4
+    # the resumed run continues the same run folder, its step numbers following the first run's
+    assert not (tmp_path / "tb" / "version_1").exists()
+    steps = _scalar_steps(first, "train/loss")
+    assert sorted(steps) == [0, 1, 2, 3], f"the second run did not continue at step 2: logged steps {steps}"
+    assert torch.load(ckpt, map_location="cpu", weights_only=True)["global_step"] == 4
 
 
 def test_ctrl_c_during_fit_saves_a_checkpoint_and_is_one_line(plane_dataset, tmp_path, monkeypatch, capsys):
@@ -84,5 +85,6 @@ def test_ctrl_c_during_fit_saves_a_checkpoint_and_is_one_line(plane_dataset, tmp
     assert torch.load(ckpt, map_location="cpu", weights_only=True)["global_step"] == 2
     monkeypatch.setattr(DepthNet, "training_step", step)
     main(["fit", *common, "--trainer.max_steps", "4", "--ckpt_path", str(ckpt)])
-    steps = _scalar_steps(tmp_path / "tb" / "version_1", "train/loss")
-    assert steps and min(steps) >= 2
+    steps = _scalar_steps(tmp_path / "tb" / "version_0", "train/loss")
+    assert sorted(steps) == [0, 1, 2, 3], f"logged steps {steps}"
+    assert not (tmp_path / "tb" / "version_1").exists()

@@ -86,9 +86,13 @@ class GapPairDataset(Dataset):
     def __len__(self) -> int:
         return self.length
 
-    def __getitem__(self, idx: int) -> dict:
+    def __getitem__(self, key: int | tuple[int, int]) -> dict:
+        """``key``: an index, or (index, draw) from a keyed :class:`datamodules.resumable.ResumableSampler`
+        (a training sample's gap is then ``draw``'s choice, else one drawn from torch's global RNG)."""
+        idx, draw = key if isinstance(key, tuple) else (key, None)
         if self.random_gap:
-            g = self.gaps[int(torch.randint(len(self.gaps), (1,)).item())]
+            pick = int(torch.randint(len(self.gaps), (1,)).item()) if draw is None else draw % len(self.gaps)
+            g = self.gaps[pick]
             ds = self.by_gap[g]
             sample = ds[min(idx * len(ds) // self.length, len(ds) - 1)]
         else:
@@ -141,6 +145,8 @@ class ContraFeatDataModule(SequenceDataModule):
         self.pairs_config = sampling
         self.layout, self.layout_options = layout, layout_options
         self.sequence_format()  # an unknown layout or option fails here, before any data is read
+
+    keyed_samples = True  # a training sample's gap comes from its draw (exact resume)
 
     def sequence_format(self) -> SequenceFormat:
         options = dict(self.layout_options or {})

@@ -27,6 +27,9 @@ from c3f_slam.surface_metrics import coverage_mesh, surface_coverage
 from c3f_slam.trajectory_metrics import associate, ate, evaluate_trajectory
 from c3f_slam.trajectory_plot import plot_trajectories
 
+#: written last by :func:`evaluate_run`: its presence means the evaluation is complete
+EVALUATION_NAME = "evaluation.json"
+
 
 def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000) -> dict:
     """Metrics of the run in ``out`` against the sequence ``gt``; writes the files, returns the dict."""
@@ -45,6 +48,8 @@ def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000
                          f"{summary.get('error', 'no error recorded')}); its outputs are partial, not evaluated")
     n_frames = summary.get("frames") or len(seq)
     res = evaluate_trajectory(stamps, poses, seq.timestamps, seq.poses, n_frames=n_frames)
+    # the inputs are checked: from here the folder holds no evaluation until the new one is whole
+    (Path(out) / EVALUATION_NAME).unlink(missing_ok=True)
     rgbd = summary.get("depth_source", "files") == "files"
     res["alignment_for_mesh"] = "se3" if rgbd else "sim3"
     if "error" not in res:
@@ -67,7 +72,7 @@ def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000
     res["components"] = component_ates(outputs, seq, summary.get("components", []))
     if outputs.coverage_json.is_file():
         res["unseen"] = unseen_truth(outputs, seq, summary)
-    write_json(Path(out) / "evaluation.json", res)
+    write_json(Path(out) / EVALUATION_NAME, res)
     return res
 
 

@@ -17,11 +17,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from c3f_slam.cli_parser import OneLineParser
 from c3f_slam.errors import InputError
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m datamodules.synthetic", description=__doc__.split("\n")[0])
+    ap = OneLineParser(prog="python -m datamodules.synthetic", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
 
     g = sub.add_parser("generate", help="simulate a sequence into a folder")
@@ -125,7 +126,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted: no sequence was written", file=sys.stderr)
+        what = "no contact sheet" if args.command == "contact-sheet" else "no sequence"
+        print(f"error: interrupted; {what} was written", file=sys.stderr)
         return 130
     return 0
 

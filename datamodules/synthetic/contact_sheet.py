@@ -9,6 +9,7 @@ import numpy as np
 
 from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
+from c3f_slam.io.atomic import atomic_write
 from datamodules.synthetic.generate import read_event_labels
 
 
@@ -53,6 +54,7 @@ def make_contact_sheet(seq_dir: str | Path, out: str | Path, count: int = 12, co
     sheet = np.concatenate(rows, axis=0)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(out), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
-        raise InputError(f"{out}: could not write the contact sheet")
+    with atomic_write(out) as tmp:  # an interrupted write leaves no partial image
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
+            raise InputError(f"{out}: could not write the contact sheet")
     return out
