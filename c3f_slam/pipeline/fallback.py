@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from c3f_slam.geometry import motion_magnitudes
+from c3f_slam.geometry import backproject_pixels, motion_magnitudes, project, transform_points
 from c3f_slam.pipeline.config import FallbackConfig, SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, GuidedMatcher, PairMatch, guided_matcher
 from c3f_slam.posegraph.information import information_from_points
@@ -84,25 +84,20 @@ def verify_alignment(T_ij: np.ndarray, prev: RgbdFrame, cur: RgbdFrame, K: np.nd
     v, u = np.mgrid[0:h:STRIDE, 0:w:STRIDE]
     z = cur.depth[v, u]
     ok = z > 0
-    u, v, z = u[ok].astype(np.float64), v[ok].astype(np.float64), z[ok].astype(np.float64)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    pts_j = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z], axis=1)
+    u, v = u[ok], v[ok]
+    pts_j = backproject_pixels(np.stack([u, v], axis=1), z[ok], K)
     step, turn = (float(x[0]) for x in motion_magnitudes(T_ij[None]))
     if len(pts_j) == 0:
         return Verification(0.0, float("inf"), step, turn, np.zeros((0, 3)))
-    p_i = pts_j @ T_ij[:3, :3].T + T_ij[:3, 3]
-    front = p_i[:, 2] > 1e-6
-    ui = np.full(len(p_i), -1, np.int64)
-    vi = np.full(len(p_i), -1, np.int64)
-    ui[front] = np.round(fx * p_i[front, 0] / p_i[front, 2] + cx).astype(np.int64)
-    vi[front] = np.round(fy * p_i[front, 1] / p_i[front, 2] + cy).astype(np.int64)
-    inside = front & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-    z_prev = np.zeros(len(p_i))
-    z_prev[inside] = prev.depth[vi[inside], ui[inside]]
-    inlier = inside & (z_prev > 0) & (np.abs(z_prev - p_i[:, 2]) <= max_depth_residual * p_i[:, 2])
+    uv, z_i = project(transform_points(T_ij, pts_j), K)
+    px = np.round(np.nan_to_num(uv, nan=-1.0)).astype(np.int64)
+    inside = (z_i > 1e-6) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+    ui, vi = np.where(inside, px[:, 0], 0), np.where(inside, px[:, 1], 0)
+    z_prev = np.where(inside, prev.depth[vi, ui], 0.0)
+    inlier = inside & (z_prev > 0) & (np.abs(z_prev - z_i) <= max_depth_residual * z_i)
     if not inlier.any():
         return Verification(0.0, float("inf"), step, turn, np.zeros((0, 3)))
-    di = prev.gray[vi[inlier], ui[inlier]] - cur.gray[v[inlier].astype(np.int64), u[inlier].astype(np.int64)]
+    di = prev.gray[vi[inlier], ui[inlier]] - cur.gray[v[inlier], u[inlier]]
     rmse = float(np.sqrt(np.mean(np.square(di - np.mean(di)))))  # a global brightness change is not a misfit
     return Verification(float(inlier.mean()), rmse, step, turn, pts_j[inlier])
 

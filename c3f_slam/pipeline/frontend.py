@@ -22,7 +22,7 @@ import numpy as np
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
-from c3f_slam.geometry import invert_pose
+from c3f_slam.geometry import invert_pose, project, transform_points
 from c3f_slam.matching import (
     Keypoints,
     MatchFilterConfig,
@@ -257,11 +257,8 @@ def projection_mask(fi: FrameFeatures, fj: FrameFeatures, T_ij: np.ndarray, K: n
     """(N_i, N_j) bool: frame i's keypoints (their 3D points) moved into frame j by the motion
     prior ``T_ij`` (p_i = T_ij p_j) land within ``radius_px`` of frame j's keypoint (guided
     matching, as ORB-SLAM's search by projection); keypoints without depth match nothing."""
-    T_ji = invert_pose(np.asarray(T_ij, dtype=np.float64))
-    p = fi.points.astype(np.float64) @ T_ji[:3, :3].T + T_ji[:3, 3]
-    ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 1e-6)
-    uv = np.full((len(p), 2), np.inf)
-    uv[ok] = (p[ok] @ K.T)[:, :2] / p[ok, 2:3]
+    uv, z = project(transform_points(invert_pose(np.asarray(T_ij, dtype=np.float64)), fi.points), K)
+    uv = np.where((np.isfinite(uv).all(axis=1) & (z > 1e-6))[:, None], uv, np.inf)
     d2 = np.square(uv[:, None, :] - fj.xy.astype(np.float64)[None, :, :]).sum(axis=2)
     return (d2 <= radius_px**2) & np.isfinite(fj.points).all(axis=1)[None, :]
 
