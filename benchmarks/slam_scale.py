@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import ClassVar
 
@@ -102,8 +103,8 @@ class Probe(FragmentSlam):
                   f"{r['pairs']:.1f} pairs/fragment, {r['opts']} opt ({r['win']} windowed), "
                   + " ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()), flush=True)
 
-    def add(self, feat, depth):
-        out = super().add(feat, depth)
+    def add(self, feat, depth, rgb=None):
+        out = super().add(feat, depth, rgb)
         self._tick()
         return out
 
@@ -129,7 +130,8 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--base-frames", type=int, default=120)
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--every", type=int, default=500)
-    ap.add_argument("--min-correspondences", type=int, default=15)
+    ap.add_argument("--min-correspondences", type=int, default=None,
+                    help="fragment threshold; default: the preset's, derived from the frame size")
     ap.add_argument("--mesh", action="store_true", help="fuse too (the fused volume grows with the surface)")
     ap.add_argument("--paper-rules", action="store_true",
                     help="match all keyframes, keep all their loop edges and optimise whole components after "
@@ -152,8 +154,9 @@ def slam_config(args: argparse.Namespace) -> SlamConfig:
         over["keyframes"]["cache"] = False
     if args.reuse_keyframes is not None:
         over["keyframes"]["reuse"] = args.reuse_keyframes
-    return SlamConfig.preset_config("colon", fragments={"min_correspondences": args.min_correspondences},
-                                    fusion={"enabled": args.mesh}, **over)
+    if args.min_correspondences is not None:
+        over["fragments"] = {**over.get("fragments", {}), "min_correspondences": args.min_correspondences}
+    return SlamConfig.preset_config("colon", fusion={"enabled": args.mesh}, **over)
 
 
 def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], wall: float, s: dict, ev: dict,
@@ -166,14 +169,15 @@ def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], w
         + f" | {r['rss']:.0f} | {r['kf']} | {r['kf_mb']:.2f} | {r['kf_disk_mb']:.2f} | {r['edges']} | "
         f"{r['edge_mb']:.1f} | {r['pairs']:.1f} | {r['opts']} ({r['win']}) |"
         for r in probe.samples]
-    keys = ("max_keyframe_candidates", "max_loop_edges_per_keyframe", "recent_keyframe_candidates",
-            "spatial_keyframe_candidates", "spatial_radius", "optimize_growth", "optimize_small_map",
-            "max_optimize_nodes", "final_optimize_nodes", "reuse_keyframes")
+
     return [
         (f"- Stream: a {args.base_frames}-frame simulator sequence ({args.size} px, 15 cm colon) played forward "
          f"and backward (ping-pong, symbolic links) to {args.frames} frames; ground-truth depth, SIFT; "
          "2 CPU cores shared with other jobs."),
-        "- Settings: " + ", ".join(f"{k}={getattr(cfg, k)}" for k in keys) + ".",
+        "- Settings: " + "; ".join(f"{part}: {asdict(getattr(cfg, part))}"
+                                   for part in ("candidates", "keyframes", "optimization"))
+        + f", fragments.min_correspondences={cfg.for_frame_size(args.size, args.size).fragments.min_correspondences}"
+        + (" (given)" if args.min_correspondences is not None else " (derived from the frame size)") + ".",
         f"- Wall time {wall:.0f} s (final optimisation {final.get('seconds', float('nan')):.1f} s, "
         f"{final.get('optimizations', 0)} runs); registered share {s.get('registered_share', float('nan')):.3f}; "
         f"ATE (SE(3), registered frames) {100 * ev.get('ate_se3', {}).get('rmse_m', float('nan')):.2f} cm, "
@@ -210,7 +214,7 @@ def main() -> None:
     base = args.out / f"base_{args.base_frames}_{args.size}"
     if not (base / "camera.json").is_file():
         make_tiny_sequence(base, frames=args.base_frames, size=args.size, seed=5)
-    long_seq = ping_pong(base, args.out / f"long_{args.frames}", args.frames)
+    long_seq = ping_pong(base, args.out / f"long_{args.frames}_{args.size}", args.frames)
     cfg = slam_config(args)
     probe = probe_class(args.every)
     t = time.perf_counter()

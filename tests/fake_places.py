@@ -33,12 +33,16 @@ def place_poses(n: int) -> list[np.ndarray]:
 class PlaceWorld:
     """Frames at known places with an exact fake matcher (see the module docstring)."""
 
-    def __init__(self, n_places: int, reach: int = 2, seed: int = 0, graded: bool = False) -> None:
+    def __init__(self, n_places: int, reach: int = 2, seed: int = 0, graded: bool = False,
+                 relaxed_reach: int | None = None) -> None:
+        """``relaxed_reach``: how far apart two places still match with the re-joining's relaxed
+        filter (``rejoin.relaxed_min_matches``; None: as far as the normal one)."""
         rng = np.random.default_rng(seed)
         self.poses = place_poses(n_places)
         self.desc = [sift_like(rng, N_POINTS) for _ in range(n_places)]
         self.pts = rng.uniform(-0.01, 0.01, (N_POINTS, 3)).astype(np.float32) + np.float32([0, 0, 0.03])
         self.reach = reach
+        self.relaxed_reach = reach if relaxed_reach is None else relaxed_reach
         self.graded = graded
         self.place: dict[int, int] = {}
 
@@ -47,9 +51,9 @@ class PlaceWorld:
         xy = np.zeros((N_POINTS, 2), np.float32)
         return FrameFeatures(index, index / 30.0, xy, self.desc[place], self.pts.copy())
 
-    def match(self, a: FrameFeatures, b: FrameFeatures) -> tuple[PairMatch | None, int]:
+    def match(self, a: FrameFeatures, b: FrameFeatures, reach: int | None = None) -> tuple[PairMatch | None, int]:
         pa, pb = self.place[a.index], self.place[b.index]
-        if abs(pa - pb) > self.reach:
+        if abs(pa - pb) > (self.reach if reach is None else reach):
             return None, 0
         n = N_POINTS - abs(pa - pb) if self.graded else N_POINTS
         return PairMatch(g.relative_pose(self.poses[pa], self.poses[pb]), self.pts[:n].astype(float), n), n
@@ -59,9 +63,15 @@ class PlaceWorld:
         """Guided matching in this world: exact, the prior changes nothing (:meth:`match`)."""
         return self.match(a, b)
 
+    def relaxed(self, a: FrameFeatures, b: FrameFeatures) -> tuple[PairMatch | None, int]:
+        """The re-joining's relaxed matching in this world: exact, within ``relaxed_reach``."""
+        return self.match(a, b, self.relaxed_reach)
+
     def use(self, slam: FragmentSlam) -> FragmentSlam:
-        """``slam`` with this world's matchers (plain and guided)."""
+        """``slam`` with this world's matchers (plain, guided and, where on, relaxed)."""
         slam.match, slam.recovery.guided = self.match, self.guided
+        if slam.rejoin.relaxed is not None:
+            slam.rejoin.relaxed = self.relaxed
         return slam
 
 

@@ -35,7 +35,8 @@ def test_help(script: Path):
 
 def test_tracking_breaks_reports_a_black_frame(tmp_path):
     """benchmarks/slam_tracking_breaks.py on a tiny sequence with one black frame: the two
-    pairs around it are the only broken ones, and the report says why."""
+    pairs around it are the only broken ones, the report says why and, given the run, that the
+    black frame is not registered while the frame after it is in the main map."""
     import cv2
     import numpy as np
 
@@ -44,13 +45,20 @@ def test_tracking_breaks_reports_a_black_frame(tmp_path):
     seq = make_tiny_sequence(tmp_path / "seq", frames=20, size=128, seed=3)
     frame = sorted((seq / "rgb").iterdir())[10]
     cv2.imwrite(str(frame), np.zeros((128, 128, 3), np.uint8))
+    run = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "c3f_slam", "run", str(seq), "--out", str(run), "--no-mesh"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    assert r.returncode == 0, r.stderr[-2000:]
     report = tmp_path / "breaks.md"
-    r = subprocess.run([*_module(ROOT / "benchmarks" / "slam_tracking_breaks.py"), str(seq),
+    r = subprocess.run([*_module(ROOT / "benchmarks" / "slam_tracking_breaks.py"), str(seq), "--run", str(run),
                         "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     text = report.read_text()
     assert "Broken pairs (no accepted match): 2;" in text, text
     assert "| 10 | - | 0 |" in text and "| 11 | - |" in text and "too few keypoints" in text
+    rows = {line.split(" | ")[0]: line for line in text.splitlines() if line.startswith(("| 10 |", "| 11 |"))}
+    assert rows["| 10"].endswith("| 0 | not registered |") and rows["| 11"].endswith("| main |"), rows
+    assert "frame i of the 2 broken pairs is: main 1, not registered 1." in text
 
 
 def test_depth_motion_measures_a_known_scale(tmp_path):

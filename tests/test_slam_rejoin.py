@@ -64,6 +64,45 @@ def test_a_break_that_never_comes_back_is_dropped_after_its_window():
     assert stats["rejoin_attempts"] == 4 and not slam.rejoin.pending
 
 
+#: a break the normal matcher cannot bridge: a jump from 20 to 24, then the camera stays at 23,
+#: three places (15 mm, 3.4 deg) from the last tracked frame -- within the relaxed filter's reach only
+STAY = list(range(21)) + [24] + [23] * 12
+
+
+def test_a_relaxed_match_just_after_the_break_rejoins():
+    world = PlaceWorld(30, reach=2, relaxed_reach=3)
+    slam = _run(world, STAY, relaxed_max_step=0.01)
+    _, _, poses, reg = slam.trajectory()
+    assert reg[:21].all() and reg[22:].all()
+    stats = slam.stats()
+    assert stats["breaks_rejoined"] == 1 and stats["breaks_rejoined_relaxed"] == 1
+    T0 = world.poses[0]
+    for i in range(22, len(STAY)):
+        assert np.allclose(poses[i], g.relative_pose(T0, world.poses[STAY[i]]), atol=1e-6), i
+
+
+@pytest.mark.parametrize("over", [
+    {"relaxed_min_matches": 0},  # relaxed matching off
+    {"relaxed_max_step": 0.001},  # 15 mm is more than the camera moves in 10 frames at 1 mm/frame
+    {"relaxed_max_turn_deg": 0.1},  # 3.4 deg likewise
+])
+def test_relaxed_rejoin_needs_a_plausible_motion(over):
+    """The same stream: without the relaxed matcher, or with a motion bound the link breaks,
+    the frames after the break stay a lone component (so the test above can fail)."""
+    slam = _run(PlaceWorld(30, reach=2, relaxed_reach=3), STAY, **{"relaxed_max_step": 0.01, **over})
+    _, _, _, reg = slam.trajectory()
+    assert reg[:21].all() and not reg[22:].any()
+    assert slam.stats()["breaks_rejoined_relaxed"] == 0
+
+
+def test_relaxed_matching_only_in_the_first_frames_after_a_break():
+    """Past ``relaxed_frames`` only the normal filter is tried: a camera that reaches the relaxed
+    reach later is not joined by it."""
+    places = list(range(21)) + [24] * 12 + [23] * 6
+    slam = _run(PlaceWorld(30, reach=2, relaxed_reach=3), places, relaxed_max_step=0.01, relaxed_frames=10)
+    assert slam.stats()["breaks_rejoined"] == 0
+
+
 def test_tail_attempts_favour_the_last_tracked_frame():
     order = [_tail_index(t, 4) for t in range(8)]
     assert order == [0, 1, 0, 2, 0, 3, 0, 1]
@@ -89,3 +128,7 @@ def test_unresolved_threshold_is_refused_by_the_backend():
 def test_rejoin_options_are_checked():
     with pytest.raises(InputError, match="rejoin.window"):
         SlamConfig.preset_config("colon", rejoin={"window": 0})
+    with pytest.raises(InputError, match="rejoin.relaxed_min_matches"):
+        SlamConfig.preset_config("colon", rejoin={"relaxed_min_matches": 3})
+    with pytest.raises(InputError, match="rejoin.relaxed_max_step"):
+        SlamConfig.preset_config("colon", rejoin={"relaxed_max_step": 0})

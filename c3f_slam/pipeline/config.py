@@ -128,10 +128,24 @@ class RejoinConfig:
     window: int = 300  #: frames after a break during which its tail is tried (then it is dropped)
     keypoints: int = 500  #: features a tail frame keeps (strongest first)
     max_pending: int = 4  #: breaks remembered at once (the oldest is dropped)
+    #: for the first ``relaxed_frames`` frames after a break, a tail frame the normal filter does not
+    #: link is matched again accepting ``relaxed_min_matches`` correspondences (0 = off), if the
+    #: motion it gives is one the camera can make in the frames between: at most ``relaxed_max_step``
+    #: metres and ``relaxed_max_turn_deg`` degrees per frame
+    relaxed_min_matches: int = 8
+    relaxed_frames: int = 10
+    relaxed_max_step: float = 0.003
+    relaxed_max_turn_deg: float = 6.0
 
     def __post_init__(self) -> None:
         for name in ("tail_frames", "tail_step", "window", "keypoints", "max_pending"):
             _at_least(getattr(self, name), 1, f"rejoin.{name}")
+        _check(self.relaxed_min_matches == 0 or self.relaxed_min_matches >= 6,
+               f"rejoin.relaxed_min_matches must be 0 (off) or >= 6, got {self.relaxed_min_matches}")
+        _at_least(self.relaxed_frames, 1, "rejoin.relaxed_frames")
+        _check(self.relaxed_max_step > 0 and 0 < self.relaxed_max_turn_deg <= 180,
+               f"rejoin.relaxed_max_step must be > 0 (metres) and rejoin.relaxed_max_turn_deg in (0, 180], "
+               f"got {self.relaxed_max_step}, {self.relaxed_max_turn_deg}")
 
 
 @dataclass(frozen=True)
@@ -286,6 +300,7 @@ class SlamConfig:
             candidates=CandidateConfig(spatial_radius=1.0 if room else 0.02),
             keyframes=KeyframeConfig(reuse_max_offset=0.25 if room else 0.005),
             fallback=FallbackConfig(max_step=0.1 if room else 0.01),
+            rejoin=RejoinConfig(relaxed_max_step=0.05 if room else 0.003),
             match_filter=MatchFilterConfig.preset(name),
             posegraph=POSEGRAPH_PRESETS[name],
             fusion=FusionConfig(eps_cf_d=1.0 if room else 0.05, tsdf=TSDF_PRESETS[name]),

@@ -10,7 +10,14 @@ frames after the break, matches the current frame against them; an accepted matc
 ``rejoin`` edge between the tail's node and the current fragment's node, which merges the two
 components (uncertain: the pose graph may prune it like a loop closure).
 
-Cost: at most one pair match per processed frame while a break is pending, none otherwise.
+For the first ``relaxed_frames`` frames after a break a pair the normal filter rejects is
+matched again with a lower correspondence floor (``relaxed_min_matches``: close-ups at the wall
+keep only 50-90 keypoints at 128 px, and a turn of a few degrees there leaves 8-9 consistent
+matches), accepted only if the motion it gives is one the camera can make in the frames
+between the two (``relaxed_max_step`` metres, ``relaxed_max_turn_deg`` degrees per frame).
+
+Cost: at most one pair match per processed frame while a break is pending (two during the
+relaxed frames), none otherwise.
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from c3f_slam.geometry import invert_pose, transform_points
+from c3f_slam.geometry import invert_pose, motion_magnitudes, transform_points
 from c3f_slam.pipeline.config import RejoinConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch
 
@@ -52,12 +59,16 @@ class Rejoin:
 class BreakTails:
     """Pending breaks and the matching of new frames against their tails (see the module notes)."""
 
-    def __init__(self, cfg: RejoinConfig, match: Matcher) -> None:
+    def __init__(self, cfg: RejoinConfig, match: Matcher, relaxed: Matcher | None = None) -> None:
+        """``match``: the run's pair matching; ``relaxed``: the same with ``relaxed_min_matches``
+        (None: no relaxed attempts)."""
         self.cfg = cfg
         self.match = match
+        self.relaxed = relaxed if cfg.relaxed_min_matches else None
         self.pending: list[BreakTail] = []
         self.breaks = 0  #: breaks recorded
         self.joined = 0  #: breaks bridged
+        self.joined_relaxed = 0  #: of them by a relaxed match
         self.attempts = 0  #: pair matches tried
 
     def record(self, node: int, frames: list[FrameFeatures], poses: list[np.ndarray]) -> None:
@@ -90,13 +101,32 @@ class BreakTails:
         self.attempts += 1
         m, _ = self.match(tail.frames[i], feat)
         if m is None:
-            return None
+            m = self._relaxed_match(tail, i, feat)
+            if m is None:
+                return None
+            self.joined_relaxed += 1
         self.pending.remove(tail)
         self.joined += 1
         return _edge(tail.node, tail.poses[i], m, T_node_frame)
 
+    def _relaxed_match(self, tail: BreakTail, i: int, feat: FrameFeatures) -> PairMatch | None:
+        """The relaxed match of tail frame ``i`` and ``feat`` during the first frames after the
+        break, if its motion is plausible for the frames between them (at most ``age + i *
+        tail_step``: the tail frames are every ``tail_step``-th before the break, newest first)."""
+        if self.relaxed is None or tail.age > self.cfg.relaxed_frames:
+            return None
+        m, _ = self.relaxed(tail.frames[i], feat)
+        if m is None:
+            return None
+        gap = tail.age + i * self.cfg.tail_step
+        step, turn = (float(v[0]) for v in motion_magnitudes(m.T_ij))
+        if step > gap * self.cfg.relaxed_max_step or turn > gap * self.cfg.relaxed_max_turn_deg:
+            return None
+        return m
+
     def stats(self) -> dict:
-        return {"tracking_breaks": self.breaks, "breaks_rejoined": self.joined, "rejoin_attempts": self.attempts}
+        return {"tracking_breaks": self.breaks, "breaks_rejoined": self.joined,
+                "breaks_rejoined_relaxed": self.joined_relaxed, "rejoin_attempts": self.attempts}
 
 
 def _tail_index(tried: int, n: int) -> int:

@@ -71,7 +71,9 @@ class FragmentSlam(FragmentMap):
         self.prev: FrameFeatures | None = None  # last placed frame (in the active fragment)
         self.gap = True  # the previous streamed frame was skipped / unusable
         self.match: Matcher = frame_matcher(cfg, metric)
-        self.rejoin = BreakTails(cfg.rejoin, lambda a, b: self.match(a, b))  # self.match may be replaced (tests)
+        relaxed = (frame_matcher(cfg.with_(match_filter={"min_matches": cfg.rejoin.relaxed_min_matches}), metric)
+                   if cfg.rejoin.relaxed_min_matches else None)
+        self.rejoin = BreakTails(cfg.rejoin, lambda a, b: self.match(a, b), relaxed)  # self.match: tests replace it
         self.recovery = LinkRecovery(cfg, self.K, metric)  # guided matching, dense fallback
         #: with the dense fallback: components over the edges of sparse matches only (pruning is
         #: not reflected), so that matches across a fallback edge re-place the side after it
