@@ -237,7 +237,11 @@ def evaluate_trajectory(
         out["error"] = f"only {len(ie)} poses associated with the ground truth (need 3)"
         return out
     E, G = np.asarray(est_poses)[ie], np.asarray(gt_poses)[ig]
-    a_sim3, a_se3 = ate(E, G, "sim3"), ate(E, G, "se3")
+    try:
+        a_sim3, a_se3 = ate(E, G, "sim3"), ate(E, G, "se3")
+    except ValueError as exc:  # e.g. a component whose frames all sit at one pose: no alignment
+        out["error"] = f"ATE undefined: {exc}"
+        return out
     out["ate_sim3"] = a_sim3.as_dict()
     out["ate_se3"] = a_se3.as_dict()
     out["rpe"] = rpe(E, G, rpe_delta, scale=a_sim3.scale).as_dict()

@@ -170,6 +170,17 @@ def test_evaluate_trajectory_and_plot(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["traj.png"]
 
 
+def test_a_trajectory_that_never_moves_gets_an_error_not_an_exception():
+    """A component whose frames all sit at one pose (e.g. a revisit of one place in a long
+    stream) has no Sim(3) alignment: its evaluation says so instead of aborting the run's."""
+    gt = _trajectory(20)
+    stamps = np.arange(20) * 0.1
+    still = np.repeat(gt[:1], 20, axis=0)
+    out = evaluate_trajectory(stamps, still, stamps, gt)
+    assert out["error"].startswith("ATE undefined") and "ate_sim3" not in out
+    assert out["n_associated"] == 20
+
+
 def test_common_frames_ate_compares_runs_on_shared_frames():
     gt = _trajectory(40)
     stamps = np.arange(40) * 0.1
