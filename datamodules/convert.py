@@ -6,9 +6,11 @@ Every sequence found under SRC (the data set's folder as published, or any folde
 whole sequences) becomes ``DST/<name>/``: ``rgb/`` (PNG), ``depth/`` (uint16 at the data
 set's native resolution, recorded as ``depth_scale`` in ``camera.json``), ``camera.json``,
 ``poses.txt`` (TUM, camera-to-world, metres) and ``mesh.ply`` (metres) where the data set has
-them. Frames are full size: no crop or resize (C3VD's are undistorted to their pinhole
-camera, as the loader reads them). The releases give no frame times: timestamps are the frame
-position / 30 s.
+them, with ``mesh_observed.txt`` (one ``1`` observed / ``0`` never observed a line, per
+triangle of mesh.ply: :mod:`c3f_slam.coverage.dataset_truth`) where the data set flags which
+faces its frames saw (C3VD's coverage_mesh.obj). Frames are full size: no crop or resize
+(C3VD's are undistorted to their pinhole camera, as the loader reads them). The releases give no frame
+times: timestamps are the frame position / 30 s.
 
 Every sequence is opened (pose files parsed, files listed, first frame decoded) before
 anything is written; each one is written into a hidden sibling folder and moved into place
@@ -26,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_slam.coverage.dataset_truth import FLAGS_FILE, write_observed_flags
 from c3f_slam.errors import InputError
 from c3f_slam.io import SequenceWriter
 from c3f_slam.io.atomic import move_into_place, staging_dir
@@ -115,6 +118,9 @@ def write_sequence(seq: PublishedSequence, dst: Path, progress: bool = True) -> 
         mesh = seq.read_mesh()
         if mesh is not None:
             _write_mesh(tmp / "mesh.ply", *mesh)
+            flags = seq.read_coverage()
+            if flags is not None:
+                write_observed_flags(tmp / FLAGS_FILE, flags)
         stamps = np.arange(len(seq), dtype=np.float64) / NOMINAL_FPS
         writer.finish(seq.poses if seq.has_poses else None, stamps if seq.has_poses else None)
         move_into_place(tmp, dst)

@@ -95,3 +95,35 @@ def test_slam_and_evaluate_run_on_a_converted_sequence(published, tmp_path):
     assert (out / "trajectory.txt").is_file()
     assert slam(["evaluate", str(out), "--gt", str(seq)]) == 0
     assert (out / "evaluation.json").is_file()
+
+
+def test_convert_keeps_c3vds_observed_flags(published, tmp_path):
+    """coverage_mesh.obj's per-face flags (vt 1 = observed, 2 = never) survive as mesh_observed.txt,
+    one line per triangle of mesh.ply in its order."""
+    import open3d as o3d
+
+    from c3f_slam.coverage.dataset_truth import FLAGS_FILE, read_observed_flags
+    from datamodules.formats.c3vd import read_obj
+
+    _, root = published("c3vd")
+    convert("c3vd", root, tmp_path / "out", progress=False, report=lambda line: None)
+    seq = tmp_path / "out" / "c3f_sim"
+    mesh = o3d.io.read_triangle_mesh(str(seq / "mesh.ply"))
+    flags = read_observed_flags(seq / FLAGS_FILE, len(mesh.triangles))
+    V, F, expected = read_obj(root / SEQUENCE_DIR["c3vd"] / "coverage_mesh.obj")
+    assert (flags == expected).all() and flags.any() and not flags.all()  # 5 frames see part of the colon
+    assert (np.asarray(mesh.triangles) == F).all()
+
+
+@pytest.mark.parametrize(("face", "message"), [("f 1/3 2/3 3/3", "coverage texture coordinate 3"),
+                                               ("f 1 2 3", "have no coverage texture coordinate"),
+                                               ("f 1/x 2/1 3/1", "non-integer index")])
+def test_malformed_c3vd_flags_are_one_line_errors(published, tmp_path, face, message, capsys):
+    _, root = published("c3vd")
+    broken = copy_layout(root, tmp_path / "broken")
+    obj = broken / SEQUENCE_DIR["c3vd"] / "coverage_mesh.obj"
+    obj.write_text(obj.read_text() + face + "\n")
+    assert main(["convert", "c3vd", str(broken), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "coverage_mesh.obj" in err[0] and message in err[0]
+    assert not (tmp_path / "out" / "c3f_sim").exists()

@@ -194,3 +194,42 @@ def test_settings_are_checked_and_room_has_none():
     assert not SlamConfig.preset_config("room").coverage.enabled
     assert CoverageConfig().depth_range(0.001, 0.2) == (0.001, 0.2)
     assert CoverageConfig(depth_max=0.05).depth_range(0.001, 0.2) == (0.001, 0.05)
+
+
+@pytest.mark.parametrize("seen", [True, False])
+def test_evaluate_reports_the_data_sets_own_flags(coverage_run, sim_sequence, tmp_path, capsys, seen):
+    """mesh_observed.txt beside mesh.ply (converted C3VD): the data set's unseen share is reported
+    beside the estimate and our truth, overall and on the same segments."""
+    import json
+    import shutil
+
+    import open3d as o3d
+
+    from c3f_slam.cli import main
+    from c3f_slam.coverage.dataset_truth import FLAGS_FILE, write_observed_flags
+
+    gt = shutil.copytree(sim_sequence, tmp_path / "gt")
+    run = shutil.copytree(coverage_run, tmp_path / "run")
+    n = len(o3d.io.read_triangle_mesh(str(gt / "mesh.ply")).triangles)
+    write_observed_flags(gt / FLAGS_FILE, np.full(n, seen))
+    capsys.readouterr()
+    assert main(["evaluate", str(run), "--gt", str(gt)]) == 0
+    assert "the data set's own flags" in capsys.readouterr().out
+    u = json.loads((run / "evaluation.json").read_text())["unseen"]
+    assert u["dataset"] == (0.0 if seen else 1.0) and u["dataset_file"] == FLAGS_FILE
+    assert all(s["dataset"] == u["dataset"] for s in u["segments"])
+
+
+def test_malformed_dataset_flags_are_one_line_errors(coverage_run, sim_sequence, tmp_path, capsys):
+    import shutil
+
+    from c3f_slam.cli import main
+    from c3f_slam.coverage.dataset_truth import FLAGS_FILE
+
+    gt = shutil.copytree(sim_sequence, tmp_path / "gt")
+    for text, message in (("1\n0\n", "observed flags for a mesh of"), ("1\n2\n", ":2: observed flag must be 0 or 1")):
+        (gt / FLAGS_FILE).write_text(text)
+        capsys.readouterr()
+        assert main(["evaluate", str(coverage_run), "--gt", str(gt)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and FLAGS_FILE in err[0] and message in err[0]

@@ -103,6 +103,10 @@ class PublishedSequence:
         """The ground-truth surface as (vertices (V, 3) metres, triangles (F, 3) int), or None."""
         return None
 
+    def read_coverage(self) -> np.ndarray | None:
+        """Per-triangle flags of :meth:`read_mesh` (True = the data set saw the face), or None."""
+        return None
+
     # ------------------------------------------------------------------ per format
     def decode_rgb(self, path: Path) -> np.ndarray:
         return decode_rgb(path)

@@ -108,8 +108,11 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
             corners = [c.split("/") for c in line.split()[1:]]
             if len(corners) < 3:
                 raise InputError(f"{path}:{lineno}: face with {len(corners)} corners (truncated file?)")
-            idx = [int(c[0]) for c in corners]
-            t = int(corners[0][1]) if len(corners[0]) > 1 and corners[0][1] else 0
+            try:
+                idx = [int(c[0]) for c in corners]
+                t = int(corners[0][1]) if len(corners[0]) > 1 and corners[0][1] else 0
+            except ValueError:
+                raise InputError(f"{path}:{lineno}: face with a non-integer index: {line.strip()[:60]!r}") from None
             for k in range(1, len(idx) - 1):
                 tris.append((idx[0], idx[k], idx[k + 1]))
                 tex.append(t)
@@ -120,9 +123,22 @@ def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     F = np.where(F > 0, F - 1, F + len(V))  # OBJ indices are 1-based; negative ones count from the end
     if F.min() < 0 or F.max() >= len(V):
         raise InputError(f"{path}: a face refers to a vertex that does not exist")
-    tex_arr = np.asarray(tex)
-    observed = (tex_arr == 1) if (tex_arr > 0).all() else None
-    return V, F, observed
+    return V, F, _coverage_flags(path, np.asarray(tex))
+
+
+def _coverage_flags(path: Path, tex: np.ndarray) -> np.ndarray | None:
+    """Observed flags from the faces' texture coordinate indices (0 = none on that face): None
+    when no face has one; InputError when only some have or one is neither 1 nor 2."""
+    if not (tex != 0).any():
+        return None
+    if (tex == 0).any():
+        raise InputError(f"{path}: {int((tex == 0).sum())} of {len(tex)} faces have no coverage texture "
+                         "coordinate (expected f a/1 ... = observed or f a/2 ... = never observed on every face)")
+    bad = ~np.isin(tex, (1, 2))
+    if bad.any():
+        raise InputError(f"{path}: coverage texture coordinate {int(tex[bad][0])} on a face (expected 1 = observed, "
+                         "2 = never observed)")
+    return tex == 1
 
 
 class C3VDSequence(PublishedSequence):
