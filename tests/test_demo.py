@@ -155,11 +155,11 @@ def quick_demo(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
     return out, r
 
 
-@pytest.mark.slow
 def test_quick_demo_end_to_end(quick_demo):
     """Files and metrics of a --quick run: every configuration either ok with a finite ATE below the
     path length or said failed; the RGB-D reference works; the report has every section and every
-    embedded image decodes; every stage reported a time."""
+    embedded image decodes; every stage reported a time. Then a rerun skips every stage and other
+    settings are refused (one test, so that pytest-xdist runs the demo once; 6.4 min on loaded cores)."""
     out, r = quick_demo
     assert r.returncode == 0, r.stderr[-2000:]
     for f in ("report.html", "demo_state.json", "models/depthnet/depthnet.onnx", "models/contrafeat/contrafeat.onnx",
@@ -184,11 +184,10 @@ def test_quick_demo_end_to_end(quick_demo):
     state = json.loads((out / "demo_state.json").read_text())
     assert list(state["stages"]) == [s.name for s in runner.STAGES]
     assert "total" in r.stdout and "report:" in r.stdout
+    _check_rerun_skips_and_other_settings_refused(out)
 
 
-@pytest.mark.slow
-def test_quick_demo_rerun_skips_and_other_settings_refused(quick_demo):
-    out, _ = quick_demo
+def _check_rerun_skips_and_other_settings_refused(out: Path) -> None:
     again = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick"], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert again.returncode == 0 and again.stdout.count("skipped: done earlier") == len(runner.STAGES)

@@ -88,10 +88,10 @@ def demo_config(quick: bool = False) -> DemoConfig:
     if not quick:
         return DemoConfig(depth=DepthTrainConfig(lr=5e-4))
     return DemoConfig(
-        simulate=SimulateConfig(train=(("seq1", 100),), train_frames=100, test_frames=60,
-                                train_coverage=0.05, test_coverage=0.03),
-        depth=DepthTrainConfig(steps=40),
-        features=FeatureTrainConfig(steps=20),
+        simulate=SimulateConfig(train=(("seq1", 100),), train_frames=48, test_frames=40,
+                                train_coverage=0.025, test_coverage=0.02),
+        depth=DepthTrainConfig(steps=12, batch_size=2),
+        features=FeatureTrainConfig(steps=6),
         report=ReportConfig(sample_frames=3, depth_eval_stride=3, pair_frame=10, render_size=240),
         quick=True,
     )
