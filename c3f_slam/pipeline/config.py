@@ -178,7 +178,9 @@ class FallbackConfig:
 class RefineConfig:
     """Dense refinement of keyframe-to-keyframe edges with Open3D's coloured ICP
     (:mod:`c3f_slam.pipeline.refine`). Lengths in metres: ``voxels`` coarse to fine (the
-    preset's scale: room cm, colon mm), one ICP per voxel size with ``iterations`` each."""
+    preset's scale: room cm, colon mm), one ICP per voxel size with ``iterations`` each. Off by
+    default for both presets: it did not lower the ATE on a synthetic room sequence nor on a
+    simulator colon one (benchmarks/results/slam_dense_refine.md)."""
 
     enabled: bool = False  #: --dense-refine
     voxels: tuple[float, ...] = (0.002, 0.001, 0.0005)  #: voxel sizes, coarse to fine (metres)
