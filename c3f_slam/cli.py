@@ -76,6 +76,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="where sparse matching to the previous frame fails, align the two frames densely (Open3D "
                         "RGB-D odometry, verified on its residuals) and add a low-trust, prunable fallback edge "
                         "(default off: inaccurate on the simulator's colon frames; SlamConfig.fallback.dense)")
+    r.add_argument("--dense-refine", action=argparse.BooleanOptionalAction, default=None,
+                   help="refine each new keyframe's edges to recent keyframes with Open3D's coloured ICP (multi-scale, "
+                        "from the sparse estimate, verified; rejected ones stay sparse; SlamConfig.refine.enabled; "
+                        "default off, see benchmarks/results/slam_dense_refine.md)")
     r.add_argument("--guided-matching", action=argparse.BooleanOptionalAction, default=None,
                    help="where sparse matching to the previous frame fails, match again near where the last "
                         "motion puts each keypoint (default on; SlamConfig.fallback.guided)")
@@ -135,6 +139,8 @@ def _overrides(args: argparse.Namespace) -> dict:
         over["keyframes"]["reuse"] = args.reuse_keyframes
     if args.dense_fallback is not None:
         over.setdefault("fallback", {})["dense"] = args.dense_fallback
+    if args.dense_refine is not None:
+        over["refine"] = {"enabled": args.dense_refine}
     if args.guided_matching is not None:
         over.setdefault("fallback", {})["guided"] = args.guided_matching
     if args.component_min_frames is not None:

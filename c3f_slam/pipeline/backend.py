@@ -25,9 +25,9 @@ from c3f_slam.pipeline.frontend import FrameFeatures
 
 class Timings:
     """Seconds per stage (io, depth, keypoints incl. descriptors, matching, the dense fallback,
-    posegraph, fusion)."""
+    the dense refinement of keyframe edges, posegraph, fusion)."""
 
-    STAGES = ("io", "depth", "keypoints", "matching", "fallback", "posegraph", "fusion")
+    STAGES = ("io", "depth", "keypoints", "matching", "fallback", "refine", "posegraph", "fusion")
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)

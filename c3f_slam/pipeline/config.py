@@ -189,6 +189,43 @@ class FallbackConfig:
 
 
 @dataclass(frozen=True)
+class RefineConfig:
+    """Dense refinement of keyframe-to-keyframe edges with Open3D's coloured ICP
+    (:mod:`c3f_slam.pipeline.refine`). Lengths in metres: ``voxels`` coarse to fine (the
+    preset's scale: room cm, colon mm), one ICP per voxel size with ``iterations`` each. Off by
+    default for both presets: it did not lower the ATE on a synthetic room sequence nor on a
+    simulator colon one (benchmarks/results/slam_dense_refine.md)."""
+
+    enabled: bool = False  #: --dense-refine
+    voxels: tuple[float, ...] = (0.002, 0.001, 0.0005)  #: voxel sizes, coarse to fine (metres)
+    iterations: tuple[int, ...] = (30, 20, 10)  #: ICP iterations per voxel size
+    max_correction: float = 0.005  #: metres: a refined pose further from the sparse one is rejected ...
+    max_correction_deg: float = 5.0  #: ... as is a larger rotation between them (degrees)
+    min_fitness: float = 0.5  #: share of the new keyframe's points within 1.5 voxels after refining
+    min_gain: float = 0.02  #: the fitness must rise at least this much over the sparse pose's (0: any)
+    max_edges: int = 4  #: edges refined per new keyframe (odometry first, then the strongest)
+    cache: int = 64  #: keyframes whose clouds are kept (the most recent; older edges stay sparse)
+    stride: int = 2  #: pixel grid of the keyframes' clouds
+
+    def __post_init__(self) -> None:
+        _check(len(self.voxels) >= 1 and len(self.voxels) == len(self.iterations)
+               and all(v > 0 for v in self.voxels) and all(i >= 1 for i in self.iterations),
+               f"refine.voxels and refine.iterations must be equally long, > 0, got {self.voxels}, {self.iterations}")
+        _check(self.max_correction > 0 and 0 < self.max_correction_deg <= 180,
+               "refine.max_correction must be > 0 (metres) and refine.max_correction_deg in (0, 180], "
+               f"got {self.max_correction}, {self.max_correction_deg}")
+        _check(0 <= self.min_fitness <= 1 and 0 <= self.min_gain <= 1,
+               f"refine.min_fitness and refine.min_gain must be in [0, 1], got {self.min_fitness}, {self.min_gain}")
+        for name in ("max_edges", "cache", "stride"):
+            _at_least(getattr(self, name), 1, f"refine.{name}")
+
+    @classmethod
+    def room(cls) -> RefineConfig:
+        """Room scale: 8, 4, 2 cm voxels; corrections up to 10 cm / 5 degrees."""
+        return cls(voxels=(0.08, 0.04, 0.02), max_correction=0.1)
+
+
+@dataclass(frozen=True)
 class ComponentConfig:
     """What becomes of the components that could not be joined to the main map
     (:mod:`c3f_slam.pipeline.components`; frames = registered frames of a component)."""
@@ -243,7 +280,7 @@ class FusionConfig:
 
 
 #: parts of :class:`SlamConfig` that overrides may give as dicts of their fields
-SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "fallback", "components",
+SECTIONS = ("frontend", "fragments", "candidates", "keyframes", "rejoin", "fallback", "refine", "components",
             "optimization", "match_filter", "posegraph", "fusion", "coverage")
 
 #: overrides that restore the paper's literal rules at any map size: every new keyframe matched
@@ -268,6 +305,7 @@ class SlamConfig:
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     rejoin: RejoinConfig = field(default_factory=RejoinConfig)
     fallback: FallbackConfig = field(default_factory=FallbackConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)  #: dense refinement of keyframe edges
     components: ComponentConfig = field(default_factory=ComponentConfig)
     optimization: OptimizationConfig = field(default_factory=OptimizationConfig)
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig.colon)
@@ -301,6 +339,7 @@ class SlamConfig:
             keyframes=KeyframeConfig(reuse_max_offset=0.25 if room else 0.005),
             fallback=FallbackConfig(max_step=0.1 if room else 0.01),
             rejoin=RejoinConfig(relaxed_max_step=0.05 if room else 0.003),
+            refine=RefineConfig.room() if room else RefineConfig(),
             match_filter=MatchFilterConfig.preset(name),
             posegraph=POSEGRAPH_PRESETS[name],
             fusion=FusionConfig(eps_cf_d=1.0 if room else 0.05, tsdf=TSDF_PRESETS[name]),

@@ -135,20 +135,22 @@ def join_components(graph: PoseGraph, i: int, j: int, T_ij: np.ndarray) -> bool:
 
 def link_new_keyframe(graph: PoseGraph, node: int, edges: list[KeyframeEdge],
                       dense_information: Callable[[PairMatch], np.ndarray],
-                      sparse: Components | None = None) -> int:
+                      sparse: Components | None = None, information: dict[int, np.ndarray] | None = None) -> int:
     """Place the new keyframe ``node`` (:func:`place_new_frame`) and add its ``edges``: odometry
     certain, the others uncertain; a ``fallback`` edge with ``dense_information(match)`` (its
-    trust-weighted information) instead of its points'. ``sparse``: the components over
+    trust-weighted information) instead of its points'; edge number n with ``information[n]``
+    where given (a dense refinement: :mod:`.refine`). ``sparse``: the components over
     sparse-match edges (the node already added), kept up to date. Returns the number of
     components merged."""
     T_wn, merged = place_new_frame(graph, edges, sparse)
     if T_wn is not None:
         graph.set_pose(node, T_wn)
-    for k, m, kind in edges:
+    for n, (k, m, kind) in enumerate(edges):
         if kind == EdgeKind.FALLBACK:  # prunable where keyframe matches disagree
             graph.add_edge(k, node, m.T_ij, information=dense_information(m), uncertain=True, kind=kind)
             continue
-        graph.add_edge(k, node, m.T_ij, points_j=m.points_j, uncertain=kind != EdgeKind.ODOMETRY, kind=kind)
+        weight = {"information": information[n]} if information and n in information else {"points_j": m.points_j}
+        graph.add_edge(k, node, m.T_ij, **weight, uncertain=kind != EdgeKind.ODOMETRY, kind=kind)
         if sparse is not None:
             sparse.union(k, node)
     return merged

@@ -47,6 +47,7 @@ from c3f_slam.pipeline.keyframe_edges import (
     link_new_keyframe,
     place_new_frame,
 )
+from c3f_slam.pipeline.refine import EdgeRefiner
 from c3f_slam.pipeline.rejoin import BreakTails
 from c3f_slam.pipeline.retrieval import Candidates, global_descriptor
 from c3f_slam.pipeline.reuse import find_host, revisit_edges
@@ -78,6 +79,8 @@ class FragmentSlam(FragmentMap):
         #: with the dense fallback: components over the edges of sparse matches only (pruning is
         #: not reflected), so that matches across a fallback edge re-place the side after it
         self.sparse = Components() if cfg.fallback.dense else None
+        self.refiner = EdgeRefiner(cfg.refine, self.K) if cfg.refine.enabled else None  # dense keyframe edges
+        self._rgb: np.ndarray | None = None  # the current frame's image (for the refinement)
         if cfg.fragments.min_correspondences is None:
             raise ValueError("fragments.min_correspondences is derived from the frame size: "
                              "pass SlamConfig.for_frame_size(width, height)")
@@ -93,6 +96,7 @@ class FragmentSlam(FragmentMap):
         """Process one frame (``rgb``: its (H, W, 3) uint8 image, for the dense fallback only);
         returns (fragment id, opened a new fragment)."""
         t0 = time.perf_counter()
+        self._rgb = rgb
         link, n = (None, 0)
         if self.prev is not None and not self.gap:
             link, n = self.match(self.prev, feat)
@@ -266,7 +270,9 @@ class FragmentSlam(FragmentMap):
         self.active = Fragment(fid, feat, depth, reason, node=node)
         if self.sparse is not None:
             self.sparse.add_node()
-        merged = link_new_keyframe(self.graph, node, edges, self.recovery.information, self.sparse)
+        edges, information = self._refine(node, edges, depth)
+        t0 = time.perf_counter()
+        merged = link_new_keyframe(self.graph, node, edges, self.recovery.information, self.sparse, information)
         if not edges:
             self.counts.lone_created += 1
         elif link is None and prev_frag is not None:
@@ -275,6 +281,21 @@ class FragmentSlam(FragmentMap):
         self.schedule.after_keyframe(node, loops or merged > 0, len(self.keyframes))
         self.t.add("posegraph", t0)
         return fid
+
+    def _refine(self, node: int, edges: list[KeyframeEdge],
+                depth: np.ndarray) -> tuple[list[KeyframeEdge], dict[int, np.ndarray]]:
+        """The new keyframe ``node``'s edges with the accepted dense refinements (:mod:`.refine`)
+        in place, and their information matrices by edge index; the frame's clouds are kept."""
+        if self.refiner is None:
+            return edges, {}
+        t0 = time.perf_counter()
+        self.refiner.observe(self._rgb, depth)
+        refined = self.refiner.refine_edges(edges)
+        self.refiner.keep(node)
+        edges = [KeyframeEdge(e.k, PairMatch(refined[n].T, e.match.points_j, e.match.n), e.kind)
+                 if n in refined else e for n, e in enumerate(edges)]
+        self.t.add("refine", t0)
+        return edges, {n: r.information for n, r in refined.items()}
 
     def _attach(self, fid: int, feat: FrameFeatures, depth: np.ndarray, reason: str,
                 edges: list[KeyframeEdge], host: int, prev_frag: Fragment | None) -> int:
@@ -301,7 +322,8 @@ class FragmentSlam(FragmentMap):
 
     def stats(self) -> dict:
         """Counters for summary.json (:meth:`FragmentMap.stats`, the re-joining's and the fallback's)."""
-        return {**super().stats(), **self.rejoin.stats(), **self.recovery.stats()}
+        refine = self.refiner.stats() if self.refiner is not None else {"refine_attempts": 0, "refine_accepted": 0}
+        return {**super().stats(), **self.rejoin.stats(), **self.recovery.stats(), **refine}
 
     def finish(self) -> None:
         """Close the active fragment, make the component with the most frames the main one
