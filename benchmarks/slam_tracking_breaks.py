@@ -199,8 +199,8 @@ def _broken_list(rows: list[dict], limit: int, have_motion: bool) -> list[str]:
 
 def main() -> None:
     a = _arguments()
-    stream = FrameStream(a.sequence, use_depth=True, max_frames=1)
-    cfg = SlamConfig().for_frame_size(stream.camera.width, stream.camera.height)
+    camera = Sequence(a.sequence).camera
+    cfg = SlamConfig().for_frame_size(camera.width, camera.height)
     min_corr = a.min_correspondences or cfg.fragments.min_correspondences
     rows, have_motion = pair_rows(a.sequence, a.max_frames, cfg)
     if a.run is not None:

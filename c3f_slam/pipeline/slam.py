@@ -270,6 +270,7 @@ class FragmentSlam(FragmentMap):
         self.active = Fragment(fid, feat, depth, reason, node=node)
         if self.sparse is not None:
             self.sparse.add_node()
+        self.t.add("posegraph", t0)  # node bookkeeping; the refinement times itself
         edges, information = self._refine(node, edges, depth)
         t0 = time.perf_counter()
         merged = link_new_keyframe(self.graph, node, edges, self.recovery.information, self.sparse, information)
