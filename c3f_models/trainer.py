@@ -90,6 +90,7 @@ class C3FTrainer(L.Trainer):
         tolerance: float = 1e-4,
         dynamic_size: bool = True,
         weights_only: bool | None = None,
+        graphs: list[str] | None = None,
     ) -> list[Path]:
         """Export the checkpoint's nets to ONNX with metadata and an onnxruntime parity check.
 
@@ -108,11 +109,14 @@ class C3FTrainer(L.Trainer):
             weights_only: accepted so that a run's saved ``config.yaml`` (which has it, for
                 ``fit``) works; the checkpoint is always read with the safe unpickler
                 (``weights_only=True``) and False is refused.
+            graphs: only these graphs (``--graphs '[depth]'``: DepthNet without PoseNet, which
+                ``c3f_slam`` does not use); kinds ``depth``, ``pose``, ``descriptors``. Default all.
         """
         from export import export_model  # torch.onnx is imported only when exporting
 
         written = export_model(
-            model, ckpt_path, output_dir, datamodule, frames, num_frames, tolerance, dynamic_size, weights_only
+            model, ckpt_path, output_dir, datamodule, frames, num_frames, tolerance, dynamic_size, weights_only,
+            graphs,
         )
         for path in written:
             print(f"wrote {path}")

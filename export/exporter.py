@@ -15,6 +15,7 @@ import hashlib
 import json
 import os
 import shutil
+from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,6 +88,17 @@ def graph_specs(model: L.LightningModule) -> list[GraphSpec]:
     raise InputError(f"model: export knows DepthNet and ContraFeat, not {type(model).__name__}")
 
 
+def selected_graphs(specs: list[GraphSpec], kinds: SequenceABC[str] | None) -> list[GraphSpec]:
+    """The specs of ``kinds`` (None: all); InputError naming ``--graphs`` for a kind the model lacks."""
+    if kinds is None:
+        return specs
+    have = [s.kind for s in specs]
+    unknown = [k for k in kinds if k not in have]
+    if unknown or not kinds:
+        raise InputError(f"--graphs: {unknown[0] if unknown else 'empty'}: this model exports {have}")
+    return [s for s in specs if s.kind in kinds]
+
+
 def preprocessing_of(datamodule, source) -> Preprocessing:
     """Crop, size and inpainting the model was trained with (the data module's settings)."""
     hp = dict(getattr(datamodule, "hparams", {}) or {}).get("frames") or {}  # the data module's frames group
@@ -145,8 +157,10 @@ def export_model(
     tolerance: float = 1e-4,
     dynamic_size: bool = True,
     weights_only: bool | None = None,
+    graphs: SequenceABC[str] | None = None,
 ) -> list[Path]:
-    """Export every graph of ``model`` into ``output_dir``; returns the written files.
+    """Export every graph of ``model`` (or those of ``graphs``) into ``output_dir``; returns the
+    written files.
 
     Args:
         model: the configured DepthNet or ContraFeat (weights are replaced by the checkpoint).
@@ -158,9 +172,11 @@ def export_model(
         dynamic_size: export height/width as dynamic axes.
         weights_only: accepted for the run's saved ``config.yaml``; checkpoints are always read with
             the safe unpickler (:func:`c3f_models.checkpoints.read_checkpoint_weights`), and False is refused.
+        graphs: kinds of graph to export (DepthNet: ``depth``, ``pose``; ContraFeat: ``descriptors``);
+            None: all of them.
     """
     ckpt_path = _checked_arguments(ckpt_path, weights_only, num_frames)
-    specs = graph_specs(model)
+    specs = selected_graphs(graph_specs(model), graphs)
     source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
     load_checkpoint(model, ckpt_path)
     pre = preprocessing_of(datamodule, source)

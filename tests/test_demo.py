@@ -83,6 +83,22 @@ def test_report_says_missing_image_and_run_coverage(tmp_path):
     assert "missing image: matches.png" in html and "25.0 %" in html and "<b>Ground truth</b>" not in html
 
 
+def test_report_shows_depth_before_and_after_test_time_training(tmp_path):
+    d = fake_report_inputs(tmp_path)
+    before = {k: 0.3 for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")}
+    d["metrics"]["depth"]["before_ttt"] = {"median_scaled": {**before, "scale": 1.0}, "metric": before}
+    html = build_report(tmp_path, d)
+    assert "before TTT, median scaling" in html and "after TTT, metric" in html and "0.300" in html
+    assert "Test-time training lowered the error</b>: Abs Rel 0.300 -> 0.100" in html
+    d["metrics"]["depth"]["before_ttt"]["median_scaled"]["abs_rel"] = 0.1009
+    assert "Test-time training left the error unchanged (within 1 %)</b>" in build_report(tmp_path, d)
+    assert "test-time trained on the held-out sequence" in html
+    d["config"]["ttt"]["steps"] = 0
+    del d["metrics"]["depth"]["before_ttt"]
+    html = build_report(tmp_path, d)
+    assert "before TTT" not in html and "No test-time training" in html
+
+
 class FakeStage(Stage):
     def __init__(self, name, upstream=(), value=1, interrupt=False):
         self.name, self.upstream, self.value, self.interrupt, self.calls = name, upstream, value, interrupt, 0
@@ -121,6 +137,36 @@ def test_runner_resumes_refuses_and_stops_on_ctrl_c(tmp_path, monkeypatch, capsy
     state = DemoState(tmp_path / "d")
     assert list(state.stages) == ["a"]  # b forgotten, a kept
     assert "total" in capsys.readouterr().out
+
+
+def test_runner_new_stage_in_the_middle_reruns_what_reads_from_it(tmp_path, monkeypatch):
+    """A folder made before a stage was added: the new stage runs, the later stages that read from
+    it rerun, a later one that does not stays done, and every record is kept (whatever their order
+    in the state file)."""
+    a, c, d = FakeStage("a"), FakeStage("c", ("a",)), FakeStage("d", ("a",))
+    monkeypatch.setattr(runner, "STAGES", (a, c, d))
+    cfg = demo_cfg.demo_config(quick=True)
+    runner.run_demo(tmp_path / "d", cfg)
+    b, c2 = FakeStage("b", ("a",)), FakeStage("c", ("a", "b"))
+    monkeypatch.setattr(runner, "STAGES", (a, b, c2, d))
+    assert runner.downstream("b") == ["b", "c"] and runner.downstream("a") == ["a", "b", "c", "d"]
+    rows = runner.run_demo(tmp_path / "d", cfg, overwrite=True)
+    assert [r[2][:7] for r in rows] == ["skipped", "ran", "ran", "skipped"]
+    assert (a.calls, b.calls, c2.calls, d.calls) == (1, 1, 1, 1)
+    assert sorted(DemoState(tmp_path / "d").stages) == ["a", "b", "c", "d"]
+    rows = runner.run_demo(tmp_path / "d", cfg)
+    assert all(r[2].startswith("skipped") for r in rows)
+
+
+def test_run_many_logs_each_command_and_returns_failures(tmp_path):
+    from c3f_models.demo.context import DemoContext, StageFailed
+
+    ctx = DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
+    out = ctx.run_many("stage", {"ok": ["-c", "print('fine')"],
+                                 "bad": ["-c", "import sys; print('error: broken input'); sys.exit(3)"]})
+    assert out["ok"] is None and isinstance(out["bad"], StageFailed)
+    assert "error: broken input (exit 3; log:" in str(out["bad"])
+    assert "fine" in ctx.log("stage_ok").read_text() and "broken" in ctx.log("stage_bad").read_text()
 
 
 def test_state_refuses_a_folder_that_is_no_demo(tmp_path):
@@ -163,7 +209,9 @@ def test_quick_demo_end_to_end(quick_demo):
     out, r = quick_demo
     assert r.returncode == 0, r.stderr[-2000:]
     for f in ("report.html", "demo_state.json", "models/depthnet/depthnet.onnx", "models/contrafeat/contrafeat.onnx",
-              "runs/depthnet/tb/version_0/checkpoints/last.ckpt", "slam/gt_sift/trajectory.txt",
+              "runs/depthnet/tb/version_0/checkpoints/last.ckpt",
+              "runs/depthnet_ttt/tb/version_0/checkpoints/last.ckpt", "models/depthnet_pretrained/depthnet.onnx",
+              "slam/gt_sift/trajectory.txt",
               "slam/gt_sift/mesh.ply", "metrics/depth.json", "metrics/matches.json", "figures/matches.png",
               "figures/depth_samples.png"):
         assert (out / f).is_file(), f
@@ -175,7 +223,9 @@ def test_quick_demo_end_to_end(quick_demo):
         else:
             assert res["error"], name
     depth = json.loads((out / "metrics" / "depth.json").read_text())
-    assert all(math.isfinite(depth["median_scaled"][k]) for k in ("abs_rel", "sq_rel", "rmse", "a1"))
+    for metrics in (depth, depth["before_ttt"]):  # after and before test-time training
+        assert all(math.isfinite(metrics["median_scaled"][k]) for k in ("abs_rel", "sq_rel", "rmse", "a1"))
+    assert depth["median_scaled"] != depth["before_ttt"]["median_scaled"]  # the tuned network differs
     html = (out / "report.html").read_text()
     for sid in SECTIONS:
         assert f'<section id="{sid}">' in html, sid

@@ -4,6 +4,7 @@ PyTorch on frames the export never saw, metadata, DCN, ContraFeat, and bad input
 Exports take ~10 s each on CPU, so one module-scoped DepthNet export serves several tests.
 """
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -228,6 +229,19 @@ def test_failed_parity_writes_nothing_and_keeps_earlier_files(tmp_path, tiny_seq
         export_model(DepthNet(ONE_SCALE), ckpt, out, frames=tiny_sequence, num_frames=2)
     assert (out / "depthnet.onnx").read_bytes() == b"earlier export"
     assert sorted(p.name for p in out.iterdir()) == ["depthnet.onnx"]
+
+
+def test_export_writes_only_the_chosen_graphs(tmp_path, tiny_sequence):
+    """``graphs``: DepthNet without PoseNet; a kind the model lacks is refused before anything is written."""
+    ckpt = tmp_path / "d.ckpt"
+    torch.save({"state_dict": DepthNet(ONE_SCALE).state_dict()}, ckpt)
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match=r"--graphs: descriptors: this model exports \['depth', 'pose'\]"):
+        export_model(DepthNet(ONE_SCALE), ckpt, out, frames=tiny_sequence, num_frames=1, graphs=["descriptors"])
+    assert not out.exists()
+    written = export_model(DepthNet(ONE_SCALE), ckpt, out, frames=tiny_sequence, num_frames=1, graphs=["depth"])
+    assert [p.name for p in written] == ["depthnet.onnx"] and not (out / "posenet.onnx").exists()
+    assert list(json.loads((out / "export.json").read_text())["files"]) == ["depthnet.onnx"]
 
 
 def test_check_parity_detects_a_different_graph(tmp_path):

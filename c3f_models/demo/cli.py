@@ -19,8 +19,9 @@ from c3f_slam.errors import InputError
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m c3f_models demo",
-        description="Simulate a colon, train DepthNet and ContraFeat, export them, run SLAM on a held-out "
-                    "sequence (3 configurations), evaluate, write DIR/report.html. Rerunning into the same "
+        description="Simulate a colon, train DepthNet and ContraFeat, test-time train DepthNet on a held-out "
+                    "sequence, export them, run SLAM on that sequence (4 configurations), evaluate, write "
+                    "DIR/report.html. Rerunning into the same "
                     "DIR skips the stages already done with the same settings.")
     ap.add_argument("--out", type=Path, required=True, help="demo folder (created; every artefact goes here)")
     ap.add_argument("--quick", action="store_true", help="a few minutes instead of about 15 (CI size)")

@@ -48,6 +48,18 @@ class DepthTrainConfig:
 
 
 @dataclass(frozen=True)
+class TestTimeConfig:
+    """Self-supervised test-time training of DepthNet on the held-out sequence, after the
+    pre-training (``configs/depthnet/ttt.yaml``; no ground truth). ``steps`` 0: off, SLAM uses
+    the pre-trained network. Same frame size and loss terms as the pre-training."""
+
+    steps: int = 60
+    batch_size: int = 4
+    lr: float = 1e-4
+    seed: int = 7
+
+
+@dataclass(frozen=True)
 class FeatureTrainConfig:
     """ContraFeat training (``configs/contrafeat/small.yaml``)."""
 
@@ -75,6 +87,7 @@ class DemoConfig:
 
     simulate: SimulateConfig = field(default_factory=SimulateConfig)
     depth: DepthTrainConfig = field(default_factory=DepthTrainConfig)
+    ttt: TestTimeConfig = field(default_factory=TestTimeConfig)
     features: FeatureTrainConfig = field(default_factory=FeatureTrainConfig)
     report: ReportConfig = field(default_factory=ReportConfig)
     quick: bool = False
@@ -91,6 +104,7 @@ def demo_config(quick: bool = False) -> DemoConfig:
         simulate=SimulateConfig(train=(("seq1", 100),), train_frames=48, test_frames=40,
                                 train_coverage=0.025, test_coverage=0.02),
         depth=DepthTrainConfig(steps=12, batch_size=2),
+        ttt=TestTimeConfig(steps=3, batch_size=2),
         features=FeatureTrainConfig(steps=6),
         report=ReportConfig(sample_frames=3, depth_eval_stride=3, pair_frame=10, render_size=240),
         quick=True,

@@ -9,7 +9,7 @@ import json
 import cv2
 import numpy as np
 
-from c3f_models.demo.context import SLAM_RUNS, DemoContext, StageFailed
+from c3f_models.demo.context import DemoContext, StageFailed, slam_runs
 from c3f_models.demo.stages import Stage
 from c3f_models.metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.io import Sequence
@@ -25,32 +25,41 @@ from c3f_slam.pipeline.frontend import ContraFeatDescriptors, Frontend, SiftDesc
 PIXEL_RADIUS = 2.0  # px: a match is correct within this distance of the true position
 
 
-def slam_result(ctx: DemoContext, name: str, run_notes: dict) -> dict:
-    """Evaluate one SLAM configuration; a failed run or evaluation is returned as failed."""
-    res = dict(run_notes)
+def slam_results(ctx: DemoContext, run_notes: dict) -> dict:
+    """``c3f_slam evaluate`` of every SLAM configuration that ran (2 at a time), then
+    :func:`slam_result` of each; ``run_notes``: the slam stage's ``runs``."""
+    notes = {name: dict(run_notes.get(name, {"status": "failed", "error": "not run"})) for name in ctx.slam_runs}
+    errors = ctx.run_many("evaluate", {
+        name: ["-m", "c3f_slam", "evaluate", str(ctx.slam_dir(name)), "--gt", str(ctx.test_seq)]
+        for name, res in notes.items() if res.get("status") == "ok"})
+    return {name: slam_result(ctx, name, res, errors.get(name)) for name, res in notes.items()}
+
+
+def slam_result(ctx: DemoContext, name: str, res: dict, error: StageFailed | None = None) -> dict:
+    """One configuration's numbers from its ``evaluation.json``; a failed run or evaluation
+    (``error``), or an ATE not below the path length, is returned as failed."""
     if res.get("status") != "ok":
         return res
-    try:
-        ctx.run("evaluate", ["-m", "c3f_slam", "evaluate", str(ctx.slam_dir(name)), "--gt", str(ctx.test_seq)])
-    except StageFailed as exc:
-        return {**res, "status": "failed", "error": f"evaluate: {exc}"}
+    if error is not None:
+        return {**res, "status": "failed", "error": f"evaluate: {error}"}
     ev = json.loads((ctx.slam_dir(name) / "evaluation.json").read_text())
     if "error" in ev:
         return {**res, "status": "failed", "error": ev["error"], "registered_share": ev.get("registered_share")}
     ate = ev["ate_sim3"]["rmse_m"]
-    res.update(registered_share=ev["registered_share"], ate_sim3_m=ate, ate_se3_m=ev["ate_se3"]["rmse_m"],
-               gt_length_m=ev["gt_length_m"], n_associated=ev.get("n_associated"), coverage=ev.get("coverage"))
+    res = {**res, "registered_share": ev["registered_share"], "ate_sim3_m": ate, "ate_se3_m": ev["ate_se3"]["rmse_m"],
+           "gt_length_m": ev["gt_length_m"], "n_associated": ev.get("n_associated"), "coverage": ev.get("coverage")}
     if not np.isfinite(ate) or ate >= ev["gt_length_m"]:
         res.update(status="failed", error=f"ATE {100 * ate:.2f} cm is not below the path length "
                                           f"{100 * ev['gt_length_m']:.2f} cm: the trajectory is not usable")
     return res
 
 
-def depth_evaluation(ctx: DemoContext) -> dict:
+def depth_evaluation(ctx: DemoContext, folder: str = "depthnet") -> dict:
     """The seven metrics (per-image median scaling, the project's protocol) and the metric error
-    without scaling, of the exported DepthNet on every ``depth_eval_stride``-th held-out frame."""
+    without scaling, of the DepthNet exported to ``models/FOLDER`` on every
+    ``depth_eval_stride``-th held-out frame (metric: depth x the export's metric scale)."""
     seq = Sequence(ctx.test_seq)
-    model = DepthModel(ctx.models / "depthnet" / "depthnet.onnx", threads=2)
+    model = DepthModel(ctx.models / folder / "depthnet.onnx", threads=2)
     lo, hi = model.depth_range or (1e-3, 0.3)
     idx = list(range(0, len(seq), ctx.cfg.report.depth_eval_stride))
     pred = np.stack([model.predict(seq.read_rgb(i), seq.camera) for i in idx])
@@ -59,6 +68,15 @@ def depth_evaluation(ctx: DemoContext) -> dict:
     metric = depth_metrics(pred, gt, median_scaling=False, min_depth=lo, max_depth=hi)
     return {"frames": idx, "median_scaled": scaled, "metric": {k: metric[k] for k in METRIC_NAMES},
             "depth_range_m": [lo, hi], "metric_scale_in_model": model.metric_scale}
+
+
+def depth_evaluations(ctx: DemoContext) -> dict:
+    """:func:`depth_evaluation` of the network SLAM used; with test-time training on, also of the
+    pre-trained one (``before_ttt``), on the same frames."""
+    out = depth_evaluation(ctx)
+    if (ctx.models / "depthnet_pretrained" / "depthnet.onnx").is_file():
+        out["before_ttt"] = depth_evaluation(ctx, "depthnet_pretrained")
+    return out
 
 
 def match_evaluation(ctx: DemoContext) -> dict:
@@ -104,16 +122,16 @@ class Evaluate(Stage):
         return {"depth_eval_stride": r.depth_eval_stride, "pair": [r.pair_frame, r.pair_gap]}
 
     def outputs(self, ctx):
-        return [ctx.root / "metrics", ctx.root / "figures" / "matches.png", ctx.log(self.name)]
+        return [ctx.root / "metrics", ctx.root / "figures" / "matches.png",
+                *(ctx.log(f"{self.name}_{n}") for n in ctx.slam_runs)]
 
     def estimate_s(self, cfg):
-        return 3 * 9.0 + 0.05 * cfg.simulate.test_frames + 5.0
+        return len(slam_runs(cfg)) * 4.5 + 0.05 * cfg.simulate.test_frames + 5.0  # evaluate: 2 at a time
 
     def run(self, ctx, done=None):
         runs = (done or {}).get("notes", {}).get("slam", {}).get("runs", {})
-        slam = {name: slam_result(ctx, name, runs.get(name, {"status": "failed", "error": "not run"}))
-                for name in SLAM_RUNS}
-        metrics = {"slam": slam, "depth": depth_evaluation(ctx), "matches": match_evaluation(ctx)}
+        slam = slam_results(ctx, runs)
+        metrics = {"slam": slam, "depth": depth_evaluations(ctx), "matches": match_evaluation(ctx)}
         for key, value in metrics.items():
             write_json(ctx.root / "metrics" / f"{key}.json", value)
         return {"failed": [n for n, r in slam.items() if r["status"] != "ok"]}

@@ -34,25 +34,28 @@ def _label(img: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
-def depth_samples(seq_dir: Path, model_path: Path, n: int, out: Path) -> dict:
-    """Rows of [frame | predicted depth | true depth] for ``n`` evenly spaced frames, one colour
-    range (the true depth's 2nd-98th percentile over those frames). The prediction is multiplied
-    by the metric scale the export recorded (what ``c3f_slam run`` uses), when there is one.
-    Returns the frames, the range and the scale."""
-    seq, model = Sequence(seq_dir), DepthModel(model_path, threads=2)
-    scale = model.metric_scale or 1.0
+def depth_samples(seq_dir: Path, models: dict[str, Path], n: int, out: Path) -> dict:
+    """Rows of [frame | predicted depth of each model | true depth] for ``n`` evenly spaced
+    frames, one colour range (the true depth's 2nd-98th percentile over those frames).
+    ``models``: column label -> depth ONNX file. Each prediction is multiplied by the metric scale
+    its export recorded (what ``c3f_slam run`` uses), when there is one. Returns the frames, the
+    range, the labels and their scales."""
+    seq = Sequence(seq_dir)
     idx = np.linspace(0, len(seq) - 1, n).round().astype(int).tolist()
     rgbs = [seq.read_rgb(i) for i in idx]
-    preds = [scale * model.predict(im, seq.camera) for im in rgbs]
     gts = [seq.read_depth(i) for i in idx]
     valid = np.concatenate([g[g > 0] for g in gts])
     lo, hi = (np.percentile(valid, [2, 98]) if len(valid) else (0.0, 0.1)).tolist()
-    rows = [np.concatenate([_label(im, f"frame {i}"), _label(colour_depth(p, lo, hi), "predicted"),
-                            _label(colour_depth(g, lo, hi), "true")], axis=1)
-            for i, im, p, g in zip(idx, rgbs, preds, gts)]
-    img = np.concatenate(rows, axis=0)
+    columns, scales = [[_label(im, f"frame {i}") for i, im in zip(idx, rgbs)]], {}
+    for label, path in models.items():
+        model = DepthModel(path, threads=2)
+        scales[label] = model.metric_scale or 1.0
+        columns.append([_label(colour_depth(scales[label] * model.predict(im, seq.camera), lo, hi), label)
+                        for im in rgbs])
+    columns.append([_label(colour_depth(g, lo, hi), "true") for g in gts])
+    img = np.concatenate([np.concatenate(row, axis=1) for row in zip(*columns)], axis=0)
     write_png(out, cv2.resize(img, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST))
-    return {"frames": idx, "range_m": [lo, hi], "figure": out.name, "scale": scale}
+    return {"frames": idx, "range_m": [lo, hi], "figure": out.name, "scales": scales}
 
 
 def mesh_renders(mesh_path: Path, out_stem: Path, size: int, near: np.ndarray | None = None,

@@ -8,8 +8,9 @@ import json
 import os
 import platform
 import subprocess
+from pathlib import Path
 
-from c3f_models.demo.context import REPO, SLAM_RUNS, DemoContext
+from c3f_models.demo.context import REPO, DemoContext
 from c3f_models.demo.figures import depth_samples, mesh_renders
 from c3f_models.demo.report import build_report
 from c3f_models.demo.stages import Stage
@@ -43,7 +44,7 @@ def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
     """The run's own coverage estimate (``coverage.json`` + ``coverage_map.png``) when it wrote one,
     else the ground-truth coverage from ``c3f_slam evaluate`` of every configuration that ran
     (coverage.ply rendered near the true path)."""
-    ok = [n for n in SLAM_RUNS if slam.get(n, {}).get("status") == "ok"]
+    ok = [n for n in ctx.slam_runs if slam.get(n, {}).get("status") == "ok"]
     for name in ok:
         cov = ctx.slam_dir(name) / "coverage.json"
         if cov.is_file():
@@ -58,6 +59,15 @@ def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
             runs.append({"run": slam[name]["title"], "renders": renders,
                          "seen_share": (slam[name].get("coverage") or {}).get("share")})
     return {"source": "ground_truth", "runs": runs} if runs else {}
+
+
+def depth_columns(models: Path) -> dict[str, Path]:
+    """The depth networks of the sample figure: before and after test-time training when both
+    were exported, else the one SLAM used."""
+    before = models / "depthnet_pretrained" / "depthnet.onnx"
+    if before.is_file():
+        return {"before TTT": before, "after TTT": models / "depthnet" / "depthnet.onnx"}
+    return {"predicted": models / "depthnet" / "depthnet.onnx"}
 
 
 class Report(Stage):
@@ -80,8 +90,8 @@ class Report(Stage):
         metrics = {k: json.loads((ctx.root / "metrics" / f"{k}.json").read_text())
                    for k in ("slam", "depth", "matches")}
         figs = ctx.root / "figures"
-        figures = {"depth": depth_samples(ctx.test_seq, ctx.models / "depthnet" / "depthnet.onnx",
-                                          ctx.cfg.report.sample_frames, figs / "depth_samples.png"),
+        figures = {"depth": depth_samples(ctx.test_seq, depth_columns(ctx.models), ctx.cfg.report.sample_frames,
+                                          figs / "depth_samples.png"),
                    "meshes": {n: mesh_renders(ctx.slam_dir(n) / "mesh.ply", figs / f"mesh_{n}",
                                               ctx.cfg.report.render_size)
                               for n, r in metrics["slam"].items() if r.get("status") == "ok"},

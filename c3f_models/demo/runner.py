@@ -12,10 +12,20 @@ from c3f_models.demo.context import DemoContext, StageFailed, check_out_dir
 from c3f_models.demo.evaluation import Evaluate
 from c3f_models.demo.progress import StageLine, time_table
 from c3f_models.demo.report_stage import Report
-from c3f_models.demo.stages import Export, Simulate, Slam, Stage, TrainDepth, TrainFeatures
+from c3f_models.demo.stages import Export, Simulate, Slam, Stage, TestTimeTrain, TrainDepth, TrainFeatures
 from c3f_models.demo.state import DemoState, stage_key
 
-STAGES: tuple[Stage, ...] = (Simulate(), TrainDepth(), TrainFeatures(), Export(), Slam(), Evaluate(), Report())
+STAGES: tuple[Stage, ...] = (Simulate(), TrainDepth(), TestTimeTrain(), TrainFeatures(), Export(), Slam(),
+                             Evaluate(), Report())
+
+
+def downstream(name: str) -> list[str]:
+    """``name`` and every stage that reads from it, directly or not (STAGES is in run order)."""
+    names = [name]
+    for stage in STAGES:
+        if stage.name not in names and any(u in names for u in stage.upstream):
+            names.append(stage.name)
+    return names
 
 
 class DemoInterrupted(Exception):
@@ -41,7 +51,7 @@ def run_demo(root: Path, cfg: DemoConfig, overwrite: bool = False, stream=None) 
             print(f"[{k}/{len(STAGES)}] {stage.name:<15} skipped: done earlier with the same settings",
                   file=stream, flush=True)
             continue
-        state.forget_from(stage.name)
+        state.forget(downstream(stage.name))
         stage.clean(ctx)
         done = {"notes": {n: state.notes(n) for n in state.stages}, "timings": list(timings)}
         start = time.monotonic()

@@ -1,4 +1,5 @@
-"""The demo's stages before evaluation: simulate -> train_depth -> train_features -> export -> slam.
+"""The demo's stages before evaluation: simulate -> train_depth -> ttt_depth -> train_features ->
+export -> slam.
 
 Each stage is a small class: ``settings`` (what its key hashes), ``outputs`` (what it writes,
 removed before it reruns after an interruption), ``estimate_s`` (seconds on 2 CPU cores, for
@@ -16,7 +17,7 @@ from pathlib import Path
 import yaml
 
 from c3f_models.demo.config import DemoConfig
-from c3f_models.demo.context import CONFIGS, SLAM_RUNS, DemoContext, StageFailed
+from c3f_models.demo.context import CONFIGS, DemoContext, StageFailed, slam_runs
 from c3f_models.demo.progress import read_step_fraction
 
 
@@ -89,8 +90,10 @@ class Simulate(Stage):
         return {"train": [f"train{k}" for k in range(len(s.train))], "test": "heldout"}
 
 
-def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: dict, data_args: dict) -> Path:
-    """The demo's last config file of a ``fit``: trainer length, logging into DIR/runs/MODEL, data."""
+def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: dict, data_args: dict,
+              data_dir: Path | None = None) -> Path:
+    """The demo's last config file of a ``fit``: trainer length, logging into DIR/runs/MODEL, data
+    (``data_dir``: default the training sequences)."""
     run = ctx.run_dir(model)
     cfg = {
         "seed_everything": seed,
@@ -106,7 +109,7 @@ def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: d
             ],
         },
         "model": {"init_args": model_args},
-        "data": {"init_args": {"data_dir": str(ctx.train_data), **data_args}},
+        "data": {"init_args": {"data_dir": str(data_dir or ctx.train_data), **data_args}},
     }
     path = ctx.root / "configs" / f"{model}_demo.yaml"
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -136,8 +139,16 @@ class _Training(Stage):
         return lambda: read_step_fraction(ctx.run_dir(self.model) / "progress.txt")
 
 
+def _depth_model_configs(cfg: DemoConfig) -> list[Path]:
+    """The trainer preset and DepthNet model configs of both depth fits (same architecture)."""
+    configs = [CONFIGS / "trainer" / "cpu_smoke.yaml", CONFIGS / "depthnet" / "small.yaml"]
+    if not cfg.depth.paper_extras:
+        configs.append(CONFIGS / "depthnet" / "monodepth2.yaml")
+    return configs
+
+
 class TrainDepth(_Training):
-    """DepthNet (``configs/depthnet/small.yaml``) on the training sequences."""
+    """DepthNet (``configs/depthnet/small.yaml``) on the training sequences (the pre-training)."""
 
     name, model, group = "train_depth", "depthnet", "depth"
 
@@ -151,12 +162,40 @@ class TrainDepth(_Training):
             model_args["optim"] = {"lr": d.lr}
         data_args = {"split": _train_split(ctx), "frames": {"size": [d.size, d.size]},
                      "loader": {"batch_size": d.batch_size, "num_workers": 0}}
-        mine = _fit_yaml(ctx, "depthnet", d.steps, d.seed, model_args, data_args)
-        configs = [CONFIGS / "trainer" / "cpu_smoke.yaml", CONFIGS / "depthnet" / "small.yaml"]
-        if not d.paper_extras:
-            configs.append(CONFIGS / "depthnet" / "monodepth2.yaml")
-        ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs + [mine])])
-        return {"configs": [str(c) for c in configs + [mine]], "checkpoint": str(_last_ckpt(ctx, "depthnet"))}
+        configs = [*_depth_model_configs(ctx.cfg), _fit_yaml(ctx, "depthnet", d.steps, d.seed, model_args, data_args)]
+        ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
+        return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, "depthnet"))}
+
+
+class TestTimeTrain(_Training):
+    """Self-supervised test-time training of the pre-trained DepthNet on the held-out sequence
+    (``configs/depthnet/ttt.yaml``: from ``--model.init_weights``, every frame, no ground truth:
+    ``lambda_gt_depth`` 0). ``ttt.steps`` 0: nothing runs, the pre-trained network is used."""
+
+    name, model, group = "ttt_depth", "depthnet_ttt", "ttt"
+    upstream = ("simulate", "train_depth")
+    __test__ = False  # not a pytest class
+
+    def settings(self, cfg):
+        return {**super().settings(cfg), "size": cfg.depth.size, "paper_extras": cfg.depth.paper_extras}
+
+    def estimate_s(self, cfg):
+        if cfg.ttt.steps == 0:
+            return 1.0
+        per_step = 0.5 * (cfg.depth.size / 64) ** 2 * (3 if cfg.depth.paper_extras else 1) * cfg.ttt.batch_size / 4
+        return 15.0 + cfg.ttt.steps * per_step
+
+    def run(self, ctx, done=None):
+        t, d = ctx.cfg.ttt, ctx.cfg.depth
+        if t.steps == 0:
+            return {"off": True}
+        model_args = {"init_weights": str(_last_ckpt(ctx, "depthnet")), "loss": {"lambda_gt_depth": 0.0},
+                      "optim": {"lr": t.lr}}
+        data_args = {"frames": {"size": [d.size, d.size]}, "loader": {"batch_size": t.batch_size, "num_workers": 0}}
+        mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq)
+        configs = [*_depth_model_configs(ctx.cfg), CONFIGS / "depthnet" / "ttt.yaml", mine]
+        ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
+        return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, self.model))}
 
 
 class TrainFeatures(_Training):
@@ -189,29 +228,49 @@ def _last_ckpt(ctx: DemoContext, model: str) -> Path:
 
 
 class Export(Stage):
-    """Both trained networks to ONNX (``python -m c3f_models export``, with its parity check)."""
+    """The trained networks to ONNX (``python -m c3f_models export``, with its parity check):
+    ``models/depthnet`` (the test-time trained DepthNet, which SLAM uses; the pre-trained one when
+    test-time training is off), ``models/depthnet_pretrained`` (before test-time training, for the
+    depth metrics before/after) and ``models/contrafeat``. Every export uses its training run's
+    config, so the metric depth scale is measured on the training sequences, never the held-out one."""
 
     name = "export"
-    upstream = ("train_depth", "train_features")
+    upstream = ("train_depth", "ttt_depth", "train_features")
 
     def outputs(self, ctx):
-        return [ctx.models, ctx.log(self.name)]
+        return [ctx.models, *(ctx.log(f"{self.name}_{k}") for k in self._jobs(ctx))]
 
     def estimate_s(self, cfg):
-        return 60.0
+        return 50.0 if cfg.ttt.steps else 35.0  # 2 at a time; a pose graph doubles a DepthNet export
+
+    def _jobs(self, ctx: DemoContext) -> dict[str, tuple[Path, Path, list[str]]]:
+        """Output folder -> (training run, checkpoint, extra export options)."""
+        ckpt = lambda model: ctx.version_dir(model) / "checkpoints" / "last.ckpt"  # noqa: E731
+        base, tuned = ctx.version_dir("depthnet"), ctx.cfg.ttt.steps > 0
+        jobs = {"depthnet": (base, ckpt("depthnet_ttt" if tuned else "depthnet"), [])}
+        if tuned:  # for the metrics before/after and SLAM without TTT; c3f_slam needs no PoseNet
+            jobs["depthnet_pretrained"] = (base, ckpt("depthnet"), ["--graphs", "[depth]"])
+        jobs["contrafeat"] = (ctx.version_dir("contrafeat"), ckpt("contrafeat"), [])
+        return jobs
 
     def run(self, ctx, done=None):
-        for model in ("depthnet", "contrafeat"):
-            v = ctx.version_dir(model)
-            ctx.run(self.name, ["-m", "c3f_models", "export", "--config", str(v / "config.yaml"),
-                                "--ckpt_path", str(v / "checkpoints" / "last.ckpt"),
-                                "--output_dir", str(ctx.models / model)])
+        jobs = self._jobs(ctx)
+        for _, ckpt, _ in jobs.values():
+            if not ckpt.is_file():
+                raise StageFailed(f"{ckpt}: the training run wrote no checkpoint")
+        failed = ctx.run_many(self.name, {
+            folder: ["-m", "c3f_models", "export", "--config", str(run / "config.yaml"), "--ckpt_path", str(ckpt),
+                     "--output_dir", str(ctx.models / folder), *extra]
+            for folder, (run, ckpt, extra) in jobs.items()})
+        for exc in failed.values():
+            if exc is not None:
+                raise exc
         meta = json.loads((ctx.models / "depthnet" / "export.json").read_text())
-        return {"depthnet_export": meta.get("files", meta)}
+        return {"depthnet_export": meta.get("files", meta), "depthnet_checkpoint": str(jobs["depthnet"][1])}
 
 
 class Slam(Stage):
-    """``c3f_slam run`` on the held-out sequence in every configuration of :data:`SLAM_RUNS`.
+    """``c3f_slam run`` on the held-out sequence in every configuration of :func:`slam_runs`.
 
     A configuration that fails (e.g. no frame registered) is recorded as failed with its error
     line; the stage goes on with the others."""
@@ -220,25 +279,24 @@ class Slam(Stage):
     upstream = ("simulate", "export")
 
     def settings(self, cfg):
-        return {name: opts for name, (_, opts) in SLAM_RUNS.items()}
+        return {name: opts for name, (_, opts) in slam_runs(cfg).items()}
 
     def outputs(self, ctx):
-        return [ctx.root / "slam", ctx.log(self.name)]
+        return [ctx.root / "slam", *(ctx.log(f"{self.name}_{n}") for n in ctx.slam_runs)]
 
     def estimate_s(self, cfg):
-        return 3 * 8.0 + cfg.simulate.test_frames * (0.05 + 2 * 0.25)
+        n = len(slam_runs(cfg))  # 2 at a time
+        return (n * 8.0 + cfg.simulate.test_frames * (0.05 + (n - 1) * 0.25)) / 2
 
     def probe(self, ctx):
-        return lambda: sum(ctx.slam_dir(n).is_dir() for n in SLAM_RUNS) / (len(SLAM_RUNS) + 1)
+        return lambda: sum(ctx.slam_dir(n).is_dir() for n in ctx.slam_runs) / (len(ctx.slam_runs) + 1)
 
     def run(self, ctx, done=None):
-        results = {}
-        for name, (title, opts) in SLAM_RUNS.items():
-            args = [o.format(models=ctx.models) for o in opts]
-            try:
-                ctx.run(self.name, ["-m", "c3f_slam", "run", str(ctx.test_seq), *args,
-                                    "--out", str(ctx.slam_dir(name)), "--quiet"])
-                results[name] = {"title": title, "status": "ok"}
-            except StageFailed as exc:
-                results[name] = {"title": title, "status": "failed", "error": str(exc)}
-        return {"runs": results}
+        runs = ctx.slam_runs
+        failed = ctx.run_many(self.name, {
+            name: ["-m", "c3f_slam", "run", str(ctx.test_seq), *[o.format(models=ctx.models) for o in opts],
+                   "--out", str(ctx.slam_dir(name)), "--quiet"]
+            for name, (_, opts) in runs.items()})
+        return {"runs": {name: {"title": runs[name][0], "status": "ok"} if exc is None else
+                         {"title": runs[name][0], "status": "failed", "error": str(exc)}
+                         for name, exc in failed.items()}}

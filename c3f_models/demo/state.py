@@ -2,7 +2,8 @@
 
 A stage's key is the SHA-256 of its settings and the keys of the stages it reads from, so a
 changed setting invalidates that stage and every stage after it. A rerun skips a stage whose
-key matches; a stage recorded with another key is refused (one line) unless ``overwrite``.
+key matches; a stage recorded with another key is refused (one line) unless ``overwrite``. The
+runner forgets a stage and every stage that reads from it before the stage runs.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ class DemoState:
 
     def is_done(self, name: str, key: str) -> bool:
         """True when ``name`` finished with ``key``; InputError when it finished with another key
-        (unless ``overwrite``, which forgets it and every later stage)."""
+        (unless ``overwrite``: then False, and the runner redoes it)."""
         rec = self.stages.get(name)
         if rec is None:
             return False
@@ -53,15 +54,14 @@ class DemoState:
             raise InputError(f"--out {self.root}: stage {name} was made with other settings (e.g. with/without "
                              "--quick); rerun with the same options, pass --overwrite to redo it, "
                              "or choose another --out")
-        self.forget_from(name)
         return False
 
-    def forget_from(self, name: str) -> None:
-        """Drop ``name`` and every stage recorded after it."""
-        names = list(self.stages)
-        if name in names:
-            for n in names[names.index(name):]:
-                del self.stages[n]
+    def forget(self, names: list[str]) -> None:
+        """Drop the records of ``names`` (a stage about to run and the stages that read from it)."""
+        gone = [n for n in names if n in self.stages]
+        for n in gone:
+            del self.stages[n]
+        if gone:
             self.save()
 
     def record(self, name: str, key: str, seconds: float, notes: dict | None = None) -> None:
