@@ -77,10 +77,18 @@ def test_report_says_missing_image_and_run_coverage(tmp_path):
     d = fake_report_inputs(tmp_path)
     (tmp_path / "figures" / "matches.png").unlink()
     _png(tmp_path / "slam" / "gt_sift" / "coverage_map.png")
-    d["figures"]["unseen"] = {"source": "run", "run": "x", "unseen_share": 0.25, "map": "slam/gt_sift/coverage_map.png",
-                              "segments": [{"start_m": 0.0, "end_m": 0.02, "unseen_share": 0.5}]}
+    d["figures"]["unseen"] = {"source": "run", "runs": [
+        {"run": "x", "status": "ok", "unseen_share": 0.25, "map": "slam/gt_sift/coverage_map.png",
+         "truth": {"unseen_share": 0.27, "error_pp": -2.0},
+         "segments": [{"start_m": 0.0, "end_m": 0.02, "unseen_share": 0.5}]},
+        {"run": "y", "status": "unavailable", "reason": "the camera moved less than 1.0 cm forward"}]}
     html = build_report(tmp_path, d)
-    assert "missing image: matches.png" in html and "25.0 %" in html and "<b>Ground truth</b>" not in html
+    assert "missing image: matches.png" in html and "<b>Ground truth</b>" not in html
+    assert "<b>25.0 %</b> unseen (truth 27.0 %, error -2.0 pp)" in html
+    assert "y: no estimate (the camera moved less than 1.0 cm forward)" in html
+    d["metrics"]["slam"]["odometry"] = {**d["metrics"]["slam"]["gt_sift"], "title": "odometry"}
+    html = build_report(tmp_path, d)
+    assert "No keyframe graph: frame-to-frame odometry" in html and "missing image: keyframe_graph.png" not in html
 
 
 def test_report_shows_depth_before_and_after_test_time_training(tmp_path):
@@ -167,6 +175,30 @@ def test_run_many_logs_each_command_and_returns_failures(tmp_path):
     assert out["ok"] is None and isinstance(out["bad"], StageFailed)
     assert "error: broken input (exit 3; log:" in str(out["bad"])
     assert "fine" in ctx.log("stage_ok").read_text() and "broken" in ctx.log("stage_bad").read_text()
+
+
+def test_run_many_on_ctrl_c_stops_the_running_and_starts_no_more(tmp_path, monkeypatch):
+    import time
+
+    from c3f_models.demo import context
+
+    ctx = context.DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
+    calls, real_sleep = [], time.sleep
+
+    def interrupt_soon(s):  # Ctrl-C arrives while the first two commands run (after ~1 s)
+        calls.append(s)
+        if len(calls) == 20:
+            raise KeyboardInterrupt
+        real_sleep(s)
+
+    monkeypatch.setattr(context.time, "sleep", interrupt_soon)
+    monkeypatch.setattr(context, "parallel_jobs", lambda: 2)
+    slow = ["-c", "import time; print('started', flush=True); time.sleep(60)"]
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        ctx.run_many("s", {"a": slow, "b": slow, "c": ["-c", "print('c')"]})
+    assert time.monotonic() - t0 < 30  # the sleeping children were stopped, not waited out
+    assert ctx.log("s_a").is_file() and ctx.log("s_b").is_file() and not ctx.log("s_c").exists()
 
 
 def test_state_refuses_a_folder_that_is_no_demo(tmp_path):

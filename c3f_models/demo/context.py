@@ -4,11 +4,14 @@ whose output goes to ``DIR/logs/NAME.log``)."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 from c3f_models.demo.config import DemoConfig
 from c3f_slam.errors import InputError
@@ -81,33 +84,58 @@ class DemoContext:
     def run(self, log_name: str, args: list[str]) -> None:
         """Run ``python ARGS`` from the checkout, appending its output to ``logs/LOG_NAME.log``;
         :class:`StageFailed` with the last ``error:`` line (or the last line) on failure."""
-        log = self.log(log_name)
+        error = self.run_many(log_name, {"": args}, log_names={"": log_name})[""]
+        if error is not None:
+            raise error
+
+    def run_many(self, log_name: str, commands: dict[str, list[str]],
+                 log_names: dict[str, str] | None = None) -> dict[str, StageFailed | None]:
+        """Run the ``python ARGS`` of ``commands`` (key -> args) from the checkout,
+        :func:`parallel_jobs` at a time, each appending to ``logs/LOG_NAME_KEY.log`` (or
+        ``log_names[key]``); returns key -> None (done) or its :class:`StageFailed`. On Ctrl-C no
+        further command starts; the running ones get SIGINT (a terminal sends it to them too), are
+        waited for (so they can write their partial state), and KeyboardInterrupt is re-raised."""
+        pending, running, results = list(commands.items()), {}, {}
+        try:
+            while pending or running:
+                while pending and len(running) < parallel_jobs():
+                    key, args = pending.pop(0)
+                    running[key] = _Child.start((log_names or {}).get(key, f"{log_name}_{key}"), self.log, args)
+                for key in [k for k, child in running.items() if child.proc.poll() is not None]:
+                    results[key] = running.pop(key).finish()
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            for child in running.values():
+                child.proc.send_signal(signal.SIGINT)
+            for child in running.values():
+                child.proc.wait()
+                child.finish()
+            raise
+        return {k: results[k] for k in commands}
+
+
+@dataclass
+class _Child:
+    """One running command of :meth:`DemoContext.run_many` and its open log."""
+
+    proc: subprocess.Popen
+    log: Path
+    fh: IO[str]
+
+    @classmethod
+    def start(cls, log_name: str, log_path: Callable[[str], Path], args: list[str]) -> _Child:
+        log = log_path(log_name)
         log.parent.mkdir(parents=True, exist_ok=True)
-        with log.open("a") as fh:
-            fh.write("$ python " + " ".join(args) + "\n")
-            fh.flush()
-            proc = subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=fh, stderr=subprocess.STDOUT)
-            try:
-                rc = proc.wait()
-            except KeyboardInterrupt:  # the child got the same SIGINT: let it write its partial state
-                proc.wait()
-                raise
-        if rc != 0:
-            raise StageFailed(f"{last_error_line(log)} (exit {rc}; log: {log})")
+        fh = log.open("a")
+        fh.write("$ python " + " ".join(args) + "\n")
+        fh.flush()
+        return cls(subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=fh, stderr=subprocess.STDOUT), log, fh)
 
-    def run_many(self, log_name: str, commands: dict[str, list[str]]) -> dict[str, StageFailed | None]:
-        """Run the ``python ARGS`` of ``commands`` (key -> args), :func:`parallel_jobs` at a time,
-        each logging to ``logs/LOG_NAME_KEY.log``; returns key -> None (done) or its StageFailed.
-        Ctrl-C reaches every child (same process group); this waits for them, then re-raises."""
-        def one(item: tuple[str, list[str]]) -> StageFailed | None:
-            try:
-                self.run(f"{log_name}_{item[0]}", item[1])
-            except StageFailed as exc:
-                return exc
-            return None
-
-        with ThreadPoolExecutor(max_workers=parallel_jobs()) as pool:
-            return dict(zip(commands, pool.map(one, commands.items())))
+    def finish(self) -> StageFailed | None:
+        """Close the log; the command's StageFailed (None when it exited 0)."""
+        self.fh.close()
+        rc = self.proc.returncode
+        return None if rc == 0 else StageFailed(f"{last_error_line(self.log)} (exit {rc}; log: {self.log})")
 
 
 def parallel_jobs() -> int:

@@ -40,17 +40,33 @@ def environment(cfg) -> dict:
     return env
 
 
+def run_unseen(ctx: DemoContext, name: str, title: str) -> dict | None:
+    """One configuration's own unseen-surface estimate (``coverage.json``, ``coverage_map.png``)
+    beside the truth ``c3f_slam evaluate --gt`` measured for it; None when the run wrote none."""
+    cov = ctx.slam_dir(name) / "coverage.json"
+    if not cov.is_file():
+        return None
+    c = json.loads(cov.read_text())
+    entry = {"run": title, "status": c.get("status"), "reason": c.get("reason"), "unseen_share": c.get("unseen_share"),
+             "segments": c.get("segments", [])}
+    if c.get("status") == "ok":
+        entry["map"] = f"slam/{name}/coverage_map.png"
+        ev_path = ctx.slam_dir(name) / "evaluation.json"
+        truth = json.loads(ev_path.read_text()).get("unseen", {}) if ev_path.is_file() else {}
+        if truth.get("status") == "ok":
+            entry["truth"] = {"unseen_share": truth.get("truth"), "error_pp": truth.get("error_pp")}
+            if truth.get("truth_map") and (ctx.slam_dir(name) / truth["truth_map"]).is_file():
+                entry["truth_map"] = f"slam/{name}/{truth['truth_map']}"
+    return entry
+
+
 def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
-    """The run's own coverage estimate (``coverage.json`` + ``coverage_map.png``) when it wrote one,
-    else the ground-truth coverage from ``c3f_slam evaluate`` of every configuration that ran
-    (coverage.ply rendered near the true path)."""
+    """Every configuration's own unseen-surface estimate (:func:`run_unseen`), or where no run wrote
+    one, the ground-truth coverage from ``c3f_slam evaluate`` (coverage.ply rendered near the true path)."""
     ok = [n for n in ctx.slam_runs if slam.get(n, {}).get("status") == "ok"]
-    for name in ok:
-        cov = ctx.slam_dir(name) / "coverage.json"
-        if cov.is_file():
-            c = json.loads(cov.read_text())
-            return {"source": "run", "run": slam[name]["title"], "unseen_share": c.get("unseen_share"),
-                    "segments": c.get("segments", []), "map": f"slam/{name}/coverage_map.png"}
+    estimates = [e for e in (run_unseen(ctx, n, slam[n]["title"]) for n in ok) if e is not None]
+    if estimates:
+        return {"source": "run", "runs": estimates}
     seq, runs = Sequence(ctx.test_seq), []
     for name in ok:
         renders = mesh_renders(ctx.slam_dir(name) / "coverage.ply", ctx.root / "figures" / f"coverage_{name}",

@@ -61,11 +61,12 @@ class Simulate(Stage):
         return asdict(cfg.simulate)
 
     def outputs(self, ctx):
-        return [ctx.root / "data", ctx.log(self.name)]
+        return [ctx.root / "data", *(ctx.log(f"{self.name}_{k}") for k in self._commands(ctx))]
 
     def estimate_s(self, cfg):
         s = cfg.simulate
-        return 6.0 * (len(s.train) + 1) + 0.04 * (s.train_frames * len(s.train) + s.test_frames) * (s.size / 128) ** 2
+        one = 6.0 * (len(s.train) + 1) + 0.04 * (s.train_frames * len(s.train) + s.test_frames) * (s.size / 128) ** 2
+        return one / 2  # 2 at a time
 
     def probe(self, ctx):
         s = ctx.cfg.simulate
@@ -76,18 +77,22 @@ class Simulate(Stage):
             return n / total
         return done
 
-    def _generate(self, ctx: DemoContext, preset: str, seed: int, frames: int, coverage: float, out: Path) -> None:
+    def _commands(self, ctx: DemoContext) -> dict[str, list[str]]:
+        """Sequence name -> its ``generate`` command."""
         s = ctx.cfg.simulate
-        ctx.run(self.name, ["-m", "datamodules.synthetic", "generate", "--preset", preset, "--seed", str(seed),
-                            "--frames", str(frames), "--size", str(s.size), "--set", f"path.coverage={coverage}",
-                            "--out", str(out), "--no-progress"])
+        seqs = {f"train{k}": (preset, seed, s.train_frames, s.train_coverage, ctx.train_data / f"train{k}")
+                for k, (preset, seed) in enumerate(s.train)}
+        seqs["heldout"] = (*s.test, s.test_frames, s.test_coverage, ctx.test_seq)
+        return {name: ["-m", "datamodules.synthetic", "generate", "--preset", preset, "--seed", str(seed),
+                       "--frames", str(frames), "--size", str(s.size), "--set", f"path.coverage={coverage}",
+                       "--out", str(out), "--no-progress"]
+                for name, (preset, seed, frames, coverage, out) in seqs.items()}
 
     def run(self, ctx, done=None):
-        s = ctx.cfg.simulate
-        for k, (preset, seed) in enumerate(s.train):
-            self._generate(ctx, preset, seed, s.train_frames, s.train_coverage, ctx.train_data / f"train{k}")
-        self._generate(ctx, *s.test, s.test_frames, s.test_coverage, ctx.test_seq)
-        return {"train": [f"train{k}" for k in range(len(s.train))], "test": "heldout"}
+        for exc in ctx.run_many(self.name, self._commands(ctx)).values():
+            if exc is not None:
+                raise exc
+        return {"train": [f"train{k}" for k in range(len(ctx.cfg.simulate.train))], "test": "heldout"}
 
 
 def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: dict, data_args: dict,
@@ -204,7 +209,7 @@ class TrainFeatures(_Training):
     name, model, group = "train_features", "contrafeat", "features"
 
     def estimate_s(self, cfg):
-        return 15.0 + cfg.features.steps * 1.5 * (cfg.features.size / 128) ** 2
+        return 15.0 + cfg.features.steps * 0.8 * (cfg.features.size / 128) ** 2
 
     def run(self, ctx, done=None):
         f = ctx.cfg.features
