@@ -93,8 +93,9 @@ class DemoContext:
         """Run the ``python ARGS`` of ``commands`` (key -> args) from the checkout,
         :func:`parallel_jobs` at a time, each appending to ``logs/LOG_NAME_KEY.log`` (or
         ``log_names[key]``); returns key -> None (done) or its :class:`StageFailed`. On Ctrl-C no
-        further command starts; the running ones get SIGINT (a terminal sends it to them too), are
-        waited for (so they can write their partial state), and KeyboardInterrupt is re-raised."""
+        further command starts; each running one gets one SIGINT (they run in their own process
+        groups, so the terminal's does not reach them twice), is waited for (so it can write its
+        partial state, e.g. a fit's checkpoint), and KeyboardInterrupt is re-raised."""
         pending, running, results = list(commands.items()), {}, {}
         try:
             while pending or running:
@@ -129,7 +130,9 @@ class _Child:
         fh = log.open("a")
         fh.write("$ python " + " ".join(args) + "\n")
         fh.flush()
-        return cls(subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=fh, stderr=subprocess.STDOUT), log, fh)
+        # its own process group: a terminal's Ctrl-C reaches only the demo, which forwards exactly one SIGINT
+        proc = subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=fh, stderr=subprocess.STDOUT, process_group=0)
+        return cls(proc, log, fh)
 
     def finish(self) -> StageFailed | None:
         """Close the log; the command's StageFailed (None when it exited 0)."""
