@@ -279,9 +279,10 @@ def _check_rerun_skips_and_other_settings_refused(out: Path) -> None:
 
 
 @pytest.mark.slow
-def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path):
-    """SIGINT to the demo's process group (a terminal's Ctrl-C) during training: exit 130, one line,
-    the simulate stage stays recorded."""
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path, sig):
+    """SIGINT to the demo's process group (a terminal's Ctrl-C), or SIGTERM, during training:
+    exit 130, one line, the simulate stage stays recorded, the fit saved its interrupt checkpoint."""
     import os
     import signal
     import time
@@ -293,7 +294,8 @@ def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path):
     while not (out / "logs" / "train_depth.log").exists() and time.time() - t0 < 300:
         time.sleep(0.5)
     time.sleep(10)
-    os.killpg(p.pid, signal.SIGINT)
+    os.killpg(p.pid, getattr(signal, sig))
     _, err = p.communicate(timeout=300)
     assert p.returncode == 130 and err.count("\n") == 1 and "interrupted in stage train_depth" in err
     assert list(json.loads((out / "demo_state.json").read_text())["stages"]) == ["simulate"]
+    assert list(out.glob("runs/depthnet/tb/version_0/checkpoints/interrupted.ckpt"))

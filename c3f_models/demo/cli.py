@@ -1,12 +1,14 @@
 """``python -m c3f_models demo --out DIR [--quick] [--overwrite]``: the whole pipeline in one command.
 
 Exit status: 0 done, 1 a stage's command failed (its error line and log named), 2 bad input
-(e.g. DIR holds a demo made with other settings), 130 Ctrl-C. Always one line on error.
+(e.g. DIR holds a demo made with other settings), 130 Ctrl-C (or SIGTERM / SIGHUP: the running
+commands get one SIGINT each and are waited for). Always one line on error.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,8 +32,14 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    # SIGTERM and SIGHUP (the terminal closed) stop the demo like Ctrl-C; restored on return
+    previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:
         run_demo(args.out, demo_config(args.quick), overwrite=args.overwrite)
     except InputError as exc:
@@ -43,4 +51,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (DemoInterrupted, KeyboardInterrupt) as exc:
         print(f"error: {exc or 'interrupted'}", file=sys.stderr)
         return 130
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return 0
