@@ -29,6 +29,8 @@ ARTEFACTS = [
     ("slam/NAME/trajectory.txt", "estimated camera-to-world trajectory (TUM)", "evo (evo_traj tum ...)"),
     ("slam/NAME/mesh.ply, coverage.ply", "reconstruction; ground-truth surface painted seen / unseen",
      "MeshLab / Open3D"),
+    ("slam/NAME/coverage.json, coverage_map.png, unseen.ply", "the run's own unseen-wall estimate (no ground truth); "
+     "coverage_map_truth.png: the truth's map for the same run", "any text editor / image viewer; MeshLab"),
     ("slam/NAME/summary.json, evaluation.json, keyframe_graph.json", "run and evaluation numbers", "any text editor"),
     ("metrics/*.json, figures/*.png", "the report's numbers and images", "any text editor / image viewer"),
     ("logs/*.log", "the output of every command the demo ran", "any text editor"),
