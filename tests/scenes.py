@@ -14,17 +14,7 @@ import numpy as np
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.io import SequenceWriter
-
-
-def plane_texture(size: int = 512, seed: int = 0) -> np.ndarray:
-    """A smooth random RGB texture (uint8) with blobs at several scales."""
-    rng = np.random.default_rng(seed)
-    tex = np.zeros((size, size, 3), np.float32)
-    for cells in (4, 16, 64):
-        noise = rng.random((cells, cells, 3)).astype(np.float32)
-        tex += cv2.resize(noise, (size, size), interpolation=cv2.INTER_CUBIC) / 3
-    tex = (tex - tex.min()) / (tex.max() - tex.min())
-    return (40 + 180 * tex).astype(np.uint8)
+from datamodules.synthetic.noise import blob_texture as plane_texture
 
 
 def render_plane(

@@ -20,7 +20,7 @@ import open3d as o3d
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.io import SequenceWriter
-from tests.scenes import plane_texture
+from datamodules.synthetic.noise import blob_texture
 
 ROOM = (5.0, 4.0, 2.8)  #: metres, x, y, z
 #: furniture boxes: (size xyz, min corner xyz), metres
@@ -39,7 +39,7 @@ def room_scene() -> tuple[o3d.t.geometry.RaycastingScene, list[np.ndarray]]:
         meshes.append(o3d.geometry.TriangleMesh.create_box(*size).translate(corner))
     for m in meshes:
         scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(m))
-    return scene, [plane_texture(1024, seed=10 + n) for n in range(len(meshes))]
+    return scene, [blob_texture(1024, seed=10 + n) for n in range(len(meshes))]
 
 
 def render(scene, textures: list[np.ndarray], camera: PinholeCamera, T_wc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -81,3 +81,15 @@ def noise_2d(rng: np.random.Generator, rows: int, cols: int, scale: int) -> np.n
 def smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
     t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
     return t * t * (3 - 2 * t)
+
+
+def blob_texture(size: int = 512, seed: int = 0) -> np.ndarray:
+    """A smooth random RGB texture, (size, size, 3) uint8 in 40..220, with blobs at 3 scales (for
+    analytic test scenes and benchmark rooms, outside the colon simulator's own streams)."""
+    rng = np.random.default_rng(seed)
+    tex = np.zeros((size, size, 3), np.float32)
+    for cells in (4, 16, 64):
+        noise = rng.random((cells, cells, 3)).astype(np.float32)
+        tex += cv2.resize(noise, (size, size), interpolation=cv2.INTER_CUBIC) / 3
+    tex = (tex - tex.min()) / (tex.max() - tex.min())
+    return (40 + 180 * tex).astype(np.uint8)
