@@ -116,7 +116,7 @@ def _depth(d: dict, root: Path) -> str:
                     f"held-out frames | predicted depth ({scales}: the metric scale each export recorded, as SLAM "
                     f"uses it) | true depth; colour {_num(rng[0], 100, 1)}-{_num(rng[1], 100, 1)} cm, "
                     "black = no depth")
-            + f"<p>Seven depth metrics of {which}; on {len(m['frames'])} held-out frames "
+            + f"<p>Seven depth metrics of {which}. {len(m['frames'])} held-out frames "
               f"(median scale true/predicted: {_num(m['median_scaled'].get('scale'), 1, 3)}). Metric: depth times "
               "the scale the export measured on the training sequences.</p>"
             + H.table(head, rows))

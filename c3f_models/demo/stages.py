@@ -248,25 +248,22 @@ class Export(Stage):
     def estimate_s(self, cfg):
         return 50.0 if cfg.ttt.steps else 35.0  # 2 at a time; a pose graph doubles a DepthNet export
 
-    def _jobs(self, ctx: DemoContext) -> dict[str, tuple[Path, Path, list[str]]]:
-        """Output folder -> (training run, checkpoint, extra export options)."""
-        ckpt = lambda model: ctx.version_dir(model) / "checkpoints" / "last.ckpt"  # noqa: E731
-        base, tuned = ctx.version_dir("depthnet"), ctx.cfg.ttt.steps > 0
-        jobs = {"depthnet": (base, ckpt("depthnet_ttt" if tuned else "depthnet"), [])}
+    def _jobs(self, ctx: DemoContext) -> dict[str, tuple[str, str, list[str]]]:
+        """Output folder -> (training run whose config is used, run whose checkpoint, extra options)."""
+        tuned = ctx.cfg.ttt.steps > 0
+        jobs = {"depthnet": ("depthnet", "depthnet_ttt" if tuned else "depthnet", [])}
         if tuned:  # for the metrics before/after and SLAM without TTT; c3f_slam needs no PoseNet
-            jobs["depthnet_pretrained"] = (base, ckpt("depthnet"), ["--graphs", "[depth]"])
-        jobs["contrafeat"] = (ctx.version_dir("contrafeat"), ckpt("contrafeat"), [])
+            jobs["depthnet_pretrained"] = ("depthnet", "depthnet", ["--graphs", "[depth]"])
+        jobs["contrafeat"] = ("contrafeat", "contrafeat", [])
         return jobs
 
     def run(self, ctx, done=None):
-        jobs = self._jobs(ctx)
-        for _, ckpt, _ in jobs.values():
-            if not ckpt.is_file():
-                raise StageFailed(f"{ckpt}: the training run wrote no checkpoint")
+        jobs = {folder: (ctx.version_dir(run) / "config.yaml", _last_ckpt(ctx, weights), extra)
+                for folder, (run, weights, extra) in self._jobs(ctx).items()}
         failed = ctx.run_many(self.name, {
-            folder: ["-m", "c3f_models", "export", "--config", str(run / "config.yaml"), "--ckpt_path", str(ckpt),
+            folder: ["-m", "c3f_models", "export", "--config", str(config), "--ckpt_path", str(ckpt),
                      "--output_dir", str(ctx.models / folder), *extra]
-            for folder, (run, ckpt, extra) in jobs.items()})
+            for folder, (config, ckpt, extra) in jobs.items()})
         for exc in failed.values():
             if exc is not None:
                 raise exc
