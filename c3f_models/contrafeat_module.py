@@ -74,6 +74,7 @@ class ContraFeat(C3FModule):
     """
 
     weights_hint = "check model.network"
+    zoo_kind = "descriptors"
 
     def __init__(
         self,
@@ -96,7 +97,7 @@ class ContraFeat(C3FModule):
         self.filter_cfg = evaluation.match_filter()
         self.net = ContraFeatNet(
             network.backbone_layers, network.descriptor_dim, network.fpn_channels, network.stem_channels,
-            network.pretrained_path, network.head_channels,
+            network.pretrained_path, network.head_channels, network.backbone_width,
         )
         self.kp_settings, self.gt_settings = keypoints, ground_truth
         self.dense_settings = DenseSettings(loss.dense_points, loss.dense_spacing, keypoints.border)

@@ -16,6 +16,7 @@ import torch.nn.functional as F
 from lightning.pytorch.loggers import TensorBoardLogger
 
 from c3f_models.config import OptimConfig, as_config
+from c3f_models.depth.augment import ColorAugmentConfig, color_augment
 from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
 from c3f_models.depth.losses import log_depth_l1
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
@@ -27,7 +28,7 @@ from c3f_slam.errors import InputError
 
 # the defaults of DepthNet's groups (frozen, so one instance serves every module)
 DEFAULT_NETWORK, DEFAULT_LOSS, DEFAULT_OPTIM = DepthNetworkConfig(), LossConfig(), OptimConfig()
-DEFAULT_EVALUATION = DepthEvaluationConfig()
+DEFAULT_EVALUATION, DEFAULT_AUGMENT = DepthEvaluationConfig(), ColorAugmentConfig()
 
 
 class DepthNet(C3FModule):
@@ -41,11 +42,14 @@ class DepthNet(C3FModule):
         loss: switches and weights of the objective (all extras off = Monodepth2), L_dc warm-up.
         optim: AdamW and its MultiStepLR schedule (epochs).
         evaluation: ground-truth range of the metrics, TensorBoard images.
+        augment: colour augmentation of the training inputs (off by default; the losses see the originals).
         init_weights: checkpoint whose weights start ``fit`` (optimiser and epoch not resumed;
             for test-time training); ignored when resuming with ``ckpt_path``.
     """
 
-    weights_hint = "check model.network.encoder_layers, dcn and pose_encoder_layers"
+    weights_hint = ("check model.network.encoder_layers, encoder_width, dcn, pose_encoder_layers and "
+                    "pose_encoder_width")
+    zoo_kind = "depth"
 
     def __init__(
         self,
@@ -54,18 +58,21 @@ class DepthNet(C3FModule):
         optim: OptimConfig = DEFAULT_OPTIM,
         evaluation: DepthEvaluationConfig = DEFAULT_EVALUATION,
         init_weights: str | None = None,
+        augment: ColorAugmentConfig = DEFAULT_AUGMENT,
     ) -> None:
         network = as_config(network, DEFAULT_NETWORK, "model.network")
         loss = as_config(loss, DEFAULT_LOSS, "model.loss")
         optim = as_config(optim, DEFAULT_OPTIM, "model.optim")
         evaluation = as_config(evaluation, DEFAULT_EVALUATION, "model.evaluation")
+        augment = as_config(augment, DEFAULT_AUGMENT, "model.augment")
         super().__init__(optim, init_weights)
         self.save_hyperparameters()
         self.network_config, self.loss_config, self.evaluation_config = network, loss, evaluation
+        self.augment_config = augment
         self.depth_net = DepthNetwork(network.encoder_layers, network.dcn, network.num_scales, network.min_depth,
-                                      network.max_depth, network.pretrained_path)
+                                      network.max_depth, network.pretrained_path, network.encoder_width)
         self.pose_net = PoseNetwork(network.pose_encoder_layers, network.pose_pretrained_path,
-                                    network.pose_translation_scale)
+                                    network.pose_translation_scale, network.pose_encoder_width)
         self.objective = SelfSupervisedLoss(loss)
         self.eval_range = (evaluation.min_depth or network.min_depth, evaluation.max_depth or network.max_depth)
 
@@ -102,10 +109,11 @@ class DepthNet(C3FModule):
         """
         images, specular, K = self._unpack(batch)
         b = images[0].shape[0]
+        seen = color_augment(images, self.augment_config) if step is not None else images  # the networks' inputs
         frames = [1, 0, 2] if self.loss_config.needs_source_depth else [1]
-        disps = self.depth_net(torch.cat([images[k] for k in frames]))
+        disps = self.depth_net(torch.cat([seen[k] for k in frames]))
         disparities = {k: [d[n * b : (n + 1) * b].float() for d in disps] for n, k in enumerate(frames)}
-        T = self.pose_net(torch.cat([images[0], images[1]]), torch.cat([images[1], images[2]]))
+        T = self.pose_net(torch.cat([seen[0], seen[1]]), torch.cat([seen[1], seen[2]]))
         # geometry and losses in float32 even under mixed precision (pixel coordinates, SSIM)
         with torch.autocast(images[0].device.type, enabled=False):
             images = [im.float() for im in images]

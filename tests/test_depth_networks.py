@@ -133,3 +133,33 @@ def test_pretrained_errors_are_clear(tmp_path, resnet18_file):
         DepthNetwork(18, pretrained_path=other)
     with pytest.raises(InputError, match="encoder_layers must be one of"):
         ResnetEncoder(20)
+
+
+@pytest.mark.parametrize("layers", [18, 50])
+def test_narrow_encoder_widths_and_weights(layers):
+    wide, narrow = ResnetEncoder(layers), ResnetEncoder(layers, width=32)
+    feats = narrow(torch.rand(1, 3, 64, 64))
+    assert [f.shape[1] for f in feats] == narrow.num_ch_enc == [c // 2 for c in wide.num_ch_enc]
+    assert [f.shape[-1] for f in feats] == [32, 16, 8, 4, 2]
+    ratio = sum(p.numel() for p in narrow.parameters()) / sum(p.numel() for p in wide.parameters())
+    assert 0.2 < ratio < 0.3  # a quarter of the weights
+
+
+def test_narrow_networks_and_their_errors(resnet18_file):
+    from c3f_models.contrafeat.network import ContraFeatNet
+    from c3f_models.depth.config import DepthNetworkConfig
+
+    depth = DepthNetwork(18, num_scales=2, width=16)
+    assert depth(torch.rand(1, 3, 64, 64))[0].shape == (1, 1, 64, 64)
+    pose = PoseNetwork(18, width=16)
+    assert pose.encoder.conv1.weight.shape == (16, 6, 7, 7)
+    assert pose(torch.rand(2, 3, 64, 64), torch.rand(2, 3, 64, 64)).shape == (2, 4, 4)
+    desc = ContraFeatNet(18, descriptor_dim=8, fpn_channels=16, stem_channels=8, backbone_width=16)
+    assert desc(torch.rand(1, 3, 64, 64)).shape == (1, 8, 64, 64)
+    path, _ = resnet18_file
+    with pytest.raises(InputError, match="does not fit this ResNet.*wrong-shaped"):
+        ResnetEncoder(18, pretrained_path=path, width=32)  # ImageNet weights are for width 64
+    with pytest.raises(InputError, match="model.network.encoder_width must be a multiple of 8"):
+        DepthNetworkConfig(encoder_width=20)
+    with pytest.raises(InputError, match="model.network.backbone_width: a ResNet's width must be a multiple of 8"):
+        ContraFeatNet(18, backbone_width=12)

@@ -17,6 +17,8 @@ class ContraFeatNetworkConfig:
 
     Attributes:
         backbone_layers: ResNet depth of the bottom-up stream (18 in the paper; 34 also accepted).
+        backbone_width: channels of the ResNet's first stage (64: the standard ResNet; 32: a lighter
+            stream with a quarter of the weights; no ImageNet file fits it).
         descriptor_dim: descriptor channels c (128 in the paper).
         fpn_channels: channels of the FPN levels.
         stem_channels: channels of the full-resolution stem that restores pixel detail.
@@ -25,6 +27,7 @@ class ContraFeatNetworkConfig:
     """
 
     backbone_layers: int = 18
+    backbone_width: int = 64
     descriptor_dim: int = 128
     fpn_channels: int = 128
     stem_channels: int = 32

@@ -34,6 +34,7 @@ class ContraFeatNet(nn.Module):
 
     Args:
         backbone_layers: ResNet depth (18 in the paper; 34 also accepted).
+        backbone_width: channels of the ResNet's first stage (64: the standard ResNet).
         descriptor_dim: output channels c (128 in the paper).
         fpn_channels: channels of the FPN levels.
         stem_channels: channels of the full-resolution stem that restores pixel detail.
@@ -50,6 +51,7 @@ class ContraFeatNet(nn.Module):
         stem_channels: int = 32,
         pretrained_path: str | Path | None = None,
         head_channels: int | None = None,
+        backbone_width: int = 64,
     ) -> None:
         super().__init__()
         if backbone_layers not in BACKBONES:
@@ -58,12 +60,14 @@ class ContraFeatNet(nn.Module):
         if min(descriptor_dim, fpn_channels, stem_channels, head_channels) < 1:
             raise InputError("model.network.descriptor_dim, fpn_channels, stem_channels and head_channels must be "
                              "positive")
-        net = build_resnet(backbone_layers, "model.network.backbone_layers")
+        net = build_resnet(backbone_layers, "model.network.backbone_layers", backbone_width,
+                           "model.network.backbone_width")
         if pretrained_path:
             load_pretrained(net, pretrained_path, option="model.network.pretrained_path")
         self.conv1, self.bn1, self.relu, self.maxpool = net.conv1, net.bn1, net.relu, net.maxpool
         self.layer1, self.layer2, self.layer3, self.layer4 = net.layer1, net.layer2, net.layer3, net.layer4
-        self.fpn = FeaturePyramidNetwork([64, 64, 128, 256, 512], fpn_channels)
+        w = backbone_width
+        self.fpn = FeaturePyramidNetwork([w, w, 2 * w, 4 * w, 8 * w], fpn_channels)
         self.stem = nn.Sequential(
             nn.Conv2d(3, stem_channels, 3, padding=1), nn.ReLU(inplace=True),
             nn.Conv2d(stem_channels, stem_channels, 3, padding=1), nn.ReLU(inplace=True),

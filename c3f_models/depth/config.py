@@ -16,6 +16,10 @@ class DepthNetworkConfig:
         encoder_layers: depth encoder ResNet depth (18 for CPU, 50 in the paper).
         dcn: deformable convolutions in the depth encoder's conv3-conv5.
         pose_encoder_layers: PoseNet ResNet depth (18 in the paper).
+        encoder_width: channels of the depth encoder's first stage (64: the standard ResNet; 32: a
+            lighter encoder with a quarter of the weights, for CPU training and a small zoo; no
+            ImageNet file fits it).
+        pose_encoder_width: the same for PoseNet's encoder.
         pretrained_path: local torchvision ResNet state dict (ImageNet) for the depth encoder; null = from scratch.
         pose_pretrained_path: the same for the pose encoder.
         pose_translation_scale: metres per unit of PoseNet's raw translation output (Monodepth2: 0.01 at
@@ -28,6 +32,8 @@ class DepthNetworkConfig:
     encoder_layers: int = 18
     dcn: bool = False
     pose_encoder_layers: int = 18
+    encoder_width: int = 64
+    pose_encoder_width: int = 64
     pretrained_path: str | None = None
     pose_pretrained_path: str | None = None
     pose_translation_scale: float = 1e-3
@@ -39,6 +45,10 @@ class DepthNetworkConfig:
         if not 0 < self.min_depth < self.max_depth:
             raise InputError(f"model.network.min_depth/max_depth: need 0 < min_depth < max_depth, got "
                              f"{self.min_depth}, {self.max_depth}")
+        for name in ("encoder_width", "pose_encoder_width"):
+            value = getattr(self, name)
+            if value < 8 or value % 8:
+                raise InputError(f"model.network.{name} must be a multiple of 8 (>= 8), got {value}")
         if not 1 <= self.num_scales <= 4:
             raise InputError(f"model.network.num_scales must be 1..4, got {self.num_scales}")
 

@@ -21,6 +21,7 @@ class DepthNetwork(nn.Module):
         num_scales: disparity heads at scales 0..num_scales-1.
         min_depth, max_depth: depth range in metres that the sigmoid maps onto.
         pretrained_path: local torchvision ResNet state dict for the encoder.
+        width: channels of the encoder's first stage (64: the standard ResNet).
     """
 
     def __init__(
@@ -31,9 +32,11 @@ class DepthNetwork(nn.Module):
         min_depth: float = 1e-3,
         max_depth: float = 0.3,
         pretrained_path: str | Path | None = None,
+        width: int = 64,
     ) -> None:
         super().__init__()
-        self.encoder = ResnetEncoder(num_layers, dcn, 1, pretrained_path, option="model.network.pretrained_path")
+        self.encoder = ResnetEncoder(num_layers, dcn, 1, pretrained_path, option="model.network.pretrained_path",
+                                     width=width)
         self.decoder = DepthDecoder(self.encoder.num_ch_enc, scales=range(num_scales))
         self.min_depth, self.max_depth = float(min_depth), float(max_depth)
 
@@ -82,13 +85,16 @@ class PoseNetwork(nn.Module):
         pretrained_path: local torchvision ResNet state dict; its first conv is repeated for
             the 6-channel input and halved.
         translation_scale: metres per unit of the raw translation output.
+        width: channels of the encoder's first stage (64: the standard ResNet).
     """
 
     def __init__(
-        self, num_layers: int = 18, pretrained_path: str | Path | None = None, translation_scale: float = 0.01
+        self, num_layers: int = 18, pretrained_path: str | Path | None = None, translation_scale: float = 0.01,
+        width: int = 64,
     ) -> None:
         super().__init__()
-        self.encoder = ResnetEncoder(num_layers, False, 2, pretrained_path, option="model.network.pose_pretrained_path")
+        self.encoder = ResnetEncoder(num_layers, False, 2, pretrained_path, option="model.network.pose_pretrained_path",
+                                     width=width)
         self.decoder = PoseDecoder(self.encoder.num_ch_enc[-1], translation_scale=translation_scale)
 
     def forward(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

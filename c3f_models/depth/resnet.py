@@ -21,13 +21,45 @@ from c3f_slam.errors import InputError
 from c3f_slam.preprocess import IMAGENET_MEAN, IMAGENET_STD
 
 RESNETS = {18: models.resnet18, 34: models.resnet34, 50: models.resnet50}
+STANDARD_WIDTH = 64  #: channels of a torchvision ResNet's stem and first stage
 
 
-def build_resnet(num_layers: int, option: str = "encoder_layers") -> models.ResNet:
-    """An untrained torchvision ResNet with 18, 34 or 50 layers."""
+def build_resnet(num_layers: int, option: str = "encoder_layers", width: int = STANDARD_WIDTH,
+                 width_option: str = "encoder_width") -> models.ResNet:
+    """An untrained torchvision ResNet with 18, 34 or 50 layers.
+
+    ``width``: channels of the stem and the first stage (the stages have width, 2, 4 and 8 times
+    it, times the block expansion); 64 is torchvision's architecture, a smaller width gives a
+    lighter encoder (32: a quarter of the weights and of the multiply-adds) that no ImageNet
+    file fits.
+    """
     if num_layers not in RESNETS:
         raise InputError(f"{option} must be one of {sorted(RESNETS)}, got {num_layers}")
-    return RESNETS[num_layers](weights=None)
+    if width < 8 or width % 8:
+        raise InputError(f"{width_option}: a ResNet's width must be a multiple of 8 (>= 8), got {width}")
+    net = RESNETS[num_layers](weights=None)
+    if width != STANDARD_WIDTH:
+        _narrow(net, width)
+    return net
+
+
+def _narrow(net: models.ResNet, width: int) -> None:
+    """Rebuild ``net``'s stem and four stages with ``width`` channels in the first stage (same
+    blocks and strides as torchvision; weights initialised as torchvision initialises them)."""
+    block = type(net.layer1[0])
+    counts = [len(getattr(net, f"layer{i}")) for i in range(1, 5)]
+    net.inplanes = width
+    net.conv1 = nn.Conv2d(3, width, kernel_size=7, stride=2, padding=3, bias=False)
+    net.bn1 = nn.BatchNorm2d(width)
+    for i, n in enumerate(counts):
+        setattr(net, f"layer{i + 1}", net._make_layer(block, width * 2**i, n, stride=1 if i == 0 else 2))
+    net.fc = nn.Linear(8 * width * block.expansion, net.fc.out_features)
+    for m in net.modules():
+        if isinstance(m, nn.Conv2d):
+            nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
+        elif isinstance(m, nn.BatchNorm2d):
+            nn.init.ones_(m.weight)
+            nn.init.zeros_(m.bias)
 
 
 def read_state_dict(path: str | Path, option: str) -> dict[str, torch.Tensor]:
@@ -98,6 +130,7 @@ class ResnetEncoder(nn.Module):
         num_input_images: frames stacked along channels (2 for PoseNet).
         pretrained_path: local torchvision ResNet state dict (ImageNet), or None (from scratch).
         option: the config option named in error messages.
+        width: channels of the first stage (64: torchvision's ResNet; see :func:`build_resnet`).
     """
 
     def __init__(
@@ -107,11 +140,12 @@ class ResnetEncoder(nn.Module):
         num_input_images: int = 1,
         pretrained_path: str | Path | None = None,
         option: str = "pretrained_path",
+        width: int = STANDARD_WIDTH,
     ) -> None:
         super().__init__()
-        net = build_resnet(num_layers)
+        net = build_resnet(num_layers, width=width)
         if num_input_images > 1:
-            net.conv1 = nn.Conv2d(3 * num_input_images, 64, kernel_size=7, stride=2, padding=3, bias=False)
+            net.conv1 = nn.Conv2d(3 * num_input_images, width, kernel_size=7, stride=2, padding=3, bias=False)
             nn.init.kaiming_normal_(net.conv1.weight, mode="fan_out", nonlinearity="relu")
         if pretrained_path:
             load_pretrained(net, pretrained_path, num_input_images, option)
@@ -120,7 +154,7 @@ class ResnetEncoder(nn.Module):
         self.conv1, self.bn1, self.relu, self.maxpool = net.conv1, net.bn1, net.relu, net.maxpool
         self.layer1, self.layer2, self.layer3, self.layer4 = net.layer1, net.layer2, net.layer3, net.layer4
         expansion = 4 if num_layers >= 50 else 1
-        self.num_ch_enc = [64, 64 * expansion, 128 * expansion, 256 * expansion, 512 * expansion]
+        self.num_ch_enc = [width, *(width * 2**i * expansion for i in range(4))]
         mean = torch.tensor(IMAGENET_MEAN * num_input_images).view(1, -1, 1, 1)
         std = torch.tensor(IMAGENET_STD * num_input_images).view(1, -1, 1, 1)
         self.register_buffer("mean", mean, persistent=False)
