@@ -7,6 +7,8 @@
         [--camera camera.json] [--threads N]
     python -m c3f_slam evaluate OUT --gt SEQUENCE_DIR
     python -m c3f_slam inspect MODEL.onnx
+    python -m c3f_slam simcol3d SEQUENCE_DIR --depth-model depth.onnx --out SUBMISSION/SCENE/Frames_X_OP
+        [--trajectory OUT/trajectory.txt] [--depth-scale F] [--threads N]
 
 ``--depth-source`` / ``--descriptors`` default to the models given: model depth with
 ``--depth-model``, ContraFeat with ``--feature-model``, else files and SIFT.
@@ -18,10 +20,9 @@ Bad input prints one line ``error: <message>`` and exits with status 2; the outp
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Sequence
 
-from c3f_slam.cli_parser import OneLineParser
+from c3f_slam.cli_parser import OneLineParser, run_subcommand
 from c3f_slam.errors import InputError
 
 
@@ -37,8 +38,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--descriptors", choices=("sift", "contrafeat"),
                    help="sift (the SIFT baseline) or contrafeat (ONNX, --feature-model). "
                         "Default: contrafeat when --feature-model is given, else sift")
-    r.add_argument("--depth-model", help="DepthNet ONNX export (see `python -m c3f_slam inspect`)")
-    r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints)")
+    r.add_argument("--depth-model", help="DepthNet ONNX export (see `python -m c3f_slam inspect`), or zoo:NAME "
+                                         "(a model of the repository's zoo/, `python -m c3f_models zoo list`)")
+    r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints), or zoo:NAME")
     r.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video)")
     r.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model (default 2)")
     r.add_argument("--depth-scale", type=float,
@@ -101,6 +103,22 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--gt", required=True, help="ground-truth sequence folder (poses.txt, optional mesh.ply)")
     i = sub.add_parser("inspect", help="print the metadata of an exported ONNX model (kind, size, units, ...)")
     i.add_argument("model", help="an .onnx file written by the C3Fusion exporter")
+    c = sub.add_parser("simcol3d", help="write a sequence's depth (and relative poses) as SimCol3D challenge "
+                                        "submission files (c3f_slam.simcol3d)")
+    c.add_argument("sequence", help="sequence folder (rgb/, camera.json), e.g. a SimCol3D one made by "
+                                    "`python -m datamodules convert simcol3d`")
+    c.add_argument("--out", required=True,
+                   help="the trajectory's submission folder, e.g. SUBMISSION/SyntheticColon_I_Test/Frames_S5_OP: "
+                        "gets depth/FrameBuffer_NNNN.npy and pose/FrameBuffer_NNNN_to_FrameBuffer_MMMM.txt")
+    c.add_argument("--depth-model", help="DepthNet ONNX export (see `python -m c3f_slam inspect`), or zoo:NAME "
+                                         "(a model of the repository's zoo/, `python -m c3f_models zoo list`)")
+    c.add_argument("--depth-scale", type=float,
+                   help="multiply the model's depth by this factor (the files hold 0-20 cm, clipped); default: "
+                        "the model's metadata depth.metric_scale, else 1")
+    c.add_argument("--trajectory", help="TUM camera-to-world trajectory in metres (a run's trajectory.txt): "
+                                        "relative poses of every consecutive frame pair, missing frames interpolated")
+    c.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+    c.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 
 
@@ -199,17 +217,25 @@ def _inspect(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": _run, "evaluate": _evaluate, "inspect": _inspect}
+def _simcol3d(args: argparse.Namespace) -> int:
+    from c3f_slam.simcol3d import write_submission
+
+    r = write_submission(args.sequence, args.out, args.depth_model, threads=args.threads,
+                         depth_scale=args.depth_scale, trajectory=args.trajectory, progress=not args.quiet)
+    parts = []
+    if args.depth_model:
+        parts.append(f"{r['depth_files']} depth maps (x{r['depth_scale']:g}) -> {args.out}/depth")
+    if args.trajectory:
+        filled = f", {r['filled_poses']} frame(s) without a pose interpolated" if r["filled_poses"] else ""
+        parts.append(f"{r['pose_files']} relative poses -> {args.out}/pose{filled}")
+    print(f"{r['frames']} frames: " + "; ".join(parts))
+    return 0
+
+
+COMMANDS = {"run": _run, "evaluate": _evaluate, "inspect": _inspect, "simcol3d": _simcol3d}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    try:
-        return COMMANDS[args.command](args)
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        where = f"; the run so far is in {args.out} (summary.json status error)" if args.command == "run" else ""
-        print(f"error: interrupted{where}", file=sys.stderr)
-        return 130
+    where = f"; the run so far is in {args.out} (summary.json status error)" if args.command == "run" else ""
+    return run_subcommand(COMMANDS, args, where)

@@ -7,7 +7,11 @@ argparse prints the whole usage before its error line; :class:`OneLineParser` pr
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Callable, Mapping
 from typing import NoReturn
+
+from c3f_slam.errors import InputError
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -17,4 +21,18 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"error: {message} (see {self.prog} --help)\n")
 
 
-__all__ = ["OneLineParser"]
+def run_subcommand(commands: Mapping[str, Callable[[argparse.Namespace], int]], args: argparse.Namespace,
+                   interrupted: str = "") -> int:
+    """``commands[args.command](args)``; bad input (an InputError) is one ``error: ...`` line and
+    exit status 2, Ctrl-C one ``error: interrupted`` line (plus ``interrupted``) and status 130."""
+    try:
+        return commands[args.command](args)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"error: interrupted{interrupted}", file=sys.stderr)
+        return 130
+
+
+__all__ = ["OneLineParser", "run_subcommand"]
