@@ -2,7 +2,8 @@
 
 Every file is read with the safe unpickler only (``torch.load(weights_only=True)``):
 tensors, numbers, strings and containers. A file that needs more (pickled objects, possibly
-code) is refused with an InputError; nothing in it runs.
+code) is refused with an InputError; nothing in it runs. ``.safetensors`` files (the zoo's
+weights; a format that holds tensors only) are read as a plain state dict.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ def read_checkpoint(path: str | Path, option: str, mmap: bool = False) -> dict:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{option}: file not found: {path}")
+    if path.suffix == ".safetensors":
+        return {"state_dict": read_safetensors(path, option)}
     if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
         raise InputError(f"{option}: {path} is not a torch checkpoint")
     try:
@@ -36,6 +39,17 @@ def read_checkpoint(path: str | Path, option: str, mmap: bool = False) -> dict:
         raise InputError(f"{option}: {path} needs more than the safe loader (weights_only=True) reads{what}; "
                          "refused, nothing in it ran") from None
     return ckpt if isinstance(ckpt, dict) else {}
+
+
+def read_safetensors(path: Path, option: str) -> dict[str, torch.Tensor]:
+    """The tensors of a ``.safetensors`` file (any dtype, as stored)."""
+    from safetensors import SafetensorError
+    from safetensors.torch import load_file
+
+    try:
+        return load_file(str(path), device="cpu")
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise InputError(f"{option}: {path} is not a readable safetensors file ({str(exc).splitlines()[0]})") from None
 
 
 def read_checkpoint_weights(path: str | Path, option: str = "model.init_weights") -> dict[str, torch.Tensor]:

@@ -5,7 +5,7 @@ Model and data are chosen by class path in the config (subclass mode), e.g.::
     python -m c3f_models fit --config configs/trainer/cpu_smoke.yaml --config configs/depthnet/small.yaml
 
 Subcommands: ``fit``, ``validate``, ``test``, ``predict`` (Lightning's), ``demo`` (the whole
-pipeline, :mod:`c3f_models.demo`), plus
+pipeline, :mod:`c3f_models.demo`), ``zoo`` (the model zoo, :mod:`c3f_models.zoo.cli`), plus
 :data:`EXTRA_SUBCOMMANDS` (methods of :class:`C3FTrainer`): ``export`` writes ONNX files::
 
     python -m c3f_models export --config runs/.../config.yaml --ckpt_path .../last.ckpt --output_dir exported
@@ -165,12 +165,17 @@ def condense_parser_error(message: str) -> str:
 
 def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
     """Entry point; ``args`` lets tests drive the CLI in-process (``main(['fit', ...])``).
-    ``demo`` is not a LightningCLI subcommand: it goes to :mod:`c3f_models.demo.cli`."""
+    ``demo`` and ``zoo`` are not LightningCLI subcommands: they go to :mod:`c3f_models.demo.cli`
+    and :mod:`c3f_models.zoo.cli`."""
     argv = sys.argv[1:] if args is None else args
     if isinstance(argv, (list, tuple)) and list(argv[:1]) == ["demo"]:
         from c3f_models.demo.cli import main as demo_main
 
         raise SystemExit(demo_main(argv[1:]))
+    if isinstance(argv, (list, tuple)) and list(argv[:1]) == ["zoo"]:
+        from c3f_models.zoo.cli import main as zoo_main
+
+        raise SystemExit(zoo_main(list(argv[1:])))
     InterruptCheckpoint.last = None
     no_exit = {"exit_on_error": False}
     parser_kwargs = {

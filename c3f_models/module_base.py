@@ -10,6 +10,7 @@ import torch
 
 from c3f_models.checkpoints import load_weights, read_checkpoint_weights
 from c3f_models.config import ADAM_BETAS, OptimConfig, settings_as_dicts
+from c3f_slam import zoo
 
 INIT_WEIGHTS_OPTION = "model.init_weights"
 
@@ -19,9 +20,10 @@ class C3FModule(L.LightningModule):
 
     Args:
         optim: optimiser and learning-rate schedule.
-        init_weights: checkpoint whose weights initialise the model at the start of ``fit``
-            (strict; optimiser and epoch not resumed; for test-time training). Ignored when a
-            run is resumed with ``ckpt_path`` or the module comes from a checkpoint.
+        init_weights: checkpoint (or ``.safetensors`` state dict, or ``zoo:NAME``: the zoo
+            entry's weights) whose weights initialise the model at the start of ``fit`` (strict;
+            optimiser and epoch not resumed; for test-time training and fine-tuning). Ignored
+            when a run is resumed with ``ckpt_path`` or the module comes from a checkpoint.
 
     Hyper-parameters are kept as plain values, a settings group as a dict (as LightningCLI
     saves them), so that checkpoints stay readable by the safe unpickler.
@@ -29,6 +31,8 @@ class C3FModule(L.LightningModule):
 
     #: appended to the error when ``init_weights`` does not fit (which options decide the shapes)
     weights_hint: str = ""
+    #: the kind of zoo entry whose weights fit this module (:mod:`c3f_slam.zoo`)
+    zoo_kind: str = ""
 
     def __init__(self, optim: OptimConfig, init_weights: str | None) -> None:
         super().__init__()
@@ -51,9 +55,15 @@ class C3FModule(L.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
 
     def load_init_weights(self, path: str | Path) -> None:
-        """Copy model weights from a checkpoint (strict); InputError if the file or keys do not fit."""
+        """Copy model weights from a checkpoint, a safetensors file or a zoo entry (strict);
+        InputError if the file, the entry's kind or the keys do not fit."""
+        hint = self.weights_hint
+        if zoo.is_zoo_name(path):
+            found = zoo.entry(str(path), INIT_WEIGHTS_OPTION)
+            hint = f"the zoo entry's model options are in {found.folder / 'config.yaml'}"
+            path = found.file_for("weights", INIT_WEIGHTS_OPTION, kind=self.zoo_kind or None)
         load_weights(self, read_checkpoint_weights(path, INIT_WEIGHTS_OPTION), path, INIT_WEIGHTS_OPTION,
-                     f"this {type(self).__name__}", self.weights_hint)
+                     f"this {type(self).__name__}", hint)
         self._init_weights_done = True
 
     def setup(self, stage: str) -> None:

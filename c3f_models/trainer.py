@@ -91,6 +91,7 @@ class C3FTrainer(L.Trainer):
         dynamic_size: bool = True,
         weights_only: bool | None = None,
         graphs: list[str] | None = None,
+        storage: str = "float32",
     ) -> list[Path]:
         """Export the checkpoint's nets to ONNX with metadata and an onnxruntime parity check.
 
@@ -111,12 +112,14 @@ class C3FTrainer(L.Trainer):
                 (``weights_only=True``) and False is refused.
             graphs: only these graphs (``--graphs '[depth]'``: DepthNet without PoseNet, which
                 ``c3f_slam`` does not use); kinds ``depth``, ``pose``, ``descriptors``. Default all.
+            storage: ``float32`` or ``float16`` (weights stored as float16, computation float32:
+                half the file size; exact for weights that are float16 values, as the zoo's are).
         """
         from export import export_model  # torch.onnx is imported only when exporting
 
         written = export_model(
             model, ckpt_path, output_dir, datamodule, frames, num_frames, tolerance, dynamic_size, weights_only,
-            graphs,
+            graphs, storage,
         )
         for path in written:
             print(f"wrote {path}")

@@ -33,7 +33,7 @@ from c3f_slam.models.metadata import ModelMetadata, Preprocessing
 from export.calibration import metric_scale
 from export.frames import frames_from_source, parity_source
 from export.graphs import DepthGraph, DescriptorGraph, GraphSpec, PoseGraph
-from export.onnx_io import OPSET, OPSET_DEFORM, has_deform_conv, to_onnx, write_onnx
+from export.onnx_io import OPSET, OPSET_DEFORM, STORAGE, has_deform_conv, store_float16, to_onnx, write_onnx
 from export.parity import check_parity
 
 #: the export's manifest (files, hashes, parity), moved into the output folder last
@@ -158,6 +158,7 @@ def export_model(
     dynamic_size: bool = True,
     weights_only: bool | None = None,
     graphs: SequenceABC[str] | None = None,
+    storage: str = "float32",
 ) -> list[Path]:
     """Export every graph of ``model`` (or those of ``graphs``) into ``output_dir``; returns the
     written files.
@@ -174,8 +175,12 @@ def export_model(
             the safe unpickler (:func:`c3f_models.checkpoints.read_checkpoint_weights`), and False is refused.
         graphs: kinds of graph to export (DepthNet: ``depth``, ``pose``; ContraFeat: ``descriptors``);
             None: all of them.
+        storage: ``float32``, or ``float16``: weights stored as float16 and cast to float32 when
+            the file is loaded (half the size, float32 compute; :func:`export.onnx_io.store_float16`).
     """
     ckpt_path = _checked_arguments(ckpt_path, weights_only, num_frames)
+    if storage not in STORAGE:
+        raise InputError(f"--storage must be one of {', '.join(STORAGE)}, got {storage}")
     specs = selected_graphs(graph_specs(model), graphs)
     source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
     load_checkpoint(model, ckpt_path)
@@ -189,6 +194,8 @@ def export_model(
     for spec in specs:  # export and check everything before writing anything
         example = spec.example_inputs(images)
         proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size)
+        if storage == "float16":
+            proto = store_float16(proto)
         report = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name)
         depth = _depth_entry(model, spec, datamodule, pre) if spec.kind == "depth" else None
         staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, report.as_dict(), provenance)))

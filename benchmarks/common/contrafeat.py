@@ -11,12 +11,10 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import lightning as L
 import torch
 
-from c3f_models.contrafeat.data import ContraFeatDataModule, PairSamplingConfig
 from c3f_models.contrafeat_module import METHODS, ContraFeat
-from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
+from c3f_models.zoo.evaluate import descriptor_metrics
 
 LABELS = {"sift": "SIFT", "sift_kpf": "SIFT+kpf", "cdf": "CDF", "cdf_kpf": "CDF+kpf"}
 SMALL_MODEL = {  # ContraFeat's groups as in configs/contrafeat/small.yaml
@@ -69,15 +67,8 @@ class PairSelection:
 
 def metrics_per_sequence(model: ContraFeat, data_dir: Path, seqs: list[str], pairs: PairSelection) -> dict[str, dict]:
     """Per held-out sequence in ``data_dir``: the test metrics of ``model`` (``test/...`` keys)."""
-    out = {}
-    for name in seqs:
-        dm = ContraFeatDataModule(str(data_dir), split=SplitConfig(train=[], val=[], test=[name]),
-                                  sampling=PairSamplingConfig(gaps=pairs.gaps, eval_stride=pairs.stride),
-                                  frames=FramesConfig(size=(pairs.size, pairs.size)), loader=LoaderConfig(batch_size=4))
-        trainer = L.Trainer(accelerator="cpu", logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                            enable_model_summary=False, limit_test_batches=pairs.max_batches)
-        out[name] = trainer.test(model, dm, verbose=False)[0]
-    return out
+    return descriptor_metrics(model, data_dir, seqs, gaps=pairs.gaps, stride=pairs.stride, size=pairs.size,
+                              max_batches=pairs.max_batches)
 
 
 def _percent(x: float | None) -> str:

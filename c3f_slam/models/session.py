@@ -24,6 +24,8 @@ import numpy as np
 
 from c3f_slam.errors import InputError
 from c3f_slam.models.metadata import ModelMetadata
+from c3f_slam.zoo import entry as zoo_entry
+from c3f_slam.zoo import is_zoo_name
 
 #: (input names, output name) of the graph, per model kind.
 GRAPH_IO: dict[str, tuple[tuple[str, ...], str]] = {
@@ -43,7 +45,8 @@ class OnnxModel:
     """An exported C3Fusion net on onnxruntime (CPU).
 
     Args:
-        path: the .onnx file.
+        path: the .onnx file, or ``zoo:NAME`` for the zoo entry's file of ``expect_kind`` (its
+            SHA-256 checked against the card; :mod:`c3f_slam.zoo`).
         expect_kind: ``depth``, ``descriptors`` or ``pose``; another kind is an InputError.
         threads: onnxruntime intra-op threads.
         option: the command-line option that named the file (prefix of every error message;
@@ -56,6 +59,9 @@ class OnnxModel:
     def __init__(
         self, path: str | Path, expect_kind: str | None = None, threads: int = 2, option: str | None = "--model"
     ) -> None:
+        if is_zoo_name(path):
+            found = zoo_entry(str(path), option or "model")
+            path = found.file_for(expect_kind or found.kind, option or "model")
         self.path = Path(path)
         self.option = option
         self.where = f"{option}: {path}" if option else str(path)

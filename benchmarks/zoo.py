@@ -1,0 +1,235 @@
+"""The zoo models on held-out simulator sequences: depth, matches, SLAM, the unseen wall,
+test-time training. Writes ``benchmarks/results/zoo.md`` and ``zoo.json``.
+
+Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and reused unless
+``--redo``):
+
+- ``depth``: the depth entry's ONNX file on the held-out sequences (:data:`HELD_OUT`: seq1, seq3,
+  seq5 x 2 seeds, 300 frames at the paper's pace, 128 px; seq5's appearance is in no training
+  sequence): the seven metrics (median-scaled), the metric scale error without ground-truth
+  scaling, the SimCol3D challenge's metrics.
+- ``matches``: the descriptors entry's weights: recall / precision of SIFT, SIFT+kpf,
+  ContraFeat, ContraFeat+kpf on frame pairs at gaps 2, 4, 8.
+- ``slam``: ``c3f_slam run`` at default settings on every held-out sequence with zoo depth and
+  zoo ContraFeat, and with zoo depth and SIFT; ``evaluate --gt``: frames in the main map, ATE
+  after a Sim(3) alignment (cm and % of the path) and the alignment's scale.
+- ``coverage``: the seven cases of ``benchmarks.coverage_accuracy`` on zoo depth (SIFT): the
+  run's unseen-wall estimate against the truth.
+- ``ttt``: test-time training from the zoo weights (the paper's objective,
+  ``configs/depthnet/ttt.yaml``, no ground truth) on a held-out sequence of a trained
+  appearance and one of the unseen appearance: Abs Rel before and after.
+
+    python -m benchmarks.zoo --work /tmp/zoo_bench
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from benchmarks.common import RESULTS, ROOT
+from benchmarks.common.report import Report
+from c3f_models.zoo.recipes import HELD_OUT
+from c3f_models.zoo.train import simulate
+
+SECTIONS = ("depth", "matches", "slam", "coverage", "ttt")
+TTT_SEQUENCES = ("seq1_s2001", "seq5_s2005")
+
+
+def _cached(work: Path, name: str, redo: bool, compute) -> dict:
+    path = work / f"{name}.json"
+    if path.is_file() and not redo:
+        return json.loads(path.read_text())
+    t0 = time.time()
+    out = compute()
+    out["wall_s"] = round(time.time() - t0, 1)
+    path.write_text(json.dumps(out, indent=2) + "\n")
+    return out
+
+
+def _cli(args: list[str], what: str) -> subprocess.CompletedProcess:
+    done = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True)
+    if done.returncode not in (0, 2):
+        raise SystemExit(f"{what} failed: {done.stderr.strip()[-300:]}")
+    return done
+
+
+def depth_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
+    from c3f_models.zoo.evaluate import depth_heldout
+
+    return depth_heldout(a.depth, seqs)
+
+
+def matches_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
+    import yaml
+
+    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.zoo.evaluate import descriptor_heldout
+    from c3f_slam import zoo
+
+    entry = zoo.entry(a.features, "--features")
+    cfg = yaml.safe_load((entry.folder / "config.yaml").read_text())["model"]["init_args"]
+    model = ContraFeat(**{k: v for k, v in cfg.items() if k != "init_weights"})
+    model.load_init_weights(a.features)
+    model.eval()
+    return descriptor_heldout(model, seqs[0].parent, [p.name for p in seqs])
+
+
+def _slam_one(seq: Path, out: Path, options: list[str]) -> dict:
+    run = _cli(["-m", "c3f_slam", "run", str(seq), *options, "--quiet", "--overwrite", "--out", str(out)],
+               f"c3f_slam run {seq.name}")
+    if run.returncode != 0:
+        return {"status": "failed", "error": run.stderr.strip().splitlines()[-1]}
+    _cli(["-m", "c3f_slam", "evaluate", str(out), "--gt", str(seq)], f"evaluate {seq.name}")
+    ev = json.loads((out / "evaluation.json").read_text())
+    s = json.loads((out / "summary.json").read_text())
+    ate = ev.get("ate_sim3") or {}
+    length = ev.get("gt_length_m") or float("nan")
+    return {"status": "ok", "registered_share": s.get("registered_share"), "ate_cm": 100 * ate.get("rmse_m", 0.0),
+            "path_cm": 100 * length, "ate_share_of_path": ate.get("rmse_m", float("nan")) / length,
+            "sim3_scale": ate.get("scale"), "frames_per_s": s.get("frames_per_s")}
+
+
+def slam_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
+    configs = {"contrafeat": ["--depth-model", a.depth, "--feature-model", a.features],
+               "sift": ["--depth-model", a.depth, "--descriptors", "sift"]}
+    return {name: {seq.name: _slam_one(seq, a.work / "slam" / name / seq.name, opts) for seq in seqs}
+            for name, opts in configs.items()}
+
+
+def coverage_section(a: argparse.Namespace) -> dict:
+    from benchmarks.coverage_accuracy import CASES, run_case
+
+    ns = argparse.Namespace(preset="seq1", seed=7, frames=300, size=128, depth_model=a.depth, work=a.work / "coverage")
+    return {c.name: run_case(c, ns) for c in CASES}
+
+
+def ttt_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
+    from c3f_models.zoo.evaluate import depth_heldout
+    from c3f_slam import zoo
+
+    entry = zoo.entry(a.depth, "--depth")
+    out = {"steps": a.ttt_steps}
+    for name in TTT_SEQUENCES:
+        seq = next(p for p in seqs if p.name == name)
+        run = a.work / "ttt" / name
+        _cli(["-m", "c3f_models", "fit", "--config", str(entry.folder / "config.yaml"),
+              "--config", "configs/depthnet/ttt.yaml", "--config", "configs/depthnet/paper_objective.yaml",
+              "--model.init_weights", a.depth,
+              "--data.data_dir", str(seq), "--trainer.max_epochs", "-1", "--trainer.max_steps", str(a.ttt_steps),
+              "--trainer.default_root_dir", str(run), "--trainer.logger.init_args.save_dir", str(run),
+              "--trainer.logger.init_args.version", "0", "--trainer.enable_progress_bar", "false"], f"ttt {name}")
+        ckpt = run / "tb" / "version_0" / "checkpoints" / "last.ckpt"
+        _cli(["-m", "c3f_models", "export", "--config", str(run / "tb" / "version_0" / "config.yaml"),
+              "--ckpt_path", str(ckpt), "--output_dir", str(run / "onnx"), "--graphs", "[depth]",
+              "--frames", str(seq)], f"export ttt {name}")
+        before = depth_heldout(entry.file_for("depth", "--depth"), [seq])["per_sequence"][name]
+        after = depth_heldout(run / "onnx" / "depthnet.onnx", [seq])["per_sequence"][name]
+        out[name] = {"before": before["median_scaled"], "after": after["median_scaled"]}
+    return out
+
+
+def _pct(x) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f}"
+
+
+def depth_lines(d: dict) -> list[str]:
+    from c3f_models.zoo.card import _depth_table
+
+    s = d["simcol3d"]
+    return [*_depth_table({"depth": d}), "",
+            f"SimCol3D protocol (least-squares scale per sequence), mean over sequences: L1 {s['l1_cm']:.3f} cm, "
+            f"relative error {s['median_rel_pct']:.2f} %, RMSE {s['rmse_cm']:.3f} cm."]
+
+
+def matches_lines(m: dict) -> list[str]:
+    from c3f_models.zoo.card import _match_table
+
+    return _match_table({"descriptors": m})
+
+
+def slam_lines(s: dict) -> list[str]:
+    lines = ["| sequence | descriptors | in the main map % | ATE Sim(3) cm | path cm | ATE % of path | Sim(3) scale |",
+             "|---|---|---|---|---|---|---|"]
+    for name, runs in s.items():
+        if name == "wall_s":
+            continue
+        for seq, r in runs.items():
+            if r["status"] != "ok":
+                lines.append(f"| {seq} | {name} | failed: {r['error']} | | | | |")
+                continue
+            lines.append(f"| {seq} | {name} | {_pct(r['registered_share'])} | {r['ate_cm']:.2f} | "
+                         f"{r['path_cm']:.1f} | {_pct(r['ate_share_of_path'])} | {r['sim3_scale']:.3f} |")
+    return lines
+
+
+def coverage_lines(c: dict) -> list[str]:
+    lines = ["| case | registered % | truth unseen % | estimate % | error pp |", "|---|---|---|---|---|"]
+    for name, u in c.items():
+        if name == "wall_s":
+            continue
+        if u.get("status") != "ok":
+            lines.append(f"| {name} | {u.get('status')} | | | |")
+            continue
+        lines.append(f"| {name} | {_pct(u['registered_share'])} | {_pct(u['truth'])} | {_pct(u['estimate'])} | "
+                     f"{u['error_pp']:+.1f} |")
+    return lines
+
+
+def ttt_lines(t: dict) -> list[str]:
+    lines = [f"{t['steps']} steps of the paper's objective (configs/depthnet/ttt.yaml + paper_objective.yaml), "
+             "from the zoo weights, no ground truth.", "",
+             "| sequence | Abs Rel before | after | change % | δ<1.25 before | after |", "|---|---|---|---|---|---|"]
+    for name in TTT_SEQUENCES:
+        if name in t:
+            b, f = t[name]["before"], t[name]["after"]
+            lines.append(f"| {name} | {b['abs_rel']:.4f} | {f['abs_rel']:.4f} | "
+                         f"{100 * (f['abs_rel'] / b['abs_rel'] - 1):+.1f} | {b['a1']:.3f} | {f['a1']:.3f} |")
+    return lines
+
+
+RENDER = {"depth": depth_lines, "matches": matches_lines, "slam": slam_lines, "coverage": coverage_lines,
+          "ttt": ttt_lines}
+TITLES = {"depth": "Depth (held-out)", "matches": "Matches (held-out pairs)", "slam": "SLAM at default settings",
+          "coverage": "Unseen wall on zoo depth (coverage_accuracy cases, SIFT)", "ttt": "Test-time training"}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", type=Path, required=True, help="folder for sequences, runs and section results")
+    ap.add_argument("--depth", default="zoo:c3f-depth-r18w32", help="depth model (zoo:NAME)")
+    ap.add_argument("--features", default="zoo:c3f-features-r18w32", help="descriptor model (zoo:NAME)")
+    ap.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS))
+    ap.add_argument("--redo", action="store_true", help="recompute sections whose JSON is in --work")
+    ap.add_argument("--ttt-steps", type=int, default=200)
+    ap.add_argument("--report", type=Path, default=RESULTS / "zoo.md")
+    a = ap.parse_args(argv)
+    a.work.mkdir(parents=True, exist_ok=True)
+    seqs = simulate(HELD_OUT, 128, a.work / "heldout")
+    compute = {"depth": lambda: depth_section(a, seqs), "matches": lambda: matches_section(a, seqs),
+               "slam": lambda: slam_section(a, seqs), "coverage": lambda: coverage_section(a),
+               "ttt": lambda: ttt_section(a, seqs)}
+    results = {name: _cached(a.work, name, a.redo, compute[name]) for name in SECTIONS if name in a.only}
+    json_path = a.report.with_suffix(".json")
+    old = json.loads(json_path.read_text()) if json_path.is_file() else {}
+    merged = {**old.get("sections", {}), **results}
+    json_path.write_text(json.dumps({"depth_model": a.depth, "features_model": a.features,
+                                     "heldout": [s.name for s in HELD_OUT], "sections": merged}, indent=2) + "\n")
+    body = [f"Models: `{a.depth}`, `{a.features}`. Held-out sequences: " + ", ".join(s.name for s in HELD_OUT)
+            + " (300 frames at the paper's pace, 128 px; seq5's appearance is in no training sequence). "
+            f"Numbers also in `{json_path.name}`.", ""]
+    for name in SECTIONS:
+        if name in merged:
+            body += [f"## {TITLES[name]}", "", *RENDER[name](merged[name]),
+                     "", f"({merged[name].get('wall_s', 'n/a')} s)", ""]
+    rep = Report(__file__, "The zoo models on held-out simulator sequences")
+    rep.write(a.report, rep.render(body))
+    print(f"wrote {a.report} and {json_path}")
+
+
+if __name__ == "__main__":
+    main()

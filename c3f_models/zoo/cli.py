@@ -1,0 +1,120 @@
+"""``python -m c3f_models zoo``: list, show, verify and train the zoo's models.
+
+    python -m c3f_models zoo list                  # the entries, their kind and headline numbers
+    python -m c3f_models zoo show NAME [--json]    # one entry's card (or its machine-readable part)
+    python -m c3f_models zoo verify [NAME ...]     # every file's SHA-256 against its card
+    python -m c3f_models zoo recipes               # the recipes ``train`` knows
+    python -m c3f_models zoo train NAME [--work DIR] [--max-minutes M] [--quick]
+
+``train`` runs the recipe (:mod:`c3f_models.zoo.train`): simulate, fit (resumable: the same
+command continues an interrupted run exactly), then package and evaluate into the zoo.
+Bad input is one ``error: ...`` line and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from c3f_slam import zoo
+from c3f_slam.cli_parser import OneLineParser, run_subcommand
+from c3f_slam.errors import InputError
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = OneLineParser(prog="python -m c3f_models zoo", description="The model zoo (zoo/ in the repository).")
+    p.add_argument("--zoo", type=Path, help=f"zoo folder (default: ${zoo.ENV} or the repository's zoo/)")
+    sub = p.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="the entries, their kind and headline numbers")
+    s = sub.add_parser("show", help="one entry's model card")
+    s.add_argument("name")
+    s.add_argument("--json", action="store_true", help="the card's machine-readable front matter as JSON")
+    v = sub.add_parser("verify", help="check every file's SHA-256 against its card")
+    v.add_argument("names", nargs="*", help="entries (default: all)")
+    sub.add_parser("recipes", help="the recipes that `train` knows")
+    t = sub.add_parser("train", help="run a recipe: simulate, train (resumable), evaluate, export into the zoo")
+    t.add_argument("name", help="recipe name (see `recipes`)")
+    t.add_argument("--work", type=Path, help="work folder (default: runs/zoo/NAME); rerun to resume")
+    t.add_argument("--heldout", type=Path, help="folder of the held-out sequences (default: runs/zoo/heldout)")
+    t.add_argument("--max-minutes", type=float, help="stop training after this long (it resumes where it stopped)")
+    t.add_argument("--quick", action="store_true",
+                   help="3 steps on tiny sequences: checks the recipe end to end, trains nothing useful "
+                        "(entry NAME-quick)")
+    t.add_argument("--jobs", type=int, default=2, help="simulator processes at a time (default 2)")
+    return p
+
+
+def _root(args: argparse.Namespace) -> Path:
+    return args.zoo if args.zoo is not None else zoo.zoo_root()
+
+
+def _list(args: argparse.Namespace) -> int:
+    found = zoo.entries(_root(args))
+    if not found:
+        print(f"no models in {_root(args)}")
+    for e in found:
+        nums = ", ".join(f"{k} {v:.3g}" for k, v in list(e.metrics.items())[:4])
+        print(f"{e.name:28s} {e.kind:12s} {e.summary}\n{'':41s}{nums}")
+    return 0
+
+
+def _show(args: argparse.Namespace) -> int:
+    e = zoo.entry(args.name, "zoo show", _root(args))
+    if args.json:
+        print(json.dumps(e.meta, indent=2, default=str))
+    else:
+        print((e.folder / zoo.CARD).read_text(encoding="utf-8"))
+    return 0
+
+
+def _verify(args: argparse.Namespace) -> int:
+    root = _root(args)
+    found = [zoo.entry(n, "zoo verify", root) for n in args.names] if args.names else zoo.entries(root)
+    for e in found:
+        for f in e.files.values():
+            e.verify(f, "zoo verify")
+            print(f"ok  {e.name}/{f.name}  {f.sha256[:16]}")
+    return 0
+
+
+def _recipes(args: argparse.Namespace) -> int:
+    from c3f_models.zoo.recipes import RECIPES
+
+    for r in RECIPES.values():
+        print(f"{r.name:28s} {r.kind:12s} {r.steps:6d} steps  {r.summary}")
+    return 0
+
+
+def _train(args: argparse.Namespace) -> int:
+    from c3f_models.zoo.package import package
+    from c3f_models.zoo.recipes import HELD_OUT, QUICK_HELD_OUT, RECIPES, quick
+    from c3f_models.zoo.train import REPO, RecipeRun, default_work, fit, simulate
+
+    if args.name not in RECIPES:
+        raise InputError(f"zoo train: no recipe {args.name!r} (there are: {', '.join(RECIPES)})")
+    recipe = quick(RECIPES[args.name]) if args.quick else RECIPES[args.name]
+    run = RecipeRun(recipe, args.work or default_work(recipe.name))
+    heldout, heldout_root = (QUICK_HELD_OUT, run.work / "heldout") if args.quick else (HELD_OUT, None)
+    heldout_root = args.heldout or heldout_root or REPO / "runs" / "zoo" / "heldout"
+    print(f"[{recipe.name}] simulate {len(recipe.train) + len(recipe.val)} sequences into {run.data}", flush=True)
+    simulate(recipe.train + recipe.val, recipe.size, run.data, args.jobs)
+    print(f"[{recipe.name}] fit to {recipe.steps} steps (log: {run.log})", flush=True)
+    if not fit(run, recipe.steps, args.max_minutes):
+        print(f"[{recipe.name}] stopped after --max-minutes {args.max_minutes:g}; the same command continues")
+        return 0
+    print(f"[{recipe.name}] package: float16 weights, ONNX, held-out evaluation, model card", flush=True)
+    dest = package(run, _root(args), heldout, heldout_root)
+    print(f"[{recipe.name}] wrote {dest}")
+    return 0
+
+
+COMMANDS = {"list": _list, "show": _show, "verify": _verify, "recipes": _recipes, "train": _train}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    return run_subcommand(COMMANDS, args, "; the same command resumes" if args.command == "train" else "")
+
+
+__all__ = ["main"]

@@ -1,0 +1,151 @@
+"""The zoo's recipes: every model of ``zoo/`` is made by one of these, in one command
+(``python -m c3f_models zoo train NAME``, :mod:`c3f_models.zoo.train`).
+
+A recipe is a complete, frozen description: the simulator sequences it trains and validates
+on (preset, seed, frames, path coverage; square frames of ``size`` pixels), the LightningCLI
+config in ``configs/zoo/`` that holds the model, loss, optimiser and trainer, the number of
+optimiser steps and what is exported. The held-out sequences of the zoo's evaluation
+(:data:`HELD_OUT`) share no seed with any recipe, and ``seq5`` (appearance C: orange, dark,
+grainy) is in none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+#: metres of colon per frame at the paper's pace (4,500 frames over the 1.25 m presets)
+PAPER_STEP = 1.25 / 4500
+COLON_LENGTH = 1.25  #: metres, the presets' centreline
+
+
+@dataclass(frozen=True)
+class SimSpec:
+    """One simulator sequence: ``python -m datamodules.synthetic generate --preset PRESET --seed
+    SEED --frames FRAMES --set path.coverage=COVERAGE`` (``coverage``: share of the colon the
+    path travels; ``step_mm`` gives the motion per frame)."""
+
+    preset: str
+    seed: int
+    frames: int
+    coverage: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.preset}_s{self.seed}"
+
+    @property
+    def step_mm(self) -> float:
+        return 1000.0 * self.coverage * COLON_LENGTH / self.frames
+
+
+def at_pace(preset: str, seed: int, frames: int, pace: float = 1.0) -> SimSpec:
+    """A sequence that moves ``pace`` times the paper's distance per frame."""
+    return SimSpec(preset, seed, frames, round(pace * PAPER_STEP * frames / COLON_LENGTH, 5))
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """How one zoo entry is made.
+
+    Attributes:
+        name: the entry's name (``zoo/NAME``; ``zoo:NAME`` on the command lines).
+        kind: ``depth`` (DepthNet + PoseNet) or ``descriptors`` (ContraFeat).
+        config: the LightningCLI config under ``configs/`` (model, loss, optimiser, trainer).
+        train, val: the simulator sequences it trains and validates on.
+        size: square frame size of the sequences, pixels.
+        steps: optimiser steps.
+        graphs: what the ONNX export writes (the runtime needs ``depth`` or ``descriptors``; PoseNet
+            travels in the weights, for test-time training, and is exported on demand).
+        summary: one line for ``zoo list`` and the card.
+        deviations: how the recipe departs from the paper (the card lists them).
+        limits: what the model is not known to do (the card lists them).
+        quick: the few-step check of a recipe (:func:`quick`), not a trained model.
+    """
+
+    name: str
+    kind: str
+    config: str
+    train: tuple[SimSpec, ...]
+    val: tuple[SimSpec, ...]
+    size: int = 128
+    steps: int = 8000
+    graphs: tuple[str, ...] = ()
+    summary: str = ""
+    deviations: tuple[str, ...] = field(default=())
+    limits: tuple[str, ...] = field(default=())
+    quick: bool = False
+
+    @property
+    def command(self) -> str:
+        """The command that makes this entry."""
+        base = self.name.removesuffix("-quick") if self.quick else self.name
+        return f"python -m c3f_models zoo train {base}" + (" --quick" if self.quick else "")
+
+
+#: training sequences of the zoo: appearances A (seq1, seq2) and B (seq3, seq4), insertion,
+#: withdrawal and random paths, 1.6x the paper's pace (0.45 mm per frame)
+TRAIN = tuple(at_pace(p, s, 400, 1.6) for p, s in (
+    ("seq1", 1001), ("seq1", 1002), ("seq1", 1003), ("seq2", 1004), ("seq2", 1005),
+    ("seq3", 1006), ("seq3", 1007), ("seq3", 1008), ("seq4", 1009), ("seq4", 1010)))
+VAL = (at_pace("seq1", 1011, 100, 1.6), at_pace("seq3", 1012, 100, 1.6))
+
+#: the zoo's held-out evaluation: 3 presets x 2 seeds at the paper's pace, 128 px; seq5's
+#: appearance (C) is in no recipe's data
+HELD_OUT = tuple(at_pace(p, s, 300) for p, s in (
+    ("seq1", 2001), ("seq1", 2002), ("seq3", 2003), ("seq3", 2004), ("seq5", 2005), ("seq5", 2006)))
+
+LIMITS = (
+    "trained and evaluated on the project's procedural simulator only: not measured on real colonoscopy video "
+    "(no real data set is on this machine)",
+    "128x128 input: the runtime resizes every frame to it (after the recorded crop)",
+)
+
+DEPTH_DEVIATIONS = (
+    "supervised term on the simulator's true depth (model.loss.lambda_gt_depth 1.0) during pre-training",
+    "Monodepth2 loss terms during pre-training; the paper's extra terms (L_ph-extra, L_dc, outlier and "
+    "specular masks) are what test-time training uses",
+    "colour augmentation of the network inputs (model.augment, Monodepth2's recipe, wider brightness)",
+    "ResNet18 encoders at half width (32 channels in the first stage), no deformable convolutions, "
+    "no ImageNet weights (paper: ResNet50 + DCN, 224 px)",
+    "128x128 input (paper 224x224); 5,000 steps of batch 8, 10 epochs of 3,980 triplets (paper: 40 epochs of batch 16)",
+)
+
+DEPTH_R18W32 = Recipe(
+    name="c3f-depth-r18w32", kind="depth", config="configs/zoo/c3f-depth-r18w32.yaml", train=TRAIN, val=VAL,
+    steps=5000, graphs=("depth",),
+    summary="DepthNet + PoseNet, half-width ResNet18, 128 px, simulator (appearances A, B)",
+    deviations=DEPTH_DEVIATIONS, limits=LIMITS,
+)
+
+FEATURES_R18W32 = Recipe(
+    name="c3f-features-r18w32", kind="descriptors", config="configs/zoo/c3f-features-r18w32.yaml", train=TRAIN,
+    val=VAL, steps=2000, graphs=("descriptors",),
+    summary="ContraFeat, FPN on a half-width ResNet18, 128-d descriptors, 128 px, simulator (appearances A, B)",
+    deviations=(
+        "512 dense ground-truth correspondences per training pair join the keypoint InfoNCE (model.loss.dense_points)",
+        "ResNet18 at half width (32 channels in the first stage), FPN and head at 64 channels, no ImageNet weights",
+        "128x128 input; 2,000 steps of 4 frame pairs (gaps 1-16 frames)",
+    ),
+    limits=LIMITS,
+)
+
+RECIPES: dict[str, Recipe] = {r.name: r for r in (DEPTH_R18W32, FEATURES_R18W32)}
+
+def shortened(specs: tuple[SimSpec, ...], frames: int) -> tuple[SimSpec, ...]:
+    """``specs`` with ``frames`` frames each, at the same motion per frame."""
+    return tuple(replace(s, frames=frames, coverage=round(s.coverage * frames / s.frames, 6)) for s in specs)
+
+
+def quick(recipe: Recipe) -> Recipe:
+    """A few-step version of ``recipe`` on tiny sequences (two training sequences of different
+    appearance, 24 frames; one of 12 for validation): checks the whole recipe in about a minute,
+    trains nothing useful. Its card says so (``quick`` in the name)."""
+    return replace(recipe, name=recipe.name + "-quick", train=shortened((recipe.train[0], recipe.train[5]), 24),
+                   val=shortened(recipe.val[:1], 12), steps=3, quick=True,
+                   summary=recipe.summary + " [QUICK CHECK: 3 steps on tiny data, not a trained model]")
+
+
+#: the quick recipes' held-out sequences (one trained appearance, the unseen one)
+QUICK_HELD_OUT = shortened((HELD_OUT[0], HELD_OUT[4]), 16)
+
+__all__ = ["QUICK_HELD_OUT", "quick", "shortened", "HELD_OUT", "PAPER_STEP", "RECIPES", "Recipe", "SimSpec", "at_pace"]
