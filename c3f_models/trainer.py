@@ -92,6 +92,7 @@ class C3FTrainer(L.Trainer):
         weights_only: bool | None = None,
         graphs: list[str] | None = None,
         storage: str = "float32",
+        metric_scale: float | None = None,
     ) -> list[Path]:
         """Export the checkpoint's nets to ONNX with metadata and an onnxruntime parity check.
 
@@ -114,12 +115,14 @@ class C3FTrainer(L.Trainer):
                 ``c3f_slam`` does not use); kinds ``depth``, ``pose``, ``descriptors``. Default all.
             storage: ``float32`` or ``float16`` (weights stored as float16, computation float32:
                 half the file size; exact for weights that are float16 values, as the zoo's are).
+            metric_scale: record this depth scale to metres instead of measuring it on the
+                training data (e.g. after test-time training from a zoo model: its recorded scale).
         """
         from export import export_model  # torch.onnx is imported only when exporting
 
         written = export_model(
             model, ckpt_path, output_dir, datamodule, frames, num_frames, tolerance, dynamic_size, weights_only,
-            graphs, storage,
+            graphs, storage, metric_scale,
         )
         for path in written:
             print(f"wrote {path}")

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import lightning as L
+import numpy as np
 import onnx
 import torch
 
@@ -30,7 +31,7 @@ from c3f_models.depthnet import DepthNet
 from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write_text, staging_dir
 from c3f_slam.models.metadata import ModelMetadata, Preprocessing
-from export.calibration import metric_scale
+from export.calibration import metric_scale as measure_metric_scale
 from export.frames import frames_from_source, parity_source
 from export.graphs import DepthGraph, DescriptorGraph, GraphSpec, PoseGraph
 from export.onnx_io import OPSET, OPSET_DEFORM, STORAGE, has_deform_conv, store_float16, to_onnx, write_onnx
@@ -116,8 +117,8 @@ def _metric_scale(depth_graph, datamodule, pre: Preprocessing) -> dict | None:
     if datamodule is None or not hasattr(datamodule, "split") or not hasattr(datamodule, "open_sequence"):
         return None
     paths = datamodule.split().get("train") or []
-    return metric_scale(depth_graph, [datamodule.open_sequence(p) for p in paths], pre,
-                        names=[p.name for p in paths])
+    return measure_metric_scale(depth_graph, [datamodule.open_sequence(p) for p in paths], pre,
+                                names=[p.name for p in paths])
 
 
 def _jsonable(obj) -> dict:
@@ -159,6 +160,7 @@ def export_model(
     weights_only: bool | None = None,
     graphs: SequenceABC[str] | None = None,
     storage: str = "float32",
+    metric_scale: float | None = None,
 ) -> list[Path]:
     """Export every graph of ``model`` (or those of ``graphs``) into ``output_dir``; returns the
     written files.
@@ -177,10 +179,15 @@ def export_model(
             None: all of them.
         storage: ``float32``, or ``float16``: weights stored as float16 and cast to float32 when
             the file is loaded (half the size, float32 compute; :func:`export.onnx_io.store_float16`).
+        metric_scale: record this factor to metres instead of measuring it on the training data
+            (a network tuned without ground truth from one whose scale was measured, e.g. test-time
+            training from a zoo model: give the zoo model's recorded scale).
     """
     ckpt_path = _checked_arguments(ckpt_path, weights_only, num_frames)
     if storage not in STORAGE:
         raise InputError(f"--storage must be one of {', '.join(STORAGE)}, got {storage}")
+    if metric_scale is not None and not (np.isfinite(metric_scale) and metric_scale > 0):
+        raise InputError(f"--metric_scale must be a positive number, got {metric_scale}")
     specs = selected_graphs(graph_specs(model), graphs)
     source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
     load_checkpoint(model, ckpt_path)
@@ -197,7 +204,7 @@ def export_model(
         if storage == "float16":
             proto = store_float16(proto)
         report = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name)
-        depth = _depth_entry(model, spec, datamodule, pre) if spec.kind == "depth" else None
+        depth = _depth_entry(model, spec, datamodule, pre, metric_scale) if spec.kind == "depth" else None
         staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, report.as_dict(), provenance)))
     return _write_export(staged, Path(output_dir), provenance)
 
@@ -225,15 +232,21 @@ def _training_config(model: L.LightningModule, datamodule) -> dict:
     return config
 
 
-def _depth_entry(model: DepthNet, spec: GraphSpec, datamodule, pre: Preprocessing) -> dict:
-    """The ``depth`` metadata of the depth graph: range (m), conversion, scale and, when the
-    training data has true depth, the measured metric scale."""
+def _depth_entry(model: DepthNet, spec: GraphSpec, datamodule, pre: Preprocessing,
+                 given_scale: float | None = None) -> dict:
+    """The ``depth`` metadata of the depth graph: range (m), conversion, scale and the metric
+    scale: ``given_scale``, else measured when the training data has true depth."""
     net = model.depth_net
     depth = {"min_depth": net.min_depth, "max_depth": net.max_depth,
              "conversion": "depth = 1 / (1/max_depth + (1/min_depth - 1/max_depth) * sigmoid_disparity), "
                            "in graph",
              "scale": "training scale (monocular depth: metres up to the scale the self-supervision fixed; "
                       "metric_scale, when present, is the factor to metres measured on the training data)"}
+    if given_scale is not None:
+        depth.update(metric_scale=float(given_scale),
+                     metric_scale_source="given at export (--metric_scale), e.g. the scale of the model this one "
+                                         "was tuned from without ground truth")
+        return depth
     cal = _metric_scale(spec.module, datamodule, pre)
     if cal is not None:
         depth.update(metric_scale=cal["metric_scale"], metric_scale_spread=cal["spread"],
