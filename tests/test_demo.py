@@ -224,29 +224,47 @@ def test_cli_bad_out_is_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and r.stderr.startswith("error: --out")
 
 
-@pytest.fixture(scope="module")
-def quick_demo(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
-    """``python -m c3f_models demo --quick`` into a fresh folder (the whole pipeline, a few minutes)."""
+#: the two ways the demo starts: from the zoo's models (the default) and training them first
+MODES = {"zoo": [], "from_scratch": ["--from-scratch"]}
+
+
+@pytest.fixture(scope="module", params=list(MODES))
+def quick_demo(request, tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess, list[str]]:
+    """``python -m c3f_models demo --quick [--from-scratch]`` into a fresh folder (the whole
+    pipeline, a few minutes)."""
     out = tmp_path_factory.mktemp("demo") / "out"
-    r = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick"], cwd=ROOT,
+    args = ["--quick", *MODES[request.param]]
+    r = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), *args], cwd=ROOT,
                        capture_output=True, text=True, timeout=1800)
-    return out, r
+    return out, r, args
 
 
 def test_quick_demo_end_to_end(quick_demo):
     """Files and metrics of a --quick run: every configuration either ok with a finite ATE below the
     path length or said failed; the RGB-D reference works; the report has every section and every
     embedded image decodes; every stage reported a time. Then a rerun skips every stage and other
-    settings are refused (one test, so that pytest-xdist runs the demo once; 6.4 min on loaded cores)."""
-    out, r = quick_demo
+    settings are refused (one test per mode, so that pytest-xdist runs each demo once)."""
+    out, r, args = quick_demo
     assert r.returncode == 0, r.stderr[-2000:]
+    from_zoo = "--from-scratch" not in args
+    trained = [] if from_zoo else ["runs/depthnet/tb/version_0/checkpoints/last.ckpt",
+                                   "runs/contrafeat/tb/version_0/checkpoints/last.ckpt"]
     for f in ("report.html", "demo_state.json", "models/depthnet/depthnet.onnx", "models/contrafeat/contrafeat.onnx",
-              "runs/depthnet/tb/version_0/checkpoints/last.ckpt",
-              "runs/depthnet_ttt/tb/version_0/checkpoints/last.ckpt", "models/depthnet_pretrained/depthnet.onnx",
-              "slam/gt_sift/trajectory.txt",
+              *trained, "runs/depthnet_ttt/tb/version_0/checkpoints/last.ckpt",
+              "models/depthnet_pretrained/depthnet.onnx", "slam/gt_sift/trajectory.txt",
               "slam/gt_sift/mesh.ply", "metrics/depth.json", "metrics/matches.json", "figures/matches.png",
               "figures/depth_samples.png"):
         assert (out / f).is_file(), f
+    if from_zoo:  # the zoo's files as they are, the tuned network with the zoo model's metric scale
+        from c3f_slam import zoo
+        from c3f_slam.models.nets import DepthModel
+
+        entry = zoo.entry(demo_cfg.ZooModels().depth)
+        assert (out / "models/depthnet_pretrained/depthnet.onnx").read_bytes() == entry.file_for(
+            "depth", "test").read_bytes()
+        scale = DepthModel(out / "models/depthnet/depthnet.onnx").metric_scale
+        assert scale == pytest.approx(DepthModel(entry.file_for("depth", "test")).metric_scale)
+        assert "zoo:" + entry.name in (out / "report.html").read_text()
     slam = json.loads((out / "metrics" / "slam.json").read_text())
     assert slam["gt_sift"]["status"] == "ok"
     for name, res in slam.items():
@@ -266,14 +284,15 @@ def test_quick_demo_end_to_end(quick_demo):
     state = json.loads((out / "demo_state.json").read_text())
     assert list(state["stages"]) == [s.name for s in runner.STAGES]
     assert "total" in r.stdout and "report:" in r.stdout
-    _check_rerun_skips_and_other_settings_refused(out)
+    _check_rerun_skips_and_other_settings_refused(out, args)
 
 
-def _check_rerun_skips_and_other_settings_refused(out: Path) -> None:
-    again = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick"], cwd=ROOT,
+def _check_rerun_skips_and_other_settings_refused(out: Path, args: list[str]) -> None:
+    again = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), *args], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert again.returncode == 0 and again.stdout.count("skipped: done earlier") == len(runner.STAGES)
-    other = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out)], cwd=ROOT,
+    other_args = [a for a in args if a != "--quick"]
+    other = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), *other_args], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert other.returncode == 2 and other.stderr.count("\n") == 1 and "other settings" in other.stderr
 
@@ -288,8 +307,8 @@ def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path, sig):
     import time
 
     out = tmp_path / "out"
-    p = subprocess.Popen([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick"], cwd=ROOT,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    p = subprocess.Popen([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick", "--from-scratch"],
+                         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     t0 = time.time()
     while not (out / "logs" / "train_depth.log").exists() and time.time() - t0 < 300:
         time.sleep(0.5)

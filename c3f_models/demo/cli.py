@@ -21,12 +21,15 @@ from c3f_slam.errors import InputError
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m c3f_models demo",
-        description="Simulate a colon, train DepthNet and ContraFeat, test-time train DepthNet on a held-out "
-                    "sequence, export them, run SLAM on that sequence (4 configurations), evaluate, write "
-                    "DIR/report.html. Rerunning into the same "
+        description="Simulate a colon sequence, start from the zoo's DepthNet and ContraFeat (or train them: "
+                    "--from-scratch), test-time train DepthNet on the held-out sequence, export, run SLAM on it "
+                    "(4 configurations), evaluate, write DIR/report.html. Rerunning into the same "
                     "DIR skips the stages already done with the same settings.")
     ap.add_argument("--out", type=Path, required=True, help="demo folder (created; every artefact goes here)")
-    ap.add_argument("--quick", action="store_true", help="a few minutes instead of about 15 (CI size)")
+    ap.add_argument("--quick", action="store_true", help="a few minutes instead of about 10 (CI size)")
+    ap.add_argument("--from-scratch", action="store_true",
+                    help="train DepthNet and ContraFeat first (minutes, CPU size) instead of starting from the zoo's "
+                         "models (zoo/)")
     ap.add_argument("--overwrite", action="store_true",
                     help="redo stages recorded in DIR with other settings (and the stages after them)")
     return ap
@@ -41,7 +44,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # SIGTERM and SIGHUP (the terminal closed) stop the demo like Ctrl-C; restored on return
     previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:
-        run_demo(args.out, demo_config(args.quick), overwrite=args.overwrite)
+        run_demo(args.out, demo_config(args.quick, args.from_scratch), overwrite=args.overwrite)
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1,12 +1,17 @@
 """Settings of the demo (``python -m c3f_models demo``): one small frozen dataclass per stage.
 
-Lengths are metres, frame sizes pixels (square). :func:`demo_config` gives the two presets:
-the default (about 15 min on 2 CPU cores) and ``quick`` (a few minutes, for CI).
+Lengths are metres, frame sizes pixels (square). :func:`demo_config` gives the presets: the
+default and ``quick`` (a few minutes, for CI), each starting from the zoo's models (only the
+test-time training on the held-out sequence trains) or, ``from_scratch``, training both
+networks first.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
+
+ZOO_SIZE = 128  #: frame size of the zoo models (pixels)
+ZOO_TTT_STEPS = 60  #: test-time training steps from the zoo weights (the paper's objective)
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,16 @@ class ReportConfig:
 
 
 @dataclass(frozen=True)
+class ZooModels:
+    """The zoo entries the demo starts from (``zoo/NAME``, :mod:`c3f_slam.zoo`): DepthNet (its
+    weights are test-time trained on the held-out sequence; its ONNX file is the network
+    "without TTT") and ContraFeat (its ONNX file as it is)."""
+
+    depth: str = "c3f-depth-r18w32"
+    features: str = "c3f-features-r18w32"
+
+
+@dataclass(frozen=True)
 class DemoConfig:
     """All settings of one demo run (their hash decides which stages a rerun may skip)."""
 
@@ -91,13 +106,25 @@ class DemoConfig:
     features: FeatureTrainConfig = field(default_factory=FeatureTrainConfig)
     report: ReportConfig = field(default_factory=ReportConfig)
     quick: bool = False
+    zoo: ZooModels | None = None  #: start from these zoo models; None: train them (``--from-scratch``)
+
+    @property
+    def from_zoo(self) -> bool:
+        return self.zoo is not None
 
     def as_dict(self) -> dict:
         return asdict(self)
 
 
-def demo_config(quick: bool = False) -> DemoConfig:
-    """The default preset, or the ``quick`` one: shorter sequences and fewer training steps."""
+def demo_config(quick: bool = False, from_scratch: bool = False) -> DemoConfig:
+    """The default preset, or the ``quick`` one (shorter sequences, fewer steps); from the zoo's
+    models unless ``from_scratch``. From the zoo only the held-out sequence is simulated (the
+    training sequences are the zoo's) and test-time training uses the zoo model's size."""
+    if not from_scratch:
+        base = demo_config(quick, from_scratch=True)
+        sim = replace(base.simulate, train=(), train_frames=0, size=ZOO_SIZE)
+        ttt = replace(base.ttt, steps=3 if quick else ZOO_TTT_STEPS)
+        return replace(base, simulate=sim, ttt=ttt, zoo=ZooModels())
     if not quick:
         return DemoConfig(depth=DepthTrainConfig(lr=5e-4))
     return DemoConfig(

@@ -14,7 +14,7 @@ from pathlib import Path
 from c3f_models.demo import html as H
 
 #: section ids of the report, in order (the tests check every one is present)
-SECTIONS = ("summary", "deviations", "depth", "matches", "trajectories", "meshes", "keyframe-graph",
+SECTIONS = ("summary", "models", "deviations", "depth", "matches", "trajectories", "meshes", "keyframe-graph",
             "unseen", "timings", "environment", "artefacts")
 METRIC_LABELS = {"abs_rel": "Abs Rel", "sq_rel": "Sq Rel (cm)", "rmse": "RMSE (cm)", "rmse_log": "RMSE log",
                  "a1": "δ < 1.25", "a2": "δ < 1.25²", "a3": "δ < 1.25³"}
@@ -57,15 +57,55 @@ def _summary(d: dict) -> str:
     mode = "quick" if d["config"].get("quick") else "default"
     ttt = ("test-time trained DepthNet on the held-out sequence (self-supervised), "
            if d["config"].get("ttt", {}).get("steps") else "")
-    return (f"<p>Simulated colon, trained DepthNet and ContraFeat on CPU, {ttt}exported to ONNX, reconstructed "
+    start = ("started from the zoo's DepthNet and ContraFeat (see Models)" if d.get("zoo")
+             else "trained DepthNet and ContraFeat on CPU")
+    return (f"<p>Simulated colon, {start}, {ttt}exported to ONNX, reconstructed "
             f"the held-out sequence in {len(rows)} configurations ({mode} preset). ATE is the RMSE after Sim(3) "
             "alignment, on the registered frames.</p>"
             + H.table(["configuration", "status", "ATE (cm)", "path length (cm)", "registered (%)"], rows))
 
 
+def _models(d: dict) -> str:
+    """Which networks ran: the zoo entries with their cards' held-out numbers, or the demo's own training."""
+    zoo = d.get("zoo") or {}
+    if not zoo:
+        return ("<p>Both networks were trained by this demo (<code>--from-scratch</code>): see Deviations for "
+                "their size and budget.</p>")
+    rows = []
+    for note in zoo.values():
+        nums = ", ".join(f"{H.esc(k)} {_num(v, 1, 3)}" for k, v in note.get("metrics", {}).items())
+        t = note.get("training", {})
+        rows.append([f"<code>zoo:{H.esc(note['zoo'])}</code>", H.esc(note.get("kind", "")),
+                     H.esc(note.get("summary", "")),
+                     f"{t.get('steps', 'n/a')} steps, {_num(t.get('wall_s'), 1 / 60, 0)} min", nums])
+    guard = d.get("ttt_guard")
+    said = ""
+    if guard:
+        events = ", ".join(e["event"] + (f" at step {e['step']}" if "step" in e else "") for e in guard["events"])
+        said = (f"<p>Test-time training guard: best weights (lowest photometric term, no ground truth) from step "
+                f"{guard.get('best_step')}; events: {H.esc(events or 'none (no collapse)')}.</p>")
+    return ("<p>The models this demo started from, with the held-out numbers of their model cards "
+            "(<code>zoo/NAME/README.md</code>; simulator sequences this demo did not use). This run's own numbers "
+            "are in the sections below.</p>"
+            + H.table(["model", "kind", "what", "training", "card's held-out numbers"], rows) + said)
+
+
 def _deviations(d: dict) -> str:
     dep = d["config"]["depth"]
     items = []
+    if d.get("zoo"):
+        items.append("The networks come from the project's zoo: trained on the simulator with a supervised depth term "
+                     "and at CPU size; each card lists its deviations from the paper (<code>zoo/NAME/README.md"
+                     "</code>).")
+        ttt = d["config"].get("ttt", {})
+        if ttt.get("steps"):
+            items.append(f"DepthNet was <b>test-time trained on the held-out sequence</b> from the zoo weights with "
+                         f"the paper's objective (<code>configs/depthnet/paper_objective.yaml</code>, no ground "
+                         f"truth; {ttt['steps']} steps, lr {ttt['lr']:g}; the paper's schedule is 200 epochs) under "
+                         "the test-time training guard (stop and roll back if the depth goes flat; keep the weights "
+                         "with the lowest photometric term). The paper's configuration uses that network, the "
+                         "configuration \"without TTT\" the zoo's.")
+        return '<div class="note"><ul>' + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>"
     if dep["lambda_gt_depth"] > 0:
         items.append(f"DepthNet was trained <b>with a supervised depth term</b> on the simulator's true depth "
                      f"(<code>model.loss.lambda_gt_depth {dep['lambda_gt_depth']}</code>); the paper's objective is "
@@ -217,6 +257,7 @@ def build_report(root: Path, d: dict) -> str:
     ate = lambda r: f"ATE {_num(r.get('ate_sim3_m'), 100, 2)} cm, path {_num(r.get('gt_length_m'), 100, 1)} cm"  # noqa: E731
     parts = {
         "summary": ("Summary", _summary(d)),
+        "models": ("Models", _models(d)),
         "deviations": ("Deviations from the paper", _deviations(d)),
         "depth": ("Depth", _depth(d, root)),
         "matches": ("Matches: SIFT vs ContraFeat", _matches(d, root)),

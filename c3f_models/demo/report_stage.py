@@ -112,8 +112,11 @@ class Report(Stage):
                                               ctx.cfg.report.render_size)
                               for n, r in metrics["slam"].items() if r.get("status") == "ok"},
                    "unseen": unseen_figures(ctx, metrics["slam"])}
+        notes = (done or {}).get("notes", {})
+        models = {k: notes[k] for k in ("train_depth", "train_features") if (notes.get(k) or {}).get("zoo")}
         data = {"config": ctx.cfg.as_dict(), "metrics": metrics, "figures": figures,
                 "timings": [*timings, ("report", float("nan"), "this stage (running)")],
-                "environment": environment(ctx.cfg)}
+                "environment": environment(ctx.cfg), "zoo": models, "ttt_guard": (notes.get("ttt_depth") or {}).get(
+                    "guard")}
         atomic_write_text(ctx.root / "report.html", build_report(ctx.root, data))
         return {"report": "report.html"}

@@ -152,15 +152,51 @@ def _depth_model_configs(cfg: DemoConfig) -> list[Path]:
     return configs
 
 
-class TrainDepth(_Training):
-    """DepthNet (``configs/depthnet/small.yaml``) on the training sequences (the pre-training)."""
+def _zoo_note(kind: str, name: str) -> dict:
+    """What the report says of a zoo model: its name, card summary, held-out numbers, training."""
+    from c3f_slam import zoo
 
-    name, model, group = "train_depth", "depthnet", "depth"
+    e = zoo.entry(name, "demo")
+    card = e.own
+    return {"zoo": name, "kind": kind, "summary": e.summary, "metrics": e.metrics,
+            "training": card.get("training", {}), "card": str(e.folder / zoo.CARD)}
+
+
+class _ZooOrTrain(_Training):
+    """A training stage that, when the demo starts from the zoo, trains nothing: the zoo entry
+    (checked: name, kind, files' SHA-256) stands in for the run."""
+
+    zoo_field = ""
+
+    def settings(self, cfg):
+        if cfg.from_zoo:
+            return {"zoo": getattr(cfg.zoo, self.zoo_field)}
+        return super().settings(cfg)
+
+    def outputs(self, ctx):
+        return [] if ctx.cfg.from_zoo else super().outputs(ctx)
+
+    def probe(self, ctx):
+        return None if ctx.cfg.from_zoo else super().probe(ctx)
+
+
+class TrainDepth(_ZooOrTrain):
+    """DepthNet (``configs/depthnet/small.yaml``) on the training sequences (the pre-training), or
+    the zoo's DepthNet."""
+
+    name, model, group, zoo_field = "train_depth", "depthnet", "depth", "depth"
 
     def estimate_s(self, cfg):
+        if cfg.from_zoo:
+            return 2.0
         return 15.0 + cfg.depth.steps * 0.5 * (cfg.depth.size / 64) ** 2 * (3 if cfg.depth.paper_extras else 1)
 
     def run(self, ctx, done=None):
+        if ctx.cfg.from_zoo:
+            from c3f_slam import zoo
+
+            zoo.entry(ctx.cfg.zoo.depth, "demo").file_for("weights", "demo", kind="depth")  # checked now
+            return _zoo_note("depth", ctx.cfg.zoo.depth)
         d = ctx.cfg.depth
         model_args = {"loss": {"lambda_gt_depth": d.lambda_gt_depth}}
         if d.lr is not None:
@@ -182,11 +218,15 @@ class TestTimeTrain(_Training):
     __test__ = False  # not a pytest class
 
     def settings(self, cfg):
+        if cfg.from_zoo:
+            return {**super().settings(cfg), "zoo": cfg.zoo.depth, "objective": "paper"}
         return {**super().settings(cfg), "size": cfg.depth.size, "paper_extras": cfg.depth.paper_extras}
 
     def estimate_s(self, cfg):
         if cfg.ttt.steps == 0:
             return 1.0
+        if cfg.from_zoo:  # the paper's objective at 128 px, half-width encoders
+            return 15.0 + cfg.ttt.steps * 1.0 * cfg.ttt.batch_size / 4
         per_step = 0.5 * (cfg.depth.size / 64) ** 2 * (3 if cfg.depth.paper_extras else 1) * cfg.ttt.batch_size / 4
         return 15.0 + cfg.ttt.steps * per_step
 
@@ -194,6 +234,8 @@ class TestTimeTrain(_Training):
         t, d = ctx.cfg.ttt, ctx.cfg.depth
         if t.steps == 0:
             return {"off": True}
+        if ctx.cfg.from_zoo:
+            return self._from_zoo(ctx)
         model_args = {"init_weights": str(_last_ckpt(ctx, "depthnet")), "loss": {"lambda_gt_depth": 0.0},
                       "optim": {"lr": t.lr}}
         data_args = {"frames": {"size": [d.size, d.size]}, "loader": {"batch_size": t.batch_size, "num_workers": 0}}
@@ -203,15 +245,39 @@ class TestTimeTrain(_Training):
         return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, self.model))}
 
 
-class TrainFeatures(_Training):
-    """ContraFeat (``configs/contrafeat/small.yaml``) on the training sequences."""
+    def _from_zoo(self, ctx: DemoContext) -> dict:
+        """From the zoo weights with the paper's objective (``configs/depthnet/paper_objective.yaml``)
+        and the zoo entry's model and frame settings."""
+        from c3f_slam import zoo
 
-    name, model, group = "train_features", "contrafeat", "features"
+        t, name = ctx.cfg.ttt, ctx.cfg.zoo.depth
+        model_args = {"init_weights": f"zoo:{name}", "optim": {"lr": t.lr}}
+        data_args = {"loader": {"batch_size": t.batch_size, "num_workers": 0}}
+        mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq)
+        configs = [zoo.entry(name, "demo").folder / "config.yaml", CONFIGS / "depthnet" / "ttt.yaml",
+                   CONFIGS / "depthnet" / "paper_objective.yaml", mine]
+        ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
+        guard = ctx.version_dir(self.model) / "checkpoints" / "guard.json"
+        return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, self.model)),
+                "guard": json.loads(guard.read_text()) if guard.is_file() else None}
+
+
+class TrainFeatures(_ZooOrTrain):
+    """ContraFeat (``configs/contrafeat/small.yaml``) on the training sequences, or the zoo's."""
+
+    name, model, group, zoo_field = "train_features", "contrafeat", "features", "features"
 
     def estimate_s(self, cfg):
+        if cfg.from_zoo:
+            return 2.0
         return 15.0 + cfg.features.steps * 0.8 * (cfg.features.size / 128) ** 2
 
     def run(self, ctx, done=None):
+        if ctx.cfg.from_zoo:
+            from c3f_slam import zoo
+
+            zoo.entry(ctx.cfg.zoo.features, "demo").file_for("descriptors", "demo")  # checked now
+            return _zoo_note("descriptors", ctx.cfg.zoo.features)
         f = ctx.cfg.features
         data_args = {"split": _train_split(ctx), "frames": {"crop": None, "size": [f.size, f.size], "specular": True},
                      "loader": {"batch_size": f.batch_size, "num_workers": 0}}
@@ -258,6 +324,8 @@ class Export(Stage):
         return jobs
 
     def run(self, ctx, done=None):
+        if ctx.cfg.from_zoo:
+            return self._from_zoo(ctx)
         jobs = {folder: (ctx.version_dir(run) / "config.yaml", _last_ckpt(ctx, weights), extra)
                 for folder, (run, weights, extra) in self._jobs(ctx).items()}
         failed = ctx.run_many(self.name, {
@@ -269,6 +337,38 @@ class Export(Stage):
                 raise exc
         meta = json.loads((ctx.models / "depthnet" / "export.json").read_text())
         return {"depthnet_export": meta.get("files", meta), "depthnet_checkpoint": str(jobs["depthnet"][1])}
+
+
+    def _from_zoo(self, ctx: DemoContext) -> dict:
+        """The zoo's ONNX files as they are (``depthnet_pretrained``, ``contrafeat``) and, after
+        test-time training, the tuned DepthNet exported with the zoo model's recorded metric scale
+        (nothing is measured on the held-out sequence's true depth)."""
+        from c3f_slam import zoo
+        from c3f_slam.models.nets import DepthModel
+
+        depth = zoo.entry(ctx.cfg.zoo.depth, "demo")
+        pretrained = _copy_zoo_file(depth, "depth", ctx.models / "depthnet_pretrained")
+        _copy_zoo_file(zoo.entry(ctx.cfg.zoo.features, "demo"), "descriptors", ctx.models / "contrafeat")
+        if ctx.cfg.ttt.steps == 0:
+            _copy_zoo_file(depth, "depth", ctx.models / "depthnet")
+            return {"depthnet_export": {"source": f"zoo:{depth.name}"}}
+        scale = DepthModel(pretrained).metric_scale
+        config = ctx.version_dir("depthnet_ttt") / "config.yaml"
+        ctx.run(f"{self.name}_depthnet", [
+            "-m", "c3f_models", "export", "--config", str(config), "--ckpt_path", str(_last_ckpt(ctx, "depthnet_ttt")),
+            "--output_dir", str(ctx.models / "depthnet"), "--graphs", "[depth]", "--frames", str(ctx.test_seq),
+            *(["--metric_scale", repr(scale)] if scale is not None else [])])
+        meta = json.loads((ctx.models / "depthnet" / "export.json").read_text())
+        return {"depthnet_export": meta.get("files", meta), "metric_scale_from": f"zoo:{depth.name}"}
+
+
+def _copy_zoo_file(entry, role: str, folder: Path) -> Path:
+    """The zoo entry's verified file of ``role`` copied into ``folder`` (for the report and the
+    SLAM runs' commands); returns the copy."""
+    src = entry.file_for(role, "demo")
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(src, folder / src.name)
+    return folder / src.name
 
 
 class Slam(Stage):

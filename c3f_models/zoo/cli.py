@@ -42,6 +42,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="3 steps on tiny sequences: checks the recipe end to end, trains nothing useful "
                         "(entry NAME-quick)")
     t.add_argument("--jobs", type=int, default=2, help="simulator processes at a time (default 2)")
+    t.add_argument("--trainer-config", type=Path,
+                   help="a trainer preset composed after the recipe's config, e.g. configs/trainer/gpu.yaml "
+                        "(default: the recipe's CPU settings)")
     return p
 
 
@@ -100,7 +103,9 @@ def _train(args: argparse.Namespace) -> int:
     print(f"[{recipe.name}] simulate {len(recipe.train) + len(recipe.val)} sequences into {run.data}", flush=True)
     simulate(recipe.train + recipe.val, recipe.size, run.data, args.jobs)
     print(f"[{recipe.name}] fit to {recipe.steps} steps (log: {run.log})", flush=True)
-    if not fit(run, recipe.steps, args.max_minutes):
+    if args.trainer_config is not None and not args.trainer_config.is_file():
+        raise InputError(f"--trainer-config: file not found: {args.trainer_config}")
+    if not fit(run, recipe.steps, args.max_minutes, args.trainer_config):
         print(f"[{recipe.name}] stopped after --max-minutes {args.max_minutes:g}; the same command continues")
         return 0
     print(f"[{recipe.name}] package: float16 weights, ONNX, held-out evaluation, model card", flush=True)

@@ -107,24 +107,25 @@ DEPTH_DEVIATIONS = (
     "colour augmentation of the network inputs (model.augment, Monodepth2's recipe, wider brightness)",
     "ResNet18 encoders at half width (32 channels in the first stage), no deformable convolutions, "
     "no ImageNet weights (paper: ResNet50 + DCN, 224 px)",
-    "128x128 input (paper 224x224); 5,000 steps of batch 8, 10 epochs of 3,980 triplets (paper: 40 epochs of batch 16)",
+    "128x128 input (paper 224x224); 3,500 steps of batch 8, 7 epochs of 3,980 triplets (paper: 40 epochs of "
+    "batch 16); the learning rate is halved once, at epoch 6 (milestones 6, 8, 9 of a longer schedule)",
 )
 
 DEPTH_R18W32 = Recipe(
     name="c3f-depth-r18w32", kind="depth", config="configs/zoo/c3f-depth-r18w32.yaml", train=TRAIN, val=VAL,
-    steps=5000, graphs=("depth",),
+    steps=3500, graphs=("depth",),
     summary="DepthNet + PoseNet, half-width ResNet18, 128 px, simulator (appearances A, B)",
     deviations=DEPTH_DEVIATIONS, limits=LIMITS,
 )
 
 FEATURES_R18W32 = Recipe(
     name="c3f-features-r18w32", kind="descriptors", config="configs/zoo/c3f-features-r18w32.yaml", train=TRAIN,
-    val=VAL, steps=2000, graphs=("descriptors",),
+    val=VAL, steps=1500, graphs=("descriptors",),
     summary="ContraFeat, FPN on a half-width ResNet18, 128-d descriptors, 128 px, simulator (appearances A, B)",
     deviations=(
         "512 dense ground-truth correspondences per training pair join the keypoint InfoNCE (model.loss.dense_points)",
         "ResNet18 at half width (32 channels in the first stage), FPN and head at 64 channels, no ImageNet weights",
-        "128x128 input; 2,000 steps of 4 frame pairs (gaps 1-16 frames)",
+        "128x128 input; 1,500 steps of 4 frame pairs (gaps 1-16 frames)",
     ),
     limits=LIMITS,
 )

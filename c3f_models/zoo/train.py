@@ -157,15 +157,17 @@ def newest_checkpoint(run: RecipeRun) -> tuple[Path | None, int]:
     return best
 
 
-def fit_command(run: RecipeRun, steps: int) -> list[str]:
-    """``python -m c3f_models fit`` of the recipe, resuming from the newest checkpoint if any."""
-    cmd = [sys.executable, "-m", "c3f_models", "fit", "--config", str(REPO / run.recipe.config),
+def fit_command(run: RecipeRun, steps: int, trainer_config: Path | None = None) -> list[str]:
+    """``python -m c3f_models fit`` of the recipe (``trainer_config``, e.g. ``configs/trainer/gpu.yaml``,
+    composed after the recipe's config), resuming from the newest checkpoint if any."""
+    extra = ["--config", str(trainer_config)] if trainer_config is not None else []
+    cmd = [sys.executable, "-m", "c3f_models", "fit", "--config", str(REPO / run.recipe.config), *extra,
            "--config", str(write_fit_yaml(run, steps))]
     ckpt, _ = newest_checkpoint(run)
     return cmd + (["--ckpt_path", str(ckpt)] if ckpt is not None else [])
 
 
-def fit(run: RecipeRun, steps: int, max_minutes: float | None = None) -> bool:
+def fit(run: RecipeRun, steps: int, max_minutes: float | None = None, trainer_config: Path | None = None) -> bool:
     """Train (or continue) up to ``steps``; True when done. With ``max_minutes`` the fit is
     interrupted (SIGINT: it saves ``interrupted.ckpt``) after that long and False is returned.
     The chunk's wall time is recorded in ``WORK/recipe.json``."""
@@ -176,7 +178,7 @@ def fit(run: RecipeRun, steps: int, max_minutes: float | None = None) -> bool:
     with open(run.log, "a") as log:
         log.write(f"\n# {time.strftime('%Y-%m-%d %H:%M:%S')} from step {step}\n")
         log.flush()
-        proc = subprocess.Popen(fit_command(run, steps), cwd=REPO, stdout=log, stderr=subprocess.STDOUT,
+        proc = subprocess.Popen(fit_command(run, steps, trainer_config), cwd=REPO, stdout=log, stderr=subprocess.STDOUT,
                                 start_new_session=True, preexec_fn=_default_sigint)
         try:
             code = proc.wait(timeout=None if max_minutes is None else 60.0 * max_minutes)
