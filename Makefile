@@ -9,7 +9,7 @@ DEMO_ARGS ?=
 PYTEST_ARGS ?= -n 2 --durations=15
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test setup
+.PHONY: demo test setup zoo
 
 setup: $(STAMP)
 
@@ -24,3 +24,8 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+
+# the zoo's models, each by its recipe (python -m c3f_models zoo train NAME; resumable: rerun to continue)
+zoo: $(STAMP)
+	$(VENV)/bin/python -m c3f_models zoo train c3f-depth-r18w32
+	$(VENV)/bin/python -m c3f_models zoo train c3f-features-r18w32

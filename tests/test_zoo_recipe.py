@@ -86,3 +86,25 @@ def test_rerun_skips_training(quick_entry):
     chunks = len(json.loads((work / "recipe.json").read_text())["chunks"])
     assert zoo_main(["--zoo", str(entry_dir.parent), "train", NAME, "--quick", "--work", str(work)]) == 0
     assert len(json.loads((work / "recipe.json").read_text())["chunks"]) == chunks
+
+
+def test_descriptor_recipe_end_to_end(tmp_path, monkeypatch):
+    """The ContraFeat recipe at toy size: float32 ONNX storage, float16 weights, card numbers read
+    back, loadable by name in the runtime and as init_weights."""
+    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_slam.models.nets import DescriptorModel
+
+    name = "c3f-features-r18w32"
+    zoo_dir = tmp_path / "zoo"
+    assert zoo_main(["--zoo", str(zoo_dir), "train", name, "--quick", "--work", str(tmp_path / "work")]) == 0
+    entry = zoo.read_entry(zoo_dir / f"{name}-quick")
+    assert entry.kind == "descriptors" and {f.role for f in entry.files.values()} == {"descriptors", "weights"}
+    results = json.loads((entry.folder / "evaluation.json").read_text())
+    want = headline(quick(RECIPES[name]), results)
+    assert entry.metrics == pytest.approx({k: v for k, v in want.items() if not np.isnan(v)}, abs=1e-5)
+    assert "descriptors_float32" in results
+    monkeypatch.setenv(zoo.ENV, str(zoo_dir))
+    assert DescriptorModel(f"zoo:{entry.name}").metadata.descriptor_dim == 128
+    args = yaml.safe_load((entry.folder / "config.yaml").read_text())["model"]["init_args"]
+    ContraFeat(**{**args, "init_weights": f"zoo:{entry.name}"}).setup("fit")
+    assert "zoo:c3f-features-r18w32-quick" in (zoo_dir / "README.md").read_text()  # the index
