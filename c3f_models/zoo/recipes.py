@@ -127,12 +127,12 @@ DEPTH_R18W32 = Recipe(
 
 FEATURES_R18W32 = Recipe(
     name="c3f-features-r18w32", kind="descriptors", config="configs/zoo/c3f-features-r18w32.yaml", train=TRAIN,
-    val=VAL, steps=1500, graphs=("descriptors",), storage="float32",
+    val=VAL, steps=1000, graphs=("descriptors",), storage="float32",
     summary="ContraFeat, FPN on a half-width ResNet18, 128-d descriptors, 128 px, simulator (appearances A, B)",
     deviations=(
         "512 dense ground-truth correspondences per training pair join the keypoint InfoNCE (model.loss.dense_points)",
         "ResNet18 at half width (32 channels in the first stage), FPN and head at 64 channels, no ImageNet weights",
-        "128x128 input; 1,500 steps of 4 frame pairs (gaps 1-16 frames)",
+        "128x128 input; 1,000 steps of 4 frame pairs (gaps 1-16 frames)",
     ),
     limits=LIMITS,
 )
