@@ -113,7 +113,7 @@ def test_zoo_cli_list_show_verify(fake_zoo, capsys):
 
     assert main(["list"]) == 0
     out = capsys.readouterr().out
-    assert "tiny-depth" in out and "abs_rel 0.08" in out
+    assert "tiny-depth" in out and "Abs Rel 0.080" in out
     assert main(["show", "tiny-depth", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["c3fusion"]["kind"] == "depth"
     assert main(["verify"]) == 0

@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 
 from c3f_models.demo import html as H
+from c3f_models.zoo.card import summary_numbers
 
 #: section ids of the report, in order (the tests check every one is present)
 SECTIONS = ("summary", "models", "deviations", "depth", "matches", "trajectories", "meshes", "keyframe-graph",
@@ -73,7 +74,7 @@ def _models(d: dict) -> str:
                 "their size and budget.</p>")
     rows = []
     for note in zoo.values():
-        nums = ", ".join(f"{H.esc(k)} {_num(v, 1, 3)}" for k, v in note.get("metrics", {}).items())
+        nums = H.esc(summary_numbers(note.get("metrics", {})))
         t = note.get("training", {})
         rows.append([f"<code>zoo:{H.esc(note['zoo'])}</code>", H.esc(note.get("kind", "")),
                      H.esc(note.get("summary", "")),

@@ -20,6 +20,11 @@ DEPTH_METRICS = {"abs_rel": "Abs Rel", "sq_rel": "Sq Rel (cm)", "rmse": "RMSE (c
 IN_CM = {"sq_rel", "rmse"}
 MATCH_METHODS = {"sift": "SIFT", "sift_kpf": "SIFT+kpf", "cdf": "ContraFeat", "cdf_kpf": "ContraFeat+kpf"}
 SIMCOL3D = {"l1_cm": "L1 (cm)", "median_rel_pct": "relative error (%)", "rmse_cm": "RMSE (cm)"}
+#: the numbers a one-line summary of an entry shows (zoo list, the zoo's index, the demo report)
+SUMMARY_NUMBERS = {"abs_rel": "Abs Rel", "a1": "δ<1.25", "abs_rel_unseen_appearance": "Abs Rel, unseen appearance",
+                   "median_scale_error": "metric scale error", "cdf_kpf_recall": "ContraFeat+kpf recall",
+                   "cdf_kpf_precision": "precision", "sift_kpf_recall": "SIFT+kpf recall",
+                   "sift_kpf_precision": "precision"}
 TRAINED_APPEARANCES = ("seq1", "seq2", "seq3", "seq4")
 
 
@@ -180,6 +185,11 @@ def write_card(path: Path, recipe: Recipe, state: dict, step: int, files: dict, 
 
 
 
+def summary_numbers(metrics: dict) -> str:
+    """The :data:`SUMMARY_NUMBERS` of a card's metrics, one line."""
+    return ", ".join(f"{label} {metrics[k]:.3f}" for k, label in SUMMARY_NUMBERS.items() if k in metrics)
+
+
 def write_index(root: Path) -> Path:
     """``ROOT/README.md``: the zoo's table of entries (name, kind, summary, headline numbers),
     made from the cards (:mod:`c3f_slam.zoo`) each time an entry is packaged."""
@@ -197,11 +207,10 @@ def write_index(root: Path) -> Path:
              "cards by `zoo train`.", "", "| entry | kind | what | held-out numbers (see its card) |",
              "|---|---|---|---|"]
     for e in zoo.entries(root):
-        nums = ", ".join(f"{k} {v:.3g}" for k, v in e.metrics.items())
-        lines.append(f"| [{e.name}]({e.name}/README.md) | {e.kind} | {e.summary} | {nums} |")
+        lines.append(f"| [{e.name}]({e.name}/README.md) | {e.kind} | {e.summary} | {summary_numbers(e.metrics)} |")
     path = root / "README.md"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 
 
-__all__ = ["front_matter", "headline", "write_card", "write_index"]
+__all__ = ["SUMMARY_NUMBERS", "front_matter", "headline", "summary_numbers", "write_card", "write_index"]

@@ -53,12 +53,13 @@ def _root(args: argparse.Namespace) -> Path:
 
 
 def _list(args: argparse.Namespace) -> int:
+    from c3f_models.zoo.card import summary_numbers
+
     found = zoo.entries(_root(args))
     if not found:
         print(f"no models in {_root(args)}")
     for e in found:
-        nums = ", ".join(f"{k} {v:.3g}" for k, v in list(e.metrics.items())[:4])
-        print(f"{e.name:28s} {e.kind:12s} {e.summary}\n{'':41s}{nums}")
+        print(f"{e.name:28s} {e.kind:12s} {e.summary}\n{'':41s}{summary_numbers(e.metrics)}")
     return 0
 
 
