@@ -107,4 +107,4 @@ def test_descriptor_recipe_end_to_end(tmp_path, monkeypatch):
     assert DescriptorModel(f"zoo:{entry.name}").metadata.descriptor_dim == 128
     args = yaml.safe_load((entry.folder / "config.yaml").read_text())["model"]["init_args"]
     ContraFeat(**{**args, "init_weights": f"zoo:{entry.name}"}).setup("fit")
-    assert "zoo:c3f-features-r18w32-quick" in (zoo_dir / "README.md").read_text()  # the index
+    assert f"[{entry.name}]({entry.name}/README.md)" in (zoo_dir / "README.md").read_text()  # the index
