@@ -123,6 +123,7 @@ def test_config_data_sections_use_the_groups(path):
     top = {"data_dir", "layout", "layout_options", "min_frames", "load_depth", "load_poses", "fov", "calibration",
            "pinhole_focal", "published_split", "split", "sampling", "frames", "loader"}
     assert set(args) <= top, set(args) - top
-    sampling = PairSamplingConfig if data.get("class_path", "").endswith("ContraFeatDataModule") else TupleSamplingConfig
+    pairs = data.get("class_path", "").endswith("ContraFeatDataModule")
+    sampling = PairSamplingConfig if pairs else TupleSamplingConfig
     for group, cls in {**GROUPS, "sampling": sampling}.items():
         assert set(args.get(group, {})) <= {f.name for f in fields(cls)}, group

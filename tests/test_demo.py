@@ -183,15 +183,17 @@ def test_run_many_on_ctrl_c_stops_the_running_and_starts_no_more(tmp_path, monke
     from c3f_models.demo import context
 
     ctx = context.DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
-    calls, real_sleep = [], time.sleep
+    calls, real_pause = [], context.poll_pause
 
-    def interrupt_soon(s):  # Ctrl-C arrives while the first two commands run (after ~1 s)
-        calls.append(s)
+    # Ctrl-C arrives while the first two commands run (after ~1 s); only run_many's own pause is
+    # replaced: time.sleep itself is shared with other threads of the test process
+    def interrupt_soon():
+        calls.append(1)
         if len(calls) == 20:
             raise KeyboardInterrupt
-        real_sleep(s)
+        real_pause()
 
-    monkeypatch.setattr(context.time, "sleep", interrupt_soon)
+    monkeypatch.setattr(context, "poll_pause", interrupt_soon)
     monkeypatch.setattr(context, "parallel_jobs", lambda: 2)
     slow = ["-c", "import time; print('started', flush=True); time.sleep(60)"]
     t0 = time.monotonic()

@@ -258,7 +258,8 @@ def test_init_weights_errors(tmp_path):
     other = tmp_path / "other.ckpt"
     torch.save({"state_dict": DepthNet(DepthNetworkConfig(encoder_layers=18, dcn=True, num_scales=1)).state_dict()},
                other)
-    with pytest.raises(InputError, match="does not fit this DepthNet.*model.network.encoder_layers, encoder_width, dcn"):
+    expected = "does not fit this DepthNet.*model.network.encoder_layers, encoder_width, dcn"
+    with pytest.raises(InputError, match=expected):
         DepthNet(TINY, init_weights=str(other)).setup("fit")
 
 

@@ -104,7 +104,7 @@ class DemoContext:
                     running[key] = _Child.start((log_names or {}).get(key, f"{log_name}_{key}"), self.log, args)
                 for key in [k for k, child in running.items() if child.proc.poll() is not None]:
                     results[key] = running.pop(key).finish()
-                time.sleep(0.05)
+                poll_pause()
         except KeyboardInterrupt:
             for child in running.values():
                 child.proc.send_signal(signal.SIGINT)
@@ -139,6 +139,11 @@ class _Child:
         self.fh.close()
         rc = self.proc.returncode
         return None if rc == 0 else StageFailed(f"{last_error_line(self.log)} (exit {rc}; log: {self.log})")
+
+
+def poll_pause() -> None:
+    """The pause between two looks at :meth:`DemoContext.run_many`'s children (50 ms)."""
+    time.sleep(0.05)
 
 
 def parallel_jobs() -> int:
