@@ -1,6 +1,6 @@
 """ContraFeat as a LightningModule (SPEC §3, paper §3.2).
 
-Batches are frame pairs (:class:`c3f_models.contrafeat.data.ContraFeatDataModule`, or any
+Batches are frame pairs (:class:`datamodules.pairs.ContraFeatDataModule`, or any
 :mod:`datamodules.base` batch with depth and poses; frame 0 is paired with every later
 frame). Per step: SIFT keypoints on CPU (uint8 images, capped per frame, away from specular
 highlights), ground-truth matches from depth + poses
@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 
-from c3f_models.config import OptimConfig, as_config
+from c3f_models.config import OptimConfig
 from c3f_models.contrafeat.config import ContraFeatLossConfig, ContraFeatNetworkConfig, MatchEvaluationConfig
 from c3f_models.contrafeat.loss import batch_info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
@@ -47,6 +47,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.matching import MatchCounts
 from c3f_slam.matching.match_accuracy import match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches
+from c3f_slam.settings import as_config
 
 METHODS = ("sift", "sift_kpf", "cdf", "cdf_kpf")
 

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from lightning.pytorch.loggers import TensorBoardLogger
 
-from c3f_models.config import OptimConfig, as_config
+from c3f_models.config import OptimConfig
 from c3f_models.depth.augment import ColorAugmentConfig, color_augment
 from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
 from c3f_models.depth.losses import log_depth_l1
@@ -25,6 +25,7 @@ from c3f_models.depth.visual import colorize_depth, mask_to_rgb, panel
 from c3f_models.metrics import METRIC_NAMES, depth_metrics
 from c3f_models.module_base import C3FModule
 from c3f_slam.errors import InputError
+from c3f_slam.settings import as_config
 
 # the defaults of DepthNet's groups (frozen, so one instance serves every module)
 DEFAULT_NETWORK, DEFAULT_LOSS, DEFAULT_OPTIM = DepthNetworkConfig(), LossConfig(), OptimConfig()

@@ -9,8 +9,9 @@ import lightning as L
 import torch
 
 from c3f_models.checkpoints import load_weights, read_checkpoint_weights
-from c3f_models.config import ADAM_BETAS, OptimConfig, settings_as_dicts
+from c3f_models.config import ADAM_BETAS, OptimConfig
 from c3f_slam import zoo
+from c3f_slam.settings import settings_as_dicts
 
 INIT_WEIGHTS_OPTION = "model.init_weights"
 

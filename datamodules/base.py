@@ -37,10 +37,10 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from c3f_models.config import as_config, settings_as_dicts
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
 from c3f_slam.preprocess import center_crop_resize, prepare_network_input
+from c3f_slam.settings import as_config, settings_as_dicts
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.formats import SequenceFormat, find_sequences
 from datamodules.resumable import ResumableLoader, ResumableSampler
