@@ -39,9 +39,9 @@ from benchmarks.common.contrafeat import (
 )
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
-from c3f_models.contrafeat.data import ContraFeatDataModule, PairSamplingConfig
 from c3f_models.contrafeat_module import METHODS, ContraFeat
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
+from datamodules.pairs import ContraFeatDataModule, PairSamplingConfig
 
 PAPER = {  # paper table 2, averages of three synthetic sequences (recall / precision %)
     "sift": (37.9, 21.8), "sift_kpf": (27.0, 99.5), "cdf": (78.2, 86.3), "cdf_kpf": (74.9, 100.0),

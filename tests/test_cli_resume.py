@@ -117,7 +117,7 @@ def test_contrafeat_training_gaps_follow_the_seed_not_the_global_rng(sim_dataset
     """ContraFeat's random frame gap comes from the keyed sampler's draw: the same seed and epoch
     give the same batches whatever the global RNG did in between (so a fetch ahead, or a resume,
     does not change them)."""
-    from c3f_models.contrafeat.data import ContraFeatDataModule
+    from datamodules.pairs import ContraFeatDataModule
 
     def gaps(draws_between: int) -> list[int]:
         torch.manual_seed(11)

@@ -15,7 +15,6 @@ import torchvision
 from c3f_models.cli import main
 from c3f_models.config import OptimConfig
 from c3f_models.contrafeat.config import ContraFeatLossConfig, MatchEvaluationConfig
-from c3f_models.contrafeat.data import ContraFeatDataModule, GapPairDataset, PairSamplingConfig
 from c3f_models.contrafeat.loss import batch_info_nce, info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
 from c3f_models.contrafeat.pairs import GroundTruthSettings, KeypointSettings
@@ -24,6 +23,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.matching import sample_descriptor_map
 from datamodules.config import FramesConfig, LoaderConfig
+from datamodules.pairs import ContraFeatDataModule, GapPairDataset, PairSamplingConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = dict(fpn_channels=16, stem_channels=8, head_channels=32)
@@ -283,3 +283,11 @@ def test_module_dense_points_join_the_training_loss(plane_dataset):
         _module(loss={"dense_points": -1})
     with pytest.raises(InputError, match="dense_spacing"):
         _module(loss={"dense_spacing": 0})
+
+
+def test_old_class_path_of_the_data_module_still_loads():
+    """Configs saved before the data module moved name c3f_models.contrafeat.data (one release)."""
+    import importlib
+
+    old = importlib.import_module("c3f_models.contrafeat.data")
+    assert old.ContraFeatDataModule is ContraFeatDataModule and old.PairSamplingConfig is PairSamplingConfig

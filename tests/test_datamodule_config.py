@@ -10,9 +10,9 @@ import torch
 import yaml
 
 from c3f_models.cli import main, nulls_as_group_values
-from c3f_models.contrafeat.data import ContraFeatDataModule, PairSamplingConfig
 from c3f_slam.errors import InputError
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
+from datamodules.pairs import ContraFeatDataModule, PairSamplingConfig
 from datamodules.published import Colon10KDataModule
 from datamodules.sequence import C3FSequenceDataModule
 

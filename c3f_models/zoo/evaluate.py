@@ -70,8 +70,8 @@ def descriptor_metrics(model, data_dir: Path, names: SequenceABC[str], gaps: Seq
     pairs at ``gaps``, every ``stride``-th pair of each gap, frames of ``size`` pixels."""
     import lightning as L
 
-    from c3f_models.contrafeat.data import ContraFeatDataModule, PairSamplingConfig
     from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
+    from datamodules.pairs import ContraFeatDataModule, PairSamplingConfig
 
     out = {}
     for name in names:
