@@ -2,7 +2,7 @@
 
 Two sequences, ground-truth depth from the files, SIFT, the full system:
 
-- ``room``: a **synthetic** room-scale RGB-D sequence (:mod:`benchmarks.common.room`: textured
+- ``room``: a **synthetic** room-scale RGB-D sequence (:mod:`datamodules.synthetic.room`: textured
   box room with furniture, Kinect-like depth noise, a closed camera loop), run with
   ``--preset room``. No real room video is available here;
 - ``colon``: a simulator sequence (``seq1``, events on), run with ``--preset colon``.
@@ -23,11 +23,11 @@ from pathlib import Path
 
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
-from benchmarks.common.room import room_sequence
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
 from c3f_slam.trajectory_metrics import evaluate_trajectory
+from datamodules.synthetic.room import room_sequence
 
 
 def run_one(seq: Path, out: Path, preset: str, refine: dict) -> dict:
@@ -87,7 +87,7 @@ def main() -> None:
             print(rows[-1], flush=True)
     rep = Report(__file__, "Dense refinement of keyframe edges (coloured ICP) on and off")
     body = [f"- room: **synthetic** RGB-D ({a.room_frames} frames, 320 x 240, Kinect-like depth noise; "
-            "benchmarks/common/room.py), not real video; `--preset room` (voxels 8, 4, 2 cm).",
+            "datamodules/synthetic/room.py), not real video; `--preset room` (voxels 8, 4, 2 cm).",
             f"- colon: simulator seq1, seed {a.seed}, {a.colon_frames} frames, {a.size} px, events on; "
             "`--preset colon` (voxels 2, 1, 0.5 mm).",
             "- ground-truth depth, SIFT, full system, no mesh; frames/s of the whole run (one process, this "

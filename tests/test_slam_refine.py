@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.common.room import camera_path, kinect_noise, render, room_scene, room_sequence
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.cli import _overrides, _parser
@@ -17,6 +16,7 @@ from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.pipeline.keyframe_edges import KeyframeEdge
 from c3f_slam.pipeline.refine import EdgeRefiner, cloud_pyramid
 from c3f_slam.posegraph import EdgeKind
+from datamodules.synthetic.room import camera_path, kinect_noise, render, room_scene, room_sequence
 
 CAM = PinholeCamera.from_fov(160, 120, 60.0)
 
