@@ -113,7 +113,7 @@ def constant_depth_metrics(data: Path, test: list[str], size: int) -> dict:
     """
     import torch
 
-    from c3f_models.metrics import depth_metrics
+    from c3f_slam.depth_metrics import depth_metrics
     from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
     from datamodules.sequence import C3FSequenceDataModule
 

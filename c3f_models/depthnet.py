@@ -22,8 +22,8 @@ from c3f_models.depth.losses import log_depth_l1
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
 from c3f_models.depth.objective import LossConfig, LossTerms, SelfSupervisedLoss, compose_triplet_poses
 from c3f_models.depth.visual import colorize_depth, mask_to_rgb, panel
-from c3f_models.metrics import METRIC_NAMES, depth_metrics
 from c3f_models.module_base import C3FModule
+from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.errors import InputError
 from c3f_slam.settings import as_config
 

@@ -9,6 +9,7 @@
   ``outputs`` (the run folder's files);
 - ``pipeline``: the SLAM run itself (settings, sources, back-ends, run loop, evaluation);
 - measuring a run: ``trajectory_metrics`` (ATE, RPE, frame motion), ``trajectory_plot``,
+  ``depth_metrics`` (the seven depth metrics, median scaling; NumPy or torch tensors),
   ``surface_metrics`` (coverage of the true surface);
 - ``cli``: ``python -m c3f_slam run | evaluate | inspect``.
 """

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from c3f_models.metrics import median_scale
+from c3f_slam.depth_metrics import median_scale
 from c3f_slam.models.metadata import Preprocessing
 from c3f_slam.preprocess import center_crop_resize
 from export.frames import evenly_spaced, frames_from_source

@@ -11,7 +11,7 @@ import numpy as np
 
 from c3f_models.demo.context import DemoContext, StageFailed, slam_runs
 from c3f_models.demo.stages import Stage
-from c3f_models.metrics import METRIC_NAMES, depth_metrics
+from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.io import Sequence
 from c3f_slam.io.atomic import atomic_write
 from c3f_slam.matching.ground_truth import ground_truth_matches

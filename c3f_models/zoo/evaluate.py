@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_models.metrics import METRIC_NAMES, depth_metrics
+from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.io import Sequence
 from c3f_slam.models.nets import DepthModel
 from c3f_slam.simcol3d import depth_metrics_per_trajectory, mean_over_trajectories

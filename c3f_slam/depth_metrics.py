@@ -1,4 +1,4 @@
-"""Depth evaluation metrics (SPEC §2), the one function every evaluation uses.
+"""Depth evaluation metrics (the Monodepth2 protocol), the one function every evaluation uses.
 
 Units: metres in, metres out (Sq Rel and RMSE carry units; print cm only in reports).
 Works on NumPy arrays and torch tensors alike and does not import torch.
