@@ -27,10 +27,12 @@ import torch
 
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
+from c3f_models.contrafeat.graphs import DescriptorGraph
 from c3f_models.contrafeat.network import ContraFeatNet
+from c3f_models.depth.graphs import DepthGraph, PoseGraph
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
-from export.graphs import DepthGraph, DescriptorGraph, PoseGraph
-from export.onnx_io import OPSET, OPSET_DEFORM, to_onnx
+from export.graphs import OPSET, OPSET_DEFORM
+from export.onnx_io import to_onnx
 
 
 def graphs(size: int, small: bool):

@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from c3f_models.contrafeat_module import ContraFeat
     from c3f_models.depthnet import DepthNet
 
-__version__ = "0.1.0"
+from c3f_slam import __version__  # the one project version (exports record it)
 
 #: public name -> the module that defines it (imported on first access)
 LAZY_EXPORTS = {"DepthNet": "c3f_models.depthnet", "ContraFeat": "c3f_models.contrafeat_module"}

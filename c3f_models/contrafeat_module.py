@@ -32,6 +32,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 
 from c3f_models.config import OptimConfig
 from c3f_models.contrafeat.config import ContraFeatLossConfig, ContraFeatNetworkConfig, MatchEvaluationConfig
+from c3f_models.contrafeat.graphs import DescriptorGraph
 from c3f_models.contrafeat.loss import batch_info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
 from c3f_models.contrafeat.pairs import (
@@ -48,6 +49,7 @@ from c3f_slam.matching import MatchCounts
 from c3f_slam.matching.match_accuracy import match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches
 from c3f_slam.settings import as_config
+from export.graphs import OPSET, GraphSpec
 
 METHODS = ("sift", "sift_kpf", "cdf", "cdf_kpf")
 
@@ -76,6 +78,7 @@ class ContraFeat(C3FModule):
 
     weights_hint = "check model.network"
     zoo_kind = "descriptors"
+    checkpoint_prefixes = ("net.",)
 
     def __init__(
         self,
@@ -106,6 +109,12 @@ class ContraFeat(C3FModule):
         self._visuals: list[np.ndarray] = []
 
     # ------------------------------------------------------------------ inference
+    def export_graphs(self) -> list[GraphSpec]:
+        """The descriptor graph: image -> dense unit-length descriptors at the input resolution."""
+        return [GraphSpec("descriptors", DescriptorGraph(self.net), ("image",), "descriptors", "unit L2 norm",
+                          "dense descriptors, unit length per pixel", "contrafeat.onnx", OPSET,
+                          int(self.net.descriptor_dim))]
+
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) RGB in [0, 1] -> (B, C, H, W) unit descriptors."""
         return self.net(image)

@@ -18,6 +18,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from c3f_models.config import OptimConfig
 from c3f_models.depth.augment import ColorAugmentConfig, color_augment
 from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
+from c3f_models.depth.graphs import DepthGraph, PoseGraph
 from c3f_models.depth.losses import log_depth_l1
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
 from c3f_models.depth.objective import LossConfig, LossTerms, SelfSupervisedLoss, compose_triplet_poses
@@ -26,6 +27,7 @@ from c3f_models.module_base import C3FModule
 from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.errors import InputError
 from c3f_slam.settings import as_config
+from export.graphs import OPSET, OPSET_DEFORM, GraphSpec, has_deform_conv
 
 # the defaults of DepthNet's groups (frozen, so one instance serves every module)
 DEFAULT_NETWORK, DEFAULT_LOSS, DEFAULT_OPTIM = DepthNetworkConfig(), LossConfig(), OptimConfig()
@@ -51,6 +53,7 @@ class DepthNet(C3FModule):
     weights_hint = ("check model.network.encoder_layers, encoder_width, dcn, pose_encoder_layers and "
                     "pose_encoder_width")
     zoo_kind = "depth"
+    checkpoint_prefixes = ("depth_net.", "pose_net.")
 
     def __init__(
         self,
@@ -81,6 +84,17 @@ class DepthNet(C3FModule):
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) RGB in [0, 1] -> (B, 1, H, W) depth in metres (finest scale)."""
         return self.depth_net.to_depth(self.depth_net(image)[0])
+
+    def export_graphs(self) -> list[GraphSpec]:
+        """The depth graph (image -> depth, metres) and the pose graph (two images -> T_ba)."""
+        depth = DepthGraph(self.depth_net)
+        return [
+            GraphSpec("depth", depth, ("image",), "depth", "m", "depth along the optical axis (z), metres",
+                      "depthnet.onnx", OPSET_DEFORM if has_deform_conv(depth) else OPSET, 1,
+                      depth_range=(self.depth_net.min_depth, self.depth_net.max_depth)),
+            GraphSpec("pose", PoseGraph(self.pose_net), ("image_a", "image_b"), "T_ba", "m",
+                      "rigid transform from camera-a to camera-b coordinates (image_a earlier)", "posenet.onnx", OPSET),
+        ]
 
     def predict_step(self, batch, batch_idx: int = 0) -> torch.Tensor:
         """Depth (B, 1, H, W) metres of the centre frame (or of a plain (B, 3, H, W) image batch)."""

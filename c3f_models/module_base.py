@@ -11,6 +11,7 @@ import torch
 from c3f_models.checkpoints import load_weights, read_checkpoint_weights
 from c3f_models.config import ADAM_BETAS, OptimConfig
 from c3f_slam import zoo
+from c3f_slam.errors import InputError
 from c3f_slam.settings import settings_as_dicts
 
 INIT_WEIGHTS_OPTION = "model.init_weights"
@@ -34,6 +35,8 @@ class C3FModule(L.LightningModule):
     weights_hint: str = ""
     #: the kind of zoo entry whose weights fit this module (:mod:`c3f_slam.zoo`)
     zoo_kind: str = ""
+    #: state-dict key prefixes every checkpoint of this module has (they tell the kinds apart)
+    checkpoint_prefixes: tuple[str, ...] = ()
 
     def __init__(self, optim: OptimConfig, init_weights: str | None) -> None:
         super().__init__()
@@ -67,6 +70,17 @@ class C3FModule(L.LightningModule):
                      f"this {type(self).__name__}", hint)
         self._init_weights_done = True
 
+    def load_export_checkpoint(self, path: str | Path, option: str = "--ckpt_path") -> None:
+        """Load the weights of ``path`` (a checkpoint or state dict; safe unpickler only) for an
+        export and switch to evaluation mode; InputError naming ``option`` when the checkpoint
+        is of another module kind or does not fit the configured architecture."""
+        state = read_checkpoint_weights(path, option=option)
+        kind, want = checkpoint_kind(state), type(self).__name__
+        if kind is not None and kind != want:
+            raise InputError(f"{option}: {path} is a {kind} checkpoint, but the config's model is {want}")
+        load_weights(self, state, path, option, "the model in the config")
+        self.eval()
+
     def setup(self, stage: str) -> None:
         # Runs before Lightning restores a ``ckpt_path``, so a resumed run keeps its own weights.
         if stage == "fit" and self.init_weights and not self._init_weights_done:
@@ -76,4 +90,15 @@ class C3FModule(L.LightningModule):
         self._init_weights_done = True
 
 
-__all__ = ["INIT_WEIGHTS_OPTION", "C3FModule"]
+def checkpoint_kind(state: dict[str, torch.Tensor]) -> str | None:
+    """The name of the module class (``DepthNet``, ``ContraFeat``) whose checkpoint ``state``
+    is, from its key prefixes; None when none fits."""
+    from c3f_models import ContraFeat, DepthNet  # the modules of this package (they subclass this one)
+
+    for cls in (DepthNet, ContraFeat):
+        if all(any(k.startswith(p) for k in state) for p in cls.checkpoint_prefixes):
+            return cls.__name__
+    return None
+
+
+__all__ = ["INIT_WEIGHTS_OPTION", "C3FModule", "checkpoint_kind"]

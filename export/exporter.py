@@ -1,8 +1,9 @@
-"""Export a trained DepthNet (depth + pose graphs) or ContraFeat (descriptor graph) to ONNX.
+"""Export a trained model's graphs to ONNX (DepthNet: depth + pose; ContraFeat: descriptors).
 
 :func:`export_model` is what ``python -m c3f_models export`` runs (through
-:meth:`c3f_models.trainer.C3FTrainer.export`): load the checkpoint into the model the config
-describes, export each graph, check parity on real frames, and write
+:meth:`c3f_models.trainer.C3FTrainer.export`). It names no model class: the model says what it
+exports and loads its own checkpoint (:class:`export.graphs.Exportable`). It loads the
+checkpoint into the model the config describes, exports each graph, check parity on real frames, and write
 ``OUTPUT_DIR/{depthnet,posenet,contrafeat}.onnx`` plus ``export.json`` (files, hashes,
 parity). Nothing is written unless every graph of the model passed its parity check, and
 earlier files are replaced atomically.
@@ -19,30 +20,21 @@ from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass
 from pathlib import Path
 
-import lightning as L
 import numpy as np
 import onnx
-import torch
 
-from c3f_models import __version__
-from c3f_models.checkpoints import load_weights, read_checkpoint_weights
-from c3f_models.contrafeat_module import ContraFeat
-from c3f_models.depthnet import DepthNet
+from c3f_slam import __version__
 from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write_text, staging_dir
 from c3f_slam.models.metadata import ModelMetadata, Preprocessing
 from export.calibration import metric_scale as measure_metric_scale
 from export.frames import frames_from_source, parity_source
-from export.graphs import DepthGraph, DescriptorGraph, GraphSpec, PoseGraph
-from export.onnx_io import OPSET, OPSET_DEFORM, STORAGE, has_deform_conv, store_float16, to_onnx, write_onnx
+from export.graphs import Exportable, GraphSpec
+from export.onnx_io import STORAGE, store_float16, to_onnx, write_onnx
 from export.parity import check_parity
 
 #: the export's manifest (files, hashes, parity), moved into the output folder last
 MANIFEST = "export.json"
-
-# state-dict prefixes that identify each model kind in a checkpoint
-CHECKPOINT_KINDS = {"DepthNet": ("depth_net.", "pose_net."), "ContraFeat": ("net.",)}
-
 
 def sha256(path: str | Path) -> str:
     h = hashlib.sha256()
@@ -52,41 +44,13 @@ def sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def checkpoint_kind(state: dict[str, torch.Tensor]) -> str | None:
-    """``DepthNet``, ``ContraFeat`` or None, from the state-dict key prefixes."""
-    for kind, prefixes in CHECKPOINT_KINDS.items():
-        if all(any(k.startswith(p) for k in state) for p in prefixes):
-            return kind
-    return None
-
-
-def load_checkpoint(model: L.LightningModule, ckpt_path: str | Path) -> None:
-    """Load the weights of ``ckpt_path`` into ``model`` (safe unpickler only); InputError when
-    the checkpoint is of another model kind or does not fit the configured architecture."""
-    state = read_checkpoint_weights(ckpt_path, option="--ckpt_path")
-    kind, want = checkpoint_kind(state), type(model).__name__
-    if kind is not None and kind != want:
-        raise InputError(f"--ckpt_path: {ckpt_path} is a {kind} checkpoint, but the config's model is {want}")
-    load_weights(model, state, ckpt_path, "--ckpt_path", "the model in the config")
-    model.eval()
-
-
-def graph_specs(model: L.LightningModule) -> list[GraphSpec]:
-    """The graphs a model exports."""
-    if isinstance(model, DepthNet):
-        depth = DepthGraph(model.depth_net)
-        return [
-            GraphSpec("depth", depth, ("image",), "depth", "m", "depth along the optical axis (z), metres",
-                      "depthnet.onnx", OPSET_DEFORM if has_deform_conv(depth) else OPSET, 1),
-            GraphSpec("pose", PoseGraph(model.pose_net), ("image_a", "image_b"), "T_ba", "m",
-                      "rigid transform from camera-a to camera-b coordinates (image_a earlier)",
-                      "posenet.onnx", OPSET),
-        ]
-    if isinstance(model, ContraFeat):
-        dim = int(model.net.descriptor_dim)
-        return [GraphSpec("descriptors", DescriptorGraph(model.net), ("image",), "descriptors", "unit L2 norm",
-                          "dense descriptors, unit length per pixel", "contrafeat.onnx", OPSET, dim)]
-    raise InputError(f"model: export knows DepthNet and ContraFeat, not {type(model).__name__}")
+def graph_specs(model) -> list[GraphSpec]:
+    """The graphs ``model`` exports (its :meth:`~export.graphs.Exportable.export_graphs`);
+    InputError for a model that does not say."""
+    if not isinstance(model, Exportable):
+        raise InputError(f"model: {type(model).__name__} does not say what it exports (export_graphs, "
+                         "load_export_checkpoint)")
+    return model.export_graphs()
 
 
 def selected_graphs(specs: list[GraphSpec], kinds: SequenceABC[str] | None) -> list[GraphSpec]:
@@ -149,7 +113,7 @@ class _Provenance:
 
 
 def export_model(
-    model: L.LightningModule,
+    model: Exportable,
     ckpt_path: str | Path | None,
     output_dir: str | Path,
     datamodule=None,
@@ -166,7 +130,8 @@ def export_model(
     written files.
 
     Args:
-        model: the configured DepthNet or ContraFeat (weights are replaced by the checkpoint).
+        model: the configured model, e.g. DepthNet or ContraFeat (its weights are replaced by the
+            checkpoint's; :class:`export.graphs.Exportable`).
         ckpt_path: Lightning checkpoint (or plain state dict) of that model.
         datamodule: the training data module (pre-processing settings; parity frames).
         frames: a sequence folder for the parity frames (default: the data module's).
@@ -190,7 +155,7 @@ def export_model(
         raise InputError(f"--metric_scale must be a positive number, got {metric_scale}")
     specs = selected_graphs(graph_specs(model), graphs)
     source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
-    load_checkpoint(model, ckpt_path)
+    model.load_export_checkpoint(ckpt_path, "--ckpt_path")
     pre = preprocessing_of(datamodule, source)
     images = frames_from_source(source, pre, num_frames)
     provenance = _Provenance(training_config=_training_config(model, datamodule),
@@ -204,7 +169,7 @@ def export_model(
         if storage == "float16":
             proto = store_float16(proto)
         report = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name)
-        depth = _depth_entry(model, spec, datamodule, pre, metric_scale) if spec.kind == "depth" else None
+        depth = _depth_entry(spec, datamodule, pre, metric_scale) if spec.kind == "depth" else None
         staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, report.as_dict(), provenance)))
     return _write_export(staged, Path(output_dir), provenance)
 
@@ -222,7 +187,7 @@ def _checked_arguments(ckpt_path: str | Path | None, weights_only: bool | None, 
     return ckpt_path
 
 
-def _training_config(model: L.LightningModule, datamodule) -> dict:
+def _training_config(model: Exportable, datamodule) -> dict:
     """Class paths and init args of the model and (if any) the data module, as a config records them."""
     config = {"model": {"class_path": f"{type(model).__module__}.{type(model).__name__}",
                         "init_args": _jsonable(model.hparams)}}
@@ -232,12 +197,12 @@ def _training_config(model: L.LightningModule, datamodule) -> dict:
     return config
 
 
-def _depth_entry(model: DepthNet, spec: GraphSpec, datamodule, pre: Preprocessing,
-                 given_scale: float | None = None) -> dict:
+def _depth_entry(spec: GraphSpec, datamodule, pre: Preprocessing, given_scale: float | None = None) -> dict:
     """The ``depth`` metadata of the depth graph: range (m), conversion, scale and the metric
     scale: ``given_scale``, else measured when the training data has true depth."""
-    net = model.depth_net
-    depth = {"min_depth": net.min_depth, "max_depth": net.max_depth,
+    if spec.depth_range is None:
+        raise InputError(f"model: its depth graph {spec.file_name} does not state its depth range")
+    depth = {"min_depth": spec.depth_range[0], "max_depth": spec.depth_range[1],
              "conversion": "depth = 1 / (1/max_depth + (1/min_depth - 1/max_depth) * sigmoid_disparity), "
                            "in graph",
              "scale": "training scale (monocular depth: metres up to the scale the self-supervision fixed; "

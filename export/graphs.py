@@ -1,4 +1,6 @@
-"""The exported graphs: thin wrappers that fix each net's ONNX inputs and outputs.
+"""What a model exports: :class:`GraphSpec` (one ONNX graph) and the :class:`Exportable`
+protocol a LightningModule follows so that :func:`export.export_model` can export it without
+knowing its class (each model builds its own graph wrappers, e.g. ``c3f_models.depth.graphs``).
 
 Every graph takes NCHW float32 RGB in [0, 1] (ImageNet normalisation happens inside the
 nets, so inside the graph) and returns what the runtime consumes directly:
@@ -15,45 +17,22 @@ descriptors  image (B,3,H,W)        descriptors (B,C,H,W)          unit L2 norm 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 import torch
 from torch import nn
 
-from c3f_models.contrafeat.network import ContraFeatNet
-from c3f_models.depth.networks import DepthNetwork, PoseNetwork
+#: the ONNX opset of every graph, and of graphs with deformable convolutions
+OPSET = 18
+OPSET_DEFORM = 19
 
 
-class DepthGraph(nn.Module):
-    """Depth in metres at the finest decoder scale (sigmoid disparity -> depth inside)."""
+def has_deform_conv(module: nn.Module) -> bool:
+    """True when the module contains torchvision's DeformConv2d (it needs opset 19)."""
+    from torchvision.ops import DeformConv2d
 
-    def __init__(self, net: DepthNetwork) -> None:
-        super().__init__()
-        self.net = net
-
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
-        return self.net.to_depth(self.net(image)[0])
-
-
-class PoseGraph(nn.Module):
-    """``T_ba`` (B, 4, 4): camera-a coordinates into camera b; frames in temporal order."""
-
-    def __init__(self, net: PoseNetwork) -> None:
-        super().__init__()
-        self.net = net
-
-    def forward(self, image_a: torch.Tensor, image_b: torch.Tensor) -> torch.Tensor:
-        return self.net(image_a, image_b)
-
-
-class DescriptorGraph(nn.Module):
-    """Unit-norm dense descriptors at the input resolution."""
-
-    def __init__(self, net: ContraFeatNet) -> None:
-        super().__init__()
-        self.net = net
-
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
-        return self.net(image)
+    return any(isinstance(m, DeformConv2d) for m in module.modules())
 
 
 @dataclass
@@ -69,6 +48,7 @@ class GraphSpec:
     file_name: str
     opset: int
     output_channels: int | None = None  # C of (B, C, H, W) outputs; None for T_ba
+    depth_range: tuple[float, float] | None = None  # (min, max) metres of a depth graph's output
 
     def example_inputs(self, frames: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Graph inputs built from (N, 3, H, W) frames: the frames, or consecutive pairs."""
@@ -77,3 +57,22 @@ class GraphSpec:
         if frames.shape[0] < 2:
             raise ValueError("a pose graph needs at least two frames")
         return frames[:-1], frames[1:]
+
+
+@runtime_checkable
+class Exportable(Protocol):
+    """A model :func:`export.export_model` can export: it says which graphs it has and loads a
+    checkpoint of its own kind (refusing another kind in one line that names ``option``)."""
+
+    hparams: dict
+
+    def export_graphs(self) -> list[GraphSpec]:
+        """The graphs this model exports, wrapping its current networks."""
+        ...
+
+    def load_export_checkpoint(self, path: Path, option: str = "--ckpt_path") -> None:
+        """Load ``path``'s weights (safe unpickler only) and switch to evaluation mode."""
+        ...
+
+
+__all__ = ["OPSET", "OPSET_DEFORM", "Exportable", "GraphSpec", "has_deform_conv"]

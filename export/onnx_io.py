@@ -22,18 +22,10 @@ from torch import nn
 from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write
 from c3f_slam.models.metadata import ModelMetadata
+from export.graphs import OPSET, OPSET_DEFORM, has_deform_conv  # noqa: F401  (re-exported: the opsets)
 
-OPSET = 18
-OPSET_DEFORM = 19
 MIN_SIZE = 64
 MAX_SIZE = 4096
-
-
-def has_deform_conv(module: nn.Module) -> bool:
-    """True when the module contains torchvision's DeformConv2d (it needs opset 19)."""
-    from torchvision.ops import DeformConv2d
-
-    return any(isinstance(m, DeformConv2d) for m in module.modules())
 
 
 def to_onnx(

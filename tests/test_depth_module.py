@@ -275,8 +275,6 @@ class _Payload:
 
 def test_a_checkpoint_cannot_run_code(tmp_path):
     """A crafted --model.init_weights (or export --ckpt_path) is refused before anything in it runs."""
-    from export.exporter import load_checkpoint
-
     marker = tmp_path / "payload_ran"
     crafted = tmp_path / "crafted.ckpt"
     torch.save({"state_dict": DepthNet(TINY).state_dict(), "hyper_parameters": _Payload(marker)}, crafted)
@@ -284,7 +282,7 @@ def test_a_checkpoint_cannot_run_code(tmp_path):
                                          r"\(it pickles \S+\); refused, nothing in it ran"):
         DepthNet(TINY, init_weights=str(crafted)).setup("fit")
     with pytest.raises(InputError, match="--ckpt_path: .*crafted.ckpt needs more than the safe loader"):
-        load_checkpoint(DepthNet(TINY), crafted)
+        DepthNet(TINY).load_export_checkpoint(crafted)
     assert not marker.exists(), "the payload ran"
     fn, args = _Payload(marker).__reduce__()  # the control: what an unpickler would call does touch it
     fn(*args)
