@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/python -m c3f_models demo --out $(DEMO_OUT) $(DEMO_ARGS)
+	$(VENV)/bin/python -m c3f_demo --out $(DEMO_OUT) $(DEMO_ARGS)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .

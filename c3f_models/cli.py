@@ -5,7 +5,7 @@ Model and data are chosen by class path in the config (subclass mode), e.g.::
     python -m c3f_models fit --config configs/trainer/cpu_smoke.yaml --config configs/depthnet/small.yaml
 
 Subcommands: ``fit``, ``validate``, ``test``, ``predict`` (Lightning's), ``demo`` (the whole
-pipeline, :mod:`c3f_models.demo`), ``zoo`` (the model zoo, :mod:`c3f_models.zoo.cli`), plus
+pipeline, :mod:`c3f_demo`), ``zoo`` (the model zoo, :mod:`c3f_models.zoo.cli`), plus
 :data:`EXTRA_SUBCOMMANDS` (methods of :class:`C3FTrainer`): ``export`` writes ONNX files::
 
     python -m c3f_models export --config runs/.../config.yaml --ckpt_path .../last.ckpt --output_dir exported
@@ -163,15 +163,29 @@ def condense_parser_error(message: str) -> str:
     return out + (f" (in {where[-1]})" if where else "")
 
 
+def run_demo_application(argv: list[str]) -> int:
+    """``python -m c3f_models demo ARGS`` = ``python -m c3f_demo ARGS`` (the old spelling, kept
+    for one release). The application is started by name, not imported: it sits above
+    c3f_models, which never imports it. A Ctrl-C reaches the demo too (same process group),
+    which stops itself cleanly; this process waits for it and returns its exit status."""
+    import subprocess
+
+    proc = subprocess.Popen([sys.executable, "-m", "c3f_demo", *argv])
+    while True:
+        try:
+            return proc.wait()
+        except KeyboardInterrupt:
+            continue
+
+
 def main(args: ArgsType = None, run: bool = True) -> C3FCLI | None:
     """Entry point; ``args`` lets tests drive the CLI in-process (``main(['fit', ...])``).
-    ``demo`` and ``zoo`` are not LightningCLI subcommands: they go to :mod:`c3f_models.demo.cli`
-    and :mod:`c3f_models.zoo.cli`."""
+    ``demo`` and ``zoo`` are not LightningCLI subcommands: ``zoo`` goes to
+    :mod:`c3f_models.zoo.cli`; ``demo`` runs the demo application (``python -m c3f_demo``, a
+    package above this one, started by name: this spelling stays for one release)."""
     argv = sys.argv[1:] if args is None else args
     if isinstance(argv, (list, tuple)) and list(argv[:1]) == ["demo"]:
-        from c3f_models.demo.cli import main as demo_main
-
-        raise SystemExit(demo_main(argv[1:]))
+        raise SystemExit(run_demo_application(list(argv[1:])))
     if isinstance(argv, (list, tuple)) and list(argv[:1]) == ["zoo"]:
         from c3f_models.zoo.cli import main as zoo_main
 

@@ -1,4 +1,4 @@
-"""The demo (``python -m c3f_models demo``): the report writer on tiny fake inputs, the resume /
+"""The demo (``python -m c3f_demo``): the report writer on tiny fake inputs, the resume /
 refuse / Ctrl-C logic of the runner on fake stages, and (slow) the whole ``--quick`` pipeline."""
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ import cv2
 import numpy as np
 import pytest
 
-from c3f_models.demo import config as demo_cfg
-from c3f_models.demo import runner
-from c3f_models.demo.progress import clock, read_step_fraction, time_table
-from c3f_models.demo.report import SECTIONS, build_report
-from c3f_models.demo.stages import Stage
-from c3f_models.demo.state import DemoState, stage_key
+from c3f_demo import config as demo_cfg
+from c3f_demo import runner
+from c3f_demo.progress import clock, read_step_fraction, time_table
+from c3f_demo.report import SECTIONS, build_report
+from c3f_demo.stages import Stage
+from c3f_demo.state import DemoState, stage_key
 from c3f_slam.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -167,7 +167,7 @@ def test_runner_new_stage_in_the_middle_reruns_what_reads_from_it(tmp_path, monk
 
 
 def test_run_many_logs_each_command_and_returns_failures(tmp_path):
-    from c3f_models.demo.context import DemoContext, StageFailed
+    from c3f_demo.context import DemoContext, StageFailed
 
     ctx = DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
     out = ctx.run_many("stage", {"ok": ["-c", "print('fine')"],
@@ -180,7 +180,7 @@ def test_run_many_logs_each_command_and_returns_failures(tmp_path):
 def test_run_many_on_ctrl_c_stops_the_running_and_starts_no_more(tmp_path, monkeypatch):
     import time
 
-    from c3f_models.demo import context
+    from c3f_demo import context
 
     ctx = context.DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
     calls, real_pause = [], context.poll_pause
@@ -219,9 +219,10 @@ def test_progress_helpers(tmp_path):
     assert "total" in time_table([("a", 1.0, "ran"), ("b", 2.0, "ran")])
 
 
-def test_cli_bad_out_is_one_line(tmp_path):
+@pytest.mark.parametrize("command", [["c3f_demo"], ["c3f_models", "demo"]])  # the old spelling stays one release
+def test_cli_bad_out_is_one_line(tmp_path, command):
     (tmp_path / "file").write_text("x")
-    r = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(tmp_path / "file"), "--quick"],
+    r = subprocess.run([sys.executable, "-m", *command, "--out", str(tmp_path / "file"), "--quick"],
                        cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and r.stderr.startswith("error: --out")
 
@@ -232,11 +233,11 @@ MODES = {"zoo": [], "from_scratch": ["--from-scratch"]}
 
 @pytest.fixture(scope="module", params=list(MODES))
 def quick_demo(request, tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess, list[str]]:
-    """``python -m c3f_models demo --quick [--from-scratch]`` into a fresh folder (the whole
+    """``python -m c3f_demo --quick [--from-scratch]`` into a fresh folder (the whole
     pipeline, a few minutes)."""
     out = tmp_path_factory.mktemp("demo") / "out"
     args = ["--quick", *MODES[request.param]]
-    r = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), *args], cwd=ROOT,
+    r = subprocess.run([sys.executable, "-m", "c3f_demo", "--out", str(out), *args], cwd=ROOT,
                        capture_output=True, text=True, timeout=1800)
     return out, r, args
 
@@ -290,11 +291,11 @@ def test_quick_demo_end_to_end(quick_demo):
 
 
 def _check_rerun_skips_and_other_settings_refused(out: Path, args: list[str]) -> None:
-    again = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), *args], cwd=ROOT,
+    again = subprocess.run([sys.executable, "-m", "c3f_demo", "--out", str(out), *args], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert again.returncode == 0 and again.stdout.count("skipped: done earlier") == len(runner.STAGES)
     other_args = [a for a in args if a != "--quick"]
-    other = subprocess.run([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), *other_args], cwd=ROOT,
+    other = subprocess.run([sys.executable, "-m", "c3f_demo", "--out", str(out), *other_args], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
     assert other.returncode == 2 and other.stderr.count("\n") == 1 and "other settings" in other.stderr
 
@@ -309,7 +310,7 @@ def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path, sig):
     import time
 
     out = tmp_path / "out"
-    p = subprocess.Popen([sys.executable, "-m", "c3f_models", "demo", "--out", str(out), "--quick", "--from-scratch"],
+    p = subprocess.Popen([sys.executable, "-m", "c3f_demo", "--out", str(out), "--quick", "--from-scratch"],
                          cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     t0 = time.time()
     while not (out / "logs" / "train_depth.log").exists() and time.time() - t0 < 300:

@@ -69,7 +69,7 @@ class LossConfig:
         lambda_gt_depth: weight of a supervised term on ground-truth depth, mean |log D - log D_gt|
             over frame t's pixels with true depth at every scale (beyond the paper, which is
             self-supervised: 0 = off, the default; > 0 needs training data with depth, e.g. the
-            simulator's, and is a deviation to report). Used by the demo (``c3f_models.demo``) so
+            simulator's, and is a deviation to report). Used by the demo (``c3f_demo``) so
             depth is usable within a CPU budget.
     """
 

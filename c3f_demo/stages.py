@@ -16,9 +16,9 @@ from pathlib import Path
 
 import yaml
 
-from c3f_models.demo.config import DemoConfig
-from c3f_models.demo.context import CONFIGS, DemoContext, StageFailed, slam_runs
-from c3f_models.demo.progress import read_step_fraction
+from c3f_demo.config import DemoConfig
+from c3f_demo.context import CONFIGS, DemoContext, StageFailed, slam_runs
+from c3f_demo.progress import read_step_fraction
 
 
 class Stage:
@@ -109,7 +109,7 @@ def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: d
                        "init_args": {"save_dir": str(run), "name": "tb"}},
             "callbacks": [
                 {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint", "init_args": {"save_last": True}},
-                {"class_path": "c3f_models.demo.progress.ProgressFile",
+                {"class_path": "c3f_demo.progress.ProgressFile",
                  "init_args": {"path": str(run / "progress.txt")}},
             ],
         },

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from c3f_models.demo.render import crop_near, render_views
+from c3f_demo.render import crop_near, render_views
 from c3f_slam.io import Sequence
 from c3f_slam.io.atomic import atomic_write
 from c3f_slam.models import DepthModel

@@ -11,7 +11,7 @@ import json
 import math
 from pathlib import Path
 
-from c3f_models.demo import html as H
+from c3f_demo import html as H
 from c3f_models.zoo.card import summary_numbers
 
 #: section ids of the report, in order (the tests check every one is present)

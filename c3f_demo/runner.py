@@ -1,5 +1,5 @@
 """Runs the demo's stages in order into one folder, skipping those already done with the same
-settings (:mod:`c3f_models.demo.state`), with a progress line per stage and a time table."""
+settings (:mod:`c3f_demo.state`), with a progress line per stage and a time table."""
 
 from __future__ import annotations
 
@@ -7,13 +7,13 @@ import sys
 import time
 from pathlib import Path
 
-from c3f_models.demo.config import DemoConfig
-from c3f_models.demo.context import DemoContext, StageFailed, check_out_dir
-from c3f_models.demo.evaluation import Evaluate
-from c3f_models.demo.progress import StageLine, time_table
-from c3f_models.demo.report_stage import Report
-from c3f_models.demo.stages import Export, Simulate, Slam, Stage, TestTimeTrain, TrainDepth, TrainFeatures
-from c3f_models.demo.state import DemoState, stage_key
+from c3f_demo.config import DemoConfig
+from c3f_demo.context import DemoContext, StageFailed, check_out_dir
+from c3f_demo.evaluation import Evaluate
+from c3f_demo.progress import StageLine, time_table
+from c3f_demo.report_stage import Report
+from c3f_demo.stages import Export, Simulate, Slam, Stage, TestTimeTrain, TrainDepth, TrainFeatures
+from c3f_demo.state import DemoState, stage_key
 
 STAGES: tuple[Stage, ...] = (Simulate(), TrainDepth(), TestTimeTrain(), TrainFeatures(), Export(), Slam(),
                              Evaluate(), Report())

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-from c3f_models.demo.config import DemoConfig
+from c3f_demo.config import DemoConfig
 from c3f_slam.errors import InputError
 
 REPO = Path(__file__).resolve().parents[2]  # the checkout: configs/ lives here

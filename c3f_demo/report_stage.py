@@ -1,5 +1,5 @@
 """The ``report`` stage: figures (depth samples, mesh renders, coverage), the environment, then
-``DIR/report.html`` (:func:`c3f_models.demo.report.build_report`)."""
+``DIR/report.html`` (:func:`c3f_demo.report.build_report`)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import platform
 import subprocess
 from pathlib import Path
 
-from c3f_models.demo.context import REPO, DemoContext
-from c3f_models.demo.figures import depth_samples, mesh_renders
-from c3f_models.demo.report import build_report
-from c3f_models.demo.stages import Stage
+from c3f_demo.context import REPO, DemoContext
+from c3f_demo.figures import depth_samples, mesh_renders
+from c3f_demo.report import build_report
+from c3f_demo.stages import Stage
 from c3f_slam.io import Sequence
 from c3f_slam.io.atomic import atomic_write_text
 

@@ -1,4 +1,4 @@
-"""``python -m c3f_models demo --out DIR [--quick] [--overwrite]``: the whole pipeline in one command.
+"""``python -m c3f_demo --out DIR [--quick] [--overwrite]``: the whole pipeline in one command.
 
 Exit status: 0 done, 1 a stage's command failed (its error line and log named), 2 bad input
 (e.g. DIR holds a demo made with other settings), 130 Ctrl-C (or SIGTERM / SIGHUP: the running
@@ -13,14 +13,14 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from c3f_models.demo.config import demo_config
-from c3f_models.demo.runner import DemoInterrupted, StageFailed, run_demo
+from c3f_demo.config import demo_config
+from c3f_demo.runner import DemoInterrupted, StageFailed, run_demo
 from c3f_slam.errors import InputError
 
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
-        prog="python -m c3f_models demo",
+        prog="python -m c3f_demo",
         description="Simulate a colon sequence, start from the zoo's DepthNet and ContraFeat (or train them: "
                     "--from-scratch), test-time train DepthNet on the held-out sequence, export, run SLAM on it "
                     "(4 configurations), evaluate, write DIR/report.html. Rerunning into the same "

@@ -9,8 +9,8 @@ import json
 import cv2
 import numpy as np
 
-from c3f_models.demo.context import DemoContext, StageFailed, slam_runs
-from c3f_models.demo.stages import Stage
+from c3f_demo.context import DemoContext, StageFailed, slam_runs
+from c3f_demo.stages import Stage
 from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.io import Sequence
 from c3f_slam.io.atomic import atomic_write

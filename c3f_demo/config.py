@@ -1,4 +1,4 @@
-"""Settings of the demo (``python -m c3f_models demo``): one small frozen dataclass per stage.
+"""Settings of the demo (``python -m c3f_demo``): one small frozen dataclass per stage.
 
 Lengths are metres, frame sizes pixels (square). :func:`demo_config` gives the presets: the
 default and ``quick`` (a few minutes, for CI), each starting from the zoo's models (only the
