@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
@@ -34,8 +34,18 @@ from c3f_slam.posegraph.information import transform_information
 from c3f_slam.posegraph.nodes import NodePoses
 from c3f_slam.posegraph.open3d_adapter import Open3DProblem, Open3DSolution, solve
 
-if TYPE_CHECKING:
-    from c3f_slam.posegraph.graph import PoseGraph
+
+class OptimizedGraph(Protocol):
+    """What an :class:`OptimizationResult` reads from its graph (a ``PoseGraph``) on demand."""
+
+    @property
+    def poses(self) -> np.ndarray: ...
+
+    def confidences(self) -> np.ndarray: ...
+
+    def edge_rms(self) -> np.ndarray: ...
+
+    def component_of(self, node: int) -> list[int]: ...
 
 
 @dataclass
@@ -88,7 +98,7 @@ class OptimizationResult:
     poses; ``component``: sorted nodes connected to the reference node by the edges kept.
     """
 
-    def __init__(self, graph: PoseGraph, pruned: list[int], optimized_nodes: list[int],
+    def __init__(self, graph: OptimizedGraph, pruned: list[int], optimized_nodes: list[int],
                  fixed_nodes: list[int], reference_node: int) -> None:
         self._graph = graph
         self.pruned = pruned
