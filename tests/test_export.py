@@ -155,6 +155,8 @@ def test_export_rejects_wrong_kind_and_wrong_architecture(tmp_path, tiny_sequenc
         export_model(DepthNet(ONE_SCALE), garbage, tmp_path / "out", frames=tiny_sequence)
     with pytest.raises(InputError, match="--frames: sequence folder not found"):
         export_model(DepthNet(ONE_SCALE), r34, tmp_path / "out", frames=tmp_path / "nowhere")
+    with pytest.raises(InputError, match="model: Linear does not say what it exports"):
+        export_model(torch.nn.Linear(2, 2), r34, tmp_path / "out", frames=tiny_sequence)
     assert not (tmp_path / "out").exists()
 
 
