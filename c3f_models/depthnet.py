@@ -48,6 +48,10 @@ class DepthNet(C3FModule):
         augment: colour augmentation of the training inputs (off by default; the losses see the originals).
         init_weights: checkpoint whose weights start ``fit`` (optimiser and epoch not resumed;
             for test-time training); ignored when resuming with ``ckpt_path``.
+        pose_warmup_steps: the first optimiser steps of ``fit`` train PoseNet alone (the depth
+            network frozen, its batch-norm statistics too). For test-time training: the pose
+            network fits the new sequence on the given depth before depth moves, so the
+            photometric error of wrong poses is not absorbed by the depth (0 = off).
     """
 
     weights_hint = ("check model.network.encoder_layers, encoder_width, dcn, pose_encoder_layers and "
@@ -63,14 +67,18 @@ class DepthNet(C3FModule):
         evaluation: DepthEvaluationConfig = DEFAULT_EVALUATION,
         init_weights: str | None = None,
         augment: ColorAugmentConfig = DEFAULT_AUGMENT,
+        pose_warmup_steps: int = 0,
     ) -> None:
         network = as_config(network, DEFAULT_NETWORK, "model.network")
         loss = as_config(loss, DEFAULT_LOSS, "model.loss")
         optim = as_config(optim, DEFAULT_OPTIM, "model.optim")
         evaluation = as_config(evaluation, DEFAULT_EVALUATION, "model.evaluation")
         augment = as_config(augment, DEFAULT_AUGMENT, "model.augment")
+        if pose_warmup_steps < 0:
+            raise InputError(f"model.pose_warmup_steps must be >= 0, got {pose_warmup_steps}")
         super().__init__(optim, init_weights)
         self.save_hyperparameters()
+        self.pose_warmup_steps = pose_warmup_steps
         self.network_config, self.loss_config, self.evaluation_config = network, loss, evaluation
         self.augment_config = augment
         self.depth_net = DepthNetwork(network.encoder_layers, network.dcn, network.num_scales, network.min_depth,
@@ -173,6 +181,14 @@ class DepthNet(C3FModule):
         on_step = stage == "train"
         self.log(f"{stage}/depth_cv", cv, on_step=on_step, on_epoch=not on_step, batch_size=depth.shape[0],
                  sync_dist=not on_step)
+
+    def on_train_batch_start(self, batch: dict, batch_idx: int) -> None:
+        """During the pose warm-up the depth network is frozen: no gradient (the optimiser skips
+        it), batch-norm statistics in evaluation mode."""
+        if self.pose_warmup_steps > 0:
+            frozen = self.global_step < self.pose_warmup_steps
+            self.depth_net.requires_grad_(not frozen)
+            self.depth_net.train(not frozen)
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         terms, disparities = self.compute_loss(batch, step=self.global_step)

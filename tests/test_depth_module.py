@@ -362,3 +362,23 @@ def test_colorize_depth_for_tensorboard():
     assert rgb[1, :, 1, 1].sum() > rgb[1, :, 1, 5].sum()  # near is brighter than far
     assert not rgb[1, :, 0, 0].any()
     assert panel([rgb, rgb]).shape == (3, 2 * 8 + 3 * 2, 2 * 8 + 3 * 2)
+
+
+def test_pose_warmup_trains_posenet_alone_first(plane_dataset, tmp_path):
+    """model.pose_warmup_steps N: the first N optimiser steps change PoseNet only (the depth
+    network's weights and batch-norm statistics stay); later steps change both."""
+    L.seed_everything(0)
+    model = DepthNet(TINY, LossConfig(**MONODEPTH2), pose_warmup_steps=2)
+    start = {k: v.clone() for k, v in model.state_dict().items()}
+
+    def changed(prefix: str) -> bool:
+        return any(not torch.equal(v, start[k]) for k, v in model.state_dict().items() if k.startswith(prefix))
+
+    trainer(tmp_path, max_steps=2, limit_val_batches=0).fit(model, datamodule=datamodule(plane_dataset))
+    assert changed("pose_net.") and not changed("depth_net.")
+    model = DepthNet(TINY, LossConfig(**MONODEPTH2), pose_warmup_steps=2)
+    model.load_state_dict(start)
+    trainer(tmp_path, max_steps=3, limit_val_batches=0).fit(model, datamodule=datamodule(plane_dataset))
+    assert changed("pose_net.") and changed("depth_net.")
+    with pytest.raises(InputError, match="model.pose_warmup_steps must be >= 0"):
+        DepthNet(TINY, pose_warmup_steps=-1)
