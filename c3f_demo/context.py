@@ -16,7 +16,7 @@ from typing import IO
 from c3f_demo.config import DemoConfig
 from c3f_slam.errors import InputError
 
-REPO = Path(__file__).resolve().parents[2]  # the checkout: configs/ lives here
+REPO = Path(__file__).resolve().parents[1]  # the checkout: configs/ lives here
 CONFIGS = REPO / "configs"
 
 def _predicted(depth_folder: str) -> list[str]:
