@@ -2,6 +2,8 @@
 #   make demo   set up .venv if missing, install as README's Quickstart says, run the demo into
 #               demo_out/ (DEMO_OUT=DIR for another folder, DEMO_ARGS=--quick for the short one)
 #   make test   set up the same way, then `ruff check .` and README's test command (what CI runs)
+#   make check  the fast check while working: `ruff check .` and the tests that are neither end to end
+#               nor slow (pytest marks e2e, slow; under 2 minutes on 2 cores)
 PYTHON ?= python3
 VENV ?= .venv
 DEMO_OUT ?= demo_out
@@ -9,7 +11,7 @@ DEMO_ARGS ?=
 PYTEST_ARGS ?= -n 2 --durations=15
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test setup zoo
+.PHONY: demo test check setup zoo
 
 setup: $(STAMP)
 
@@ -24,6 +26,10 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+
+check: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/python -m pytest -n 2 -q -m "not e2e and not slow"
 
 # the zoo's models, each by its recipe (python -m c3f_models zoo train NAME; resumable: rerun to continue)
 zoo: $(STAMP)

@@ -13,6 +13,8 @@ import pytest
 
 from benchmarks.common.report import END, Report
 
+pytestmark = pytest.mark.e2e  # every test here runs the project's commands end to end
+
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted(p for p in (ROOT / "benchmarks").glob("*.py") if p.stem != "__init__")
 

@@ -19,6 +19,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.e2e
 def test_help_without_data():
     out = _cli("--help")
     assert out.returncode == 0
@@ -67,6 +68,7 @@ def test_condense_keeps_innermost_reason():
     assert condense_parser_error(msg) == 'Parser key "data": Option \'x\' is not accepted (in a.B)'
 
 
+@pytest.mark.e2e
 def test_models_are_exported_lazily():
     """``from c3f_models import DepthNet, ContraFeat`` works, but importing the package (and the
     CLI's --help) loads neither module, nor torch for the bare package."""

@@ -18,6 +18,7 @@ def _scalar_steps(run_dir: Path, tag: str) -> list[int]:
     return [e.step for e in acc.Scalars(tag)] if tag in acc.Tags()["scalars"] else []
 
 
+@pytest.mark.e2e
 def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(ROOT)
     common = [
@@ -56,6 +57,7 @@ def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch, capsys):
     assert torch.load(ckpt, map_location="cpu", weights_only=True)["global_step"] == 4
 
 
+@pytest.mark.e2e
 def test_ctrl_c_during_fit_saves_a_checkpoint_and_is_one_line(plane_dataset, tmp_path, monkeypatch, capsys):
     """Ctrl-C (a KeyboardInterrupt in a training step): the steps done so far are saved to
     checkpoints/interrupted.ckpt, one error line says where, exit 130; the run resumes from it."""

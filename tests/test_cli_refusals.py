@@ -45,6 +45,7 @@ def test_refused_init_weights_leaves_no_log_folder(plane_dataset, tmp_path, monk
     assert not (tmp_path / "logs").exists(), sorted(map(str, tmp_path.rglob("*")))
 
 
+@pytest.mark.e2e
 def test_refused_resume_leaves_the_run_folder_as_it_was(plane_dataset, tmp_path, monkeypatch, capsys):
     """A resumed run writes into its checkpoint's folder; refused there (an unknown training
     sequence, found in the data module's setup), the folder keeps exactly its files."""

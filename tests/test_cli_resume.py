@@ -53,6 +53,7 @@ def _resume_equals_uninterrupted(data: Path, tmp_path: Path, steps: int) -> None
     assert _train_steps(run) == list(range(2 * steps)), "step numbers do not continue in the same run folder"
 
 
+@pytest.mark.e2e
 def test_fit_3_plus_3_resumed_equals_6_uninterrupted(plane_dataset, tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT)
     _resume_equals_uninterrupted(plane_dataset, tmp_path, 3)

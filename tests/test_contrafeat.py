@@ -134,6 +134,7 @@ def _module(**groups) -> ContraFeat:
     return ContraFeat(**{**small, **groups})
 
 
+@pytest.mark.e2e
 def test_module_fit_and_test_in_process(plane_dataset, tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -192,6 +193,7 @@ def test_groups_default_to_the_modules_defaults():
     assert model.hparams["optim"]["lr"] == 1e-3 and isinstance(model.hparams["keypoints"], dict)
 
 
+@pytest.mark.e2e
 def test_cli_smoke_fit_small_config(plane_dataset, tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["c3f_models"])
     main([

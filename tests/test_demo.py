@@ -219,6 +219,7 @@ def test_progress_helpers(tmp_path):
     assert "total" in time_table([("a", 1.0, "ran"), ("b", 2.0, "ran")])
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("command", [["c3f_demo"], ["c3f_models", "demo"]])  # the old spelling stays one release
 def test_cli_bad_out_is_one_line(tmp_path, command):
     (tmp_path / "file").write_text("x")
@@ -242,6 +243,7 @@ def quick_demo(request, tmp_path_factory) -> tuple[Path, subprocess.CompletedPro
     return out, r, args
 
 
+@pytest.mark.e2e
 def test_quick_demo_end_to_end(quick_demo):
     """Files and metrics of a --quick run: every configuration either ok with a finite ATE below the
     path length or said failed; the RGB-D reference works; the report has every section and every

@@ -76,6 +76,7 @@ def _overfit(root: Path, steps: int, **switches) -> list[float]:
     return losses
 
 
+@pytest.mark.e2e
 def test_training_reduces_the_loss(plane_dataset):
     """Ten steps on one batch of plane triplets lower the full loss clearly (about 5 s)."""
     losses = _overfit(plane_dataset, 10)
@@ -116,6 +117,7 @@ def test_depth_consistency_warmup(plane_dataset, tmp_path):
     assert float(tr.callback_metrics["train/lambda_dc"]) == pytest.approx(0.05)
 
 
+@pytest.mark.e2e
 def test_supervised_depth_term(plane_dataset):
     """loss.lambda_gt_depth adds lambda x mean |log D - log D_gt| of frame t to both losses (off by
     default); a few steps on it lower the log-depth error; it needs true depth and lambda >= 0."""

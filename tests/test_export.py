@@ -66,6 +66,7 @@ def depth_export(sim_dataset, tmp_path_factory):
     return run, out
 
 
+@pytest.mark.e2e
 def test_cli_export_writes_files_with_metadata(depth_export):
     run, out = depth_export
     assert sorted(p.name for p in out.iterdir()) == ["depthnet.onnx", "export.json", "posenet.onnx"]
@@ -84,6 +85,7 @@ def test_cli_export_writes_files_with_metadata(depth_export):
     assert not any(t.data_location == onnx.TensorProto.EXTERNAL for t in model.graph.initializer)
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("subcommand", ["export", "test"])
 def test_checkpoint_with_flat_options_is_refused(depth_export, tmp_path, capsys, subcommand):
     """A checkpoint saved before the model options were grouped (flat hyper-parameters) is refused
@@ -105,6 +107,7 @@ def test_checkpoint_with_flat_options_is_refused(depth_export, tmp_path, capsys,
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.e2e
 def test_depth_parity_on_unseen_frames_and_sizes(depth_export, sim_dataset):
     run, out = depth_export
     net = DepthNet.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu").eval()
@@ -122,6 +125,7 @@ def test_depth_parity_on_unseen_frames_and_sizes(depth_export, sim_dataset):
         np.testing.assert_allclose(sess.run(None, {"image": wide.numpy()})[0], net(wide).numpy(), rtol=0, atol=TOL)
 
 
+@pytest.mark.e2e
 def test_pose_graph_is_rigid_and_matches_torch(depth_export, sim_dataset):
     run, out = depth_export
     net = DepthNet.load_from_checkpoint(run / "checkpoints" / "last.ckpt", map_location="cpu").eval()
@@ -160,6 +164,7 @@ def test_export_rejects_wrong_kind_and_wrong_architecture(tmp_path, tiny_sequenc
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.e2e
 def test_checkpoint_of_another_model_class_is_refused_by_the_cli(depth_export, tmp_path, capsys):
     """A ContraFeat checkpoint given with a DepthNet config: LightningCLI would swap in the
     checkpoint's class and export a ContraFeat; refused in one line, nothing written (issue 21, item 4)."""
@@ -178,6 +183,7 @@ def test_checkpoint_of_another_model_class_is_refused_by_the_cli(depth_export, t
     assert "c3f_models.depthnet.DepthNet" in err[0] and not out.exists()
 
 
+@pytest.mark.e2e
 def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
     torch.manual_seed(0)
     model = ContraFeat(CONTRA_16)
@@ -195,6 +201,7 @@ def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
     np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-5)
 
 
+@pytest.mark.e2e
 def test_dcn_depth_exports_with_opset_19_and_runs(tmp_path, tiny_sequence):
     torch.manual_seed(0)
     model = DepthNet(DepthNetworkConfig(dcn=True, num_scales=1))
@@ -233,6 +240,7 @@ def test_failed_parity_writes_nothing_and_keeps_earlier_files(tmp_path, tiny_seq
     assert sorted(p.name for p in out.iterdir()) == ["depthnet.onnx"]
 
 
+@pytest.mark.e2e
 def test_export_writes_only_the_chosen_graphs(tmp_path, tiny_sequence):
     """``graphs``: DepthNet without PoseNet; a kind the model lacks is refused before anything is written."""
     ckpt = tmp_path / "d.ckpt"
@@ -260,6 +268,7 @@ def test_check_parity_detects_a_different_graph(tmp_path):
         check_parity(b, proto, (x,), ("image",), TOL)
 
 
+@pytest.mark.e2e
 def test_runtime_loader_reads_the_export(depth_export, sim_dataset):
     """c3f_slam.models on the real export: same depth as PyTorch, pre-processing included."""
     from c3f_slam.models import DepthModel, PoseModel
@@ -282,6 +291,7 @@ def test_runtime_loader_reads_the_export(depth_export, sim_dataset):
         DepthModel(out / "posenet.onnx")
 
 
+@pytest.mark.e2e
 def test_export_records_the_metric_scale_of_the_training_data(depth_export):
     """depth.metric_scale = median over training frames of median(true) / median(predicted),
     recomputed here through the runtime (onnxruntime, its own pre-processing) on the training

@@ -56,8 +56,10 @@ def test_imports_without_torch(package):
     assert "modules imported without torch" in _run(package)
 
 
+@pytest.mark.torch
 def test_block_really_blocks():
     """The same harness fails on a package that needs torch (so the test above can fail)."""
+    pytest.importorskip("lightning")  # the runtime-only install lacks more than torch
     out = subprocess.run(
         [sys.executable, "-c", BLOCK_TORCH.replace("{package}", "c3f_models")],
         cwd=ROOT,
@@ -160,3 +162,24 @@ def test_layer_and_circle_checks_can_fail(tmp_path):
     assert layer_violations(tmp_path) == ["c3f_slam/a.py:2 imports c3f_models (c3f_models is above c3f_slam)",
                                           "c3f_slam/a.py:2 imports c3f_models.b (c3f_models is above c3f_slam)"]
     assert import_cycles(tmp_path) == [["datamodules.x", "datamodules.y"]]
+
+
+def test_the_torch_mark_finds_files_that_need_the_training_stack(tmp_path):
+    """conftest's rule on planted test files: imports of the stack (also inside a test, and the
+    torch-needing parts of datamodules) and ``-m c3f_models`` subprocesses count; the rest not."""
+    from tests.conftest import needs_training_stack
+
+    cases = {"imports_torch": "def test():\n    import torch\n",
+             "lightning": "from lightning.pytorch import Trainer\n",
+             "datamodule": "from datamodules.sequence import C3FSequenceDataModule\n",
+             "datamodule_from_package": "from datamodules import base\n",
+             "subprocess": "import sys\nARGS = [sys.executable, '-m', 'c3f_demo', '--quick']\n",
+             "runtime": "from c3f_slam.pipeline import SlamConfig\nimport numpy\n",
+             "simulator": "from datamodules.synthetic import generate_sequence\nfrom datamodules import formats\n",
+             "name_only": "LAYERS = ('c3f_models', 'c3f_demo')\n"}
+    found = {}
+    for name, text in cases.items():
+        (tmp_path / f"test_{name}.py").write_text(text)
+        found[name] = needs_training_stack(tmp_path / f"test_{name}.py")
+    assert found == {"imports_torch": True, "lightning": True, "datamodule": True, "datamodule_from_package": True,
+                     "subprocess": True, "runtime": False, "simulator": False, "name_only": False}

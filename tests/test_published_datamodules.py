@@ -113,6 +113,7 @@ def _fit_checkpoint(data: Path, tmp_path: Path) -> Path:
     return tmp_path / "base" / "tb" / "version_0" / "checkpoints" / "last.ckpt"
 
 
+@pytest.mark.e2e
 def test_test_time_training_smoke(published, tmp_path, monkeypatch):
     """ttt.yaml fine-tunes from given weights (optimiser not resumed) on all frames of one sequence."""
     monkeypatch.chdir(ROOT)

@@ -122,6 +122,7 @@ def test_cli_flag(flag, expect):
     assert _overrides(args).get("refine", {}).get("enabled") == expect
 
 
+@pytest.mark.e2e
 def test_run_with_refinement_counts_and_registers(tmp_path):
     seq = room_sequence(tmp_path / "room", frames=24, width=160, height=120)
     s = {}
