@@ -1,11 +1,11 @@
-"""Accuracy of the run's unseen-surface estimate against the truth (issue 20).
+"""Accuracy of the run's unseen-surface estimate against the truth.
 
 For each case (a simulator sequence whose true unseen share differs: path kind, fold height,
 speed, close-ups, a loop), generate it, run ``python -m c3f_slam run`` with ground-truth
 depth and SIFT at default settings (coverage on, 5 cm segments), then ``python -m c3f_slam
 evaluate --gt``: the estimate (from the run's trajectory and fused mesh only) against the
 truth (the true mesh seen from the true poses of every frame, folds occluding), overall and
-per segment. Goal (issue 20): overall within +-2 percentage points, per segment within +-5.
+per segment. Goal: overall within +-2 percentage points, per segment within +-5.
 ``--depth-model`` runs the same on predicted depth instead.
 
     python -m benchmarks.coverage_accuracy --work /tmp/coverage_accuracy --jobs 2

@@ -1,4 +1,4 @@
-"""Fault injection (issue 21): runs the bad-input table through the command lines and prints one row per case.
+"""Fault injection: runs the bad-input table through the command lines and prints one row per case.
 
 Each case runs as a subprocess on tiny data the script makes itself (simulator sequences of
 10 frames at 128 px, a 1-step DepthNet and ContraFeat fit with configs/trainer/cpu_smoke.yaml
@@ -404,7 +404,7 @@ def main(argv: list[str] | None = None) -> None:
     args = _arguments(argv)
     rows = run_table(Fixtures(args.work.resolve()))
     if args.report is not None:
-        report = Report(__file__, "Fault injection: the bad-input table (issue 21)", argv)
+        report = Report(__file__, "Fault injection: the bad-input table", argv)
         report.write(args.report, report.render(report_body(rows)))
 
 

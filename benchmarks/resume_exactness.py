@@ -1,4 +1,4 @@
-"""Is a resumed ``fit`` the same as an uninterrupted one? Weight differences per tensor (issue 21, item 6).
+"""Is a resumed ``fit`` the same as an uninterrupted one? Weight differences per tensor.
 
 Runs, through the CLI in-process on CPU at the same seed: ``fit`` for 2N steps; ``fit`` for N
 steps and then ``--ckpt_path .../last.ckpt`` to 2N. Data: three tiny simulator sequences (one

@@ -1,4 +1,4 @@
-"""What the fallbacks give on consecutive frame pairs (issue 18): plain vs guided sparse matching
+"""What the fallbacks give on consecutive frame pairs: plain vs guided sparse matching
 (inliers, pose error) and Open3D's dense RGB-D odometry (pose error, and whether the
 runtime's verification accepts it), against the sequence's ground truth.
 

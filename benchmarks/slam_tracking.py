@@ -1,4 +1,4 @@
-"""Registered share and ATE at default settings on simulator sequences with events (issue 18).
+"""Registered share and ATE at default settings on simulator sequences with events.
 
 For each preset x seed x pace x frame size: generate the sequence (the simulator's events
 on), run ``python -m c3f_slam run`` with ground-truth depth and SIFT at **default settings**

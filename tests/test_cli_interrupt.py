@@ -1,4 +1,4 @@
-"""Ctrl-C in every command line (issue 21): one ``error: interrupted ...`` line, exit status 130,
+"""Ctrl-C in every command line: one ``error: interrupted ...`` line, exit status 130,
 and no partial output that looks complete. Ctrl-C is a KeyboardInterrupt raised by a
 monkeypatched function."""
 

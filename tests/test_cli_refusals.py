@@ -1,4 +1,4 @@
-"""A refused ``fit`` leaves no run folder behind (issue 21): what the refused run created under
+"""A refused ``fit`` leaves no run folder behind: what the refused run created under
 the logger's folder is removed, and a resumed run's existing folder is left as it was."""
 
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""Exact resume through the CLI (issue 21, item 6): ``fit`` N steps, then ``--ckpt_path last.ckpt``
+"""Exact resume through the CLI: ``fit`` N steps, then ``--ckpt_path last.ckpt``
 to 2N, gives the weights of 2N uninterrupted steps at the same seed on CPU, bit for bit, and the
 resumed run logs into the same TensorBoard version folder with its step numbers continuing.
 

@@ -1,4 +1,4 @@
-"""Usage errors of every command line (issue 21): one ``error: ...`` line on stderr, exit status 2."""
+"""Usage errors of every command line: one ``error: ...`` line on stderr, exit status 2."""
 
 import pytest
 

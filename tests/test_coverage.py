@@ -1,4 +1,4 @@
-"""Unseen-surface estimate (issue 20) on analytic tubes: a straight tube seen all round, the
+"""Unseen-surface estimate on analytic tubes: a straight tube seen all round, the
 same tube with a band of angles no camera looks at, a fold that hides the wall behind it."""
 
 from __future__ import annotations

@@ -167,7 +167,7 @@ def test_export_rejects_wrong_kind_and_wrong_architecture(tmp_path, tiny_sequenc
 @pytest.mark.e2e
 def test_checkpoint_of_another_model_class_is_refused_by_the_cli(depth_export, tmp_path, capsys):
     """A ContraFeat checkpoint given with a DepthNet config: LightningCLI would swap in the
-    checkpoint's class and export a ContraFeat; refused in one line, nothing written (issue 21, item 4)."""
+    checkpoint's class and export a ContraFeat; refused in one line, nothing written."""
     run, _ = depth_export
     cf = ContraFeat(CONTRA_16)
     other = tmp_path / "contrafeat.ckpt"

@@ -1,4 +1,4 @@
-"""Output of what could not be joined (issue 18): the main map is the component with the most
+"""Output of what could not be joined: the main map is the component with the most
 frames; every other component with enough frames gets its own trajectory and mesh in
 OUT/components/NN/, summary.json lists them all, and evaluate reports each one's ATE.
 

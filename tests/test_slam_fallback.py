@@ -1,4 +1,4 @@
-"""The dense fallback where sparse matching fails (issue 18): its edge bridges a tracking
+"""The dense fallback where sparse matching fails: its edge bridges a tracking
 break, carries trust-weighted information, and is pruned when keyframe matches contradict it;
 the dense aligner's own verification on rendered frames."""
 

@@ -338,7 +338,7 @@ def test_slam_model_depth_on_a_video(tiny_sequence, models, tmp_path):
 
 def test_a_truncated_video_is_not_ok(tiny_sequence, models, tmp_path, capsys):
     """A video cut short: the frames before the cut are reconstructed, the run says
-    'truncated' (never ok), one error line, exit 2 (issue 21, item 3)."""
+    'truncated' (never ok), one error line, exit 2."""
     video = tmp_path / "clip.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 64))
     for p in sorted((tiny_sequence / "rgb").glob("*.png")):

@@ -1,4 +1,4 @@
-"""SLAM runtime (issue 7): fragment rules, end to end in RGB-D mode on the simulator,
+"""SLAM runtime: fragment rules, end to end in RGB-D mode on the simulator,
 re-localisation after black frames, and checks that the tests can fail."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Re-joining across tracking breaks (issue 18): frames after a break are matched to the
+"""Re-joining across tracking breaks: frames after a break are matched to the
 frames tracked just before it, and the two components merge; thresholds from the frame size."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Bounded per-keyframe work (issue 7, scale): keyframe candidate selection, incremental
+"""Bounded per-keyframe work: keyframe candidate selection, incremental
 components of the pose graph, windowed optimisation and the optimisation schedule."""
 
 from __future__ import annotations

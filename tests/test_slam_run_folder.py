@@ -1,4 +1,4 @@
-"""A run folder holds one run (issue 21, item 2): built beside OUT and moved into place at the
+"""A run folder holds one run: built beside OUT and moved into place at the
 end; a complete earlier run is replaced only with --overwrite; an interrupted or failed run
 leaves a folder marked as such, never a mix; evaluate refuses runs that did not complete."""
 
@@ -118,7 +118,7 @@ def test_a_failed_or_interrupted_run_is_marked_not_mixed(tiny_sequence, mesh_run
     assert main(["run", str(tiny_sequence), "--out", str(mesh_run), *RUN]) == 0
 
 
-# ---------------------------------------------------------------------- unreadable frames (issue 21, item 3)
+# ---------------------------------------------------------------------- unreadable frames
 
 
 def test_unreadable_frames_are_skipped_and_counted_up_to_a_limit(tiny_sequence, tmp_path, capsys):

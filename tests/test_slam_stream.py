@@ -131,7 +131,7 @@ def test_errors(tmp_path, video):
 @pytest.mark.parametrize("damage", ["cut", "overwritten"])
 def test_a_cut_or_damaged_video_is_reported(tmp_path, damage):
     """A video that stops decoding before its declared frame count: the frames before the damage
-    are yielded and ``truncation`` says how many of how many (issue 21, item 3)."""
+    are yielded and ``truncation`` says how many of how many."""
     rng = np.random.default_rng(0)
     path = tmp_path / "clip.avi"
     _write_video(path, [rng.integers(0, 255, (H, W, 3), dtype=np.uint8) for _ in range(40)])

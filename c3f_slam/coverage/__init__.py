@@ -1,4 +1,4 @@
-"""Unseen-surface estimate of a run (issue 20): how much of the colon wall no frame observed, and where.
+"""Unseen-surface estimate of a run: how much of the colon wall no frame observed, and where.
 
 From a run's own outputs (registered camera-to-world poses, the fused mesh; no ground truth):
 :mod:`.centreline` (the explored segment's centreline, arc length in metres), :mod:`.wall`

@@ -1,4 +1,4 @@
-"""The truth of a run's unseen-surface estimate (``evaluate --gt``, issue 20).
+"""The truth of a run's unseen-surface estimate (``evaluate --gt``).
 
 The same quantities as the run's coverage.json, computed from the ground truth: the wall is
 modelled on the sequence's true mesh, seen from the true camera poses of every frame the

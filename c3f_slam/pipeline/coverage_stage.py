@@ -1,4 +1,4 @@
-"""The run's last stage: the unseen-surface estimate (issue 20, :mod:`c3f_slam.coverage`).
+"""The run's last stage: the unseen-surface estimate (:mod:`c3f_slam.coverage`).
 
 From the run's own outputs only (registered camera-to-world poses, the fused mesh) it writes
 into the run folder, each file atomically:

@@ -1,4 +1,4 @@
-"""What is tried where plain sparse matching to the previous frame failed (issue 18):
+"""What is tried where plain sparse matching to the previous frame failed:
 guided matching, then, optionally, dense RGB-D alignment (:class:`LinkRecovery`).
 
 Guided matching (:func:`c3f_slam.pipeline.frontend.guided_matcher`) matches again with the last

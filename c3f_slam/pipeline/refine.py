@@ -1,4 +1,4 @@
-"""Dense refinement of keyframe-to-keyframe edges (issue 18): Open3D's coloured ICP (Park et
+"""Dense refinement of keyframe-to-keyframe edges: Open3D's coloured ICP (Park et
 al. 2017), multi-scale, started from the sparse estimate.
 
 Each new keyframe's RGB-D frame becomes a coloured point cloud (grey as colour, every
