@@ -116,6 +116,24 @@ def coverage_section(a: argparse.Namespace) -> dict:
     return {c.name: run_case(c, ns) for c in CASES}
 
 
+def tune_and_export(model: str, config: Path, seq: Path, run: Path, steps: int, extra: tuple[str, ...] = ()) -> Path:
+    """Test-time train ``model`` (a zoo name; ``config`` its config.yaml) on ``seq`` for ``steps``
+    steps of batch 4 with the paper's objective (ttt.yaml + paper_objective.yaml, then
+    ``extra`` options), into ``run``; export its depth graph; returns the checkpoint folder
+    (``guard.json`` is there) after writing ``run/onnx/depthnet.onnx``."""
+    _cli(["-m", "c3f_models", "fit", "--config", str(config), "--config", "configs/depthnet/ttt.yaml",
+          "--config", "configs/depthnet/paper_objective.yaml", *extra, "--model.init_weights", model,
+          "--data.loader.batch_size", "4", "--data.data_dir", str(seq), "--trainer.max_epochs", "-1",
+          "--trainer.max_steps", str(steps), "--trainer.default_root_dir", str(run),
+          "--trainer.logger.init_args.save_dir", str(run), "--trainer.logger.init_args.version", "0",
+          "--trainer.enable_progress_bar", "false"], f"ttt {seq.name}")
+    checkpoints = run / "tb" / "version_0" / "checkpoints"
+    _cli(["-m", "c3f_models", "export", "--config", str(run / "tb" / "version_0" / "config.yaml"),
+          "--ckpt_path", str(checkpoints / "last.ckpt"), "--output_dir", str(run / "onnx"), "--graphs", "[depth]",
+          "--frames", str(seq)], f"export ttt {seq.name}")
+    return checkpoints
+
+
 def ttt_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     from c3f_models.zoo.evaluate import depth_heldout
     from c3f_slam import zoo
@@ -125,19 +143,9 @@ def ttt_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     for name in TTT_SEQUENCES:
         seq = next(p for p in seqs if p.name == name)
         run = a.work / "ttt" / name
-        _cli(["-m", "c3f_models", "fit", "--config", str(entry.folder / "config.yaml"),
-              "--config", "configs/depthnet/ttt.yaml", "--config", "configs/depthnet/paper_objective.yaml",
-              "--model.init_weights", a.depth, "--data.loader.batch_size", "4",
-              "--data.data_dir", str(seq), "--trainer.max_epochs", "-1", "--trainer.max_steps", str(a.ttt_steps),
-              "--trainer.default_root_dir", str(run), "--trainer.logger.init_args.save_dir", str(run),
-              "--trainer.logger.init_args.version", "0", "--trainer.enable_progress_bar", "false"], f"ttt {name}")
-        ckpt = run / "tb" / "version_0" / "checkpoints" / "last.ckpt"
-        _cli(["-m", "c3f_models", "export", "--config", str(run / "tb" / "version_0" / "config.yaml"),
-              "--ckpt_path", str(ckpt), "--output_dir", str(run / "onnx"), "--graphs", "[depth]",
-              "--frames", str(seq)], f"export ttt {name}")
+        guard = tune_and_export(a.depth, entry.folder / "config.yaml", seq, run, a.ttt_steps) / "guard.json"
         before = depth_heldout(entry.file_for("depth", "--depth"), [seq])["per_sequence"][name]
         after = depth_heldout(run / "onnx" / "depthnet.onnx", [seq])["per_sequence"][name]
-        guard = run / "tb" / "version_0" / "checkpoints" / "guard.json"
         out[name] = {"before": before["median_scaled"], "after": after["median_scaled"],
                      "guard": json.loads(guard.read_text()) if guard.is_file() else None}
     return out
