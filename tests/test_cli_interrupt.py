@@ -21,6 +21,7 @@ def _one_error(capsys) -> str:
     return errors[-1]
 
 
+@pytest.mark.e2e
 def test_validate_interrupted(plane_dataset, tmp_path, monkeypatch, capsys):
     from c3f_models.cli import main
     from c3f_models.depthnet import DepthNet
@@ -68,6 +69,7 @@ def test_export_interrupted_keeps_the_earlier_export_whole(tmp_path, monkeypatch
     assert sorted(p.name for p in tmp_path.iterdir()) == ["exported"]
 
 
+@pytest.mark.e2e
 def test_export_cli_interrupted(monkeypatch, capsys, tmp_path):
     from c3f_models import cli
 

@@ -111,6 +111,7 @@ def coverage_run(sim_sequence, tmp_path_factory):
     return out
 
 
+@pytest.mark.e2e
 def test_run_writes_coverage_outputs(coverage_run):
     import json
 

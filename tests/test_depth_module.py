@@ -208,6 +208,7 @@ def test_optimiser_and_schedule():
     assert isinstance(constant, torch.optim.AdamW)  # no milestones: no scheduler
 
 
+@pytest.mark.e2e
 def test_tensorboard_images_metrics_and_init_weights(plane_dataset, tmp_path):
     L.seed_everything(0)
     model = DepthNet(TINY, evaluation=DepthEvaluationConfig(log_images=2))

@@ -139,6 +139,7 @@ def test_pose_graph_is_rigid_and_matches_torch(depth_export, sim_dataset):
     np.testing.assert_allclose(T[0, 3], [0, 0, 0, 1], atol=1e-7)
 
 
+@pytest.mark.e2e
 def test_export_rejects_wrong_kind_and_wrong_architecture(tmp_path, tiny_sequence):
     contra = tmp_path / "contrafeat.ckpt"
     contra_model = ContraFeat({"descriptor_dim": 8, "fpn_channels": 8, "stem_channels": 4})
@@ -254,6 +255,7 @@ def test_export_writes_only_the_chosen_graphs(tmp_path, tiny_sequence):
     assert list(json.loads((out / "export.json").read_text())["files"]) == ["depthnet.onnx"]
 
 
+@pytest.mark.e2e
 def test_check_parity_detects_a_different_graph(tmp_path):
     from export.onnx_io import to_onnx
     from export.parity import check_parity

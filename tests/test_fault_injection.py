@@ -7,6 +7,8 @@ import pytest
 
 from benchmarks import fault_injection as fi
 
+pytestmark = pytest.mark.e2e  # each case runs a command line over bad input
+
 
 @pytest.fixture(scope="module")
 def fixtures(tmp_path_factory) -> fi.Fixtures:

@@ -50,6 +50,7 @@ def _run(package: str) -> str:
     return out.stdout
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("package", ["c3f_slam", "datamodules.synthetic", "datamodules.formats", "datamodules.convert",
                                      "datamodules.__main__"])
 def test_imports_without_torch(package):

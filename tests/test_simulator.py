@@ -95,6 +95,7 @@ def test_same_seed_gives_byte_identical_files(tmp_path, tiny):
     assert (other / "rgb/000003.png").read_bytes() != (tiny / "rgb/000003.png").read_bytes()
 
 
+@pytest.mark.e2e
 def test_cli_in_a_new_process_reproduces_the_fixture(tmp_path, tiny):
     """Same seed + parameters through the CLI, in another process: same bytes."""
     out = tmp_path / "cli"

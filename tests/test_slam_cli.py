@@ -39,6 +39,7 @@ def test_help_lists_commands_and_options():
         assert opt in out.stdout
 
 
+@pytest.mark.e2e
 def test_run_and_evaluate(seq, tmp_path, capsys):
     out = tmp_path / "run"
     rc = main(["run", str(seq), "--depth-source", "files", "--descriptors", "sift", "--out", str(out),

@@ -53,6 +53,7 @@ def run_out(two_scenes, tmp_path_factory) -> tuple[Path, dict]:
     return out, run_slam(two_scenes, out, SlamConfig(), progress=False)
 
 
+@pytest.mark.e2e
 def test_unjoinable_stream_writes_both_components(run_out):
     out, s = run_out
     comps = s["components"]
@@ -87,6 +88,7 @@ def test_evaluate_reports_the_ate_of_each_component(run_out, two_scenes):
     assert [c["id"] for c in saved["components"]] == [0, 1]
 
 
+@pytest.mark.e2e
 def test_cli_min_frames_off_writes_no_component_and_overwrite_leaves_no_mix(two_scenes, tmp_path):
     out = tmp_path / "out"
     args = ["run", str(two_scenes), "--out", str(out), "--no-mesh", "--quiet"]
@@ -99,6 +101,7 @@ def test_cli_min_frames_off_writes_no_component_and_overwrite_leaves_no_mix(two_
     assert not (out / "components").exists()  # the earlier run's components went with it
 
 
+@pytest.mark.e2e
 def test_min_frames_filters_small_components(two_scenes, tmp_path):
     cfg = SlamConfig.preset_config("colon", components={"min_frames": FRAMES_B + 1}, fusion={"enabled": False})
     s = run_slam(two_scenes, tmp_path / "out", cfg, progress=False)

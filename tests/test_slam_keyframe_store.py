@@ -144,6 +144,7 @@ def seq(tmp_path_factory) -> Path:
     return make_tiny_sequence(tmp_path_factory.mktemp("kfstore") / "seq", frames=30, size=128, seed=3)
 
 
+@pytest.mark.e2e
 def test_run_slam_identical_and_cache_removed(seq, tmp_path):
     """The run's trajectory and keyframe graph are the same with the keyframe cache on
     (default) and off; the cache folder existed during the run and is gone after it."""

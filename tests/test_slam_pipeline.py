@@ -107,6 +107,7 @@ def test_fragment_chains_and_optimises_relative_to_keyframe():
 
 # ---------------------------------------------------------------------- end to end
 
+@pytest.mark.e2e
 def test_rgbd_end_to_end_full_system(seq, tmp_path):
     cfg = SlamConfig.preset_config("colon", **CFG)
     s = run_slam(seq, tmp_path / "full", cfg, progress=False)

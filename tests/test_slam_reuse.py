@@ -231,6 +231,7 @@ def _ping_pong_sequence(src, dst, n):
     return dst
 
 
+@pytest.mark.e2e
 def test_ping_pong_run_stops_adding_keyframes(tmp_path_factory):
     """RGB-D run over a 24-frame sequence played forward, back and forward again (70
     frames): with reuse the third pass adds no keyframe, the map has fewer keyframes and
