@@ -56,12 +56,14 @@ class DepthTrainConfig:
 class TestTimeConfig:
     """Self-supervised test-time training of DepthNet on the held-out sequence, after the
     pre-training (``configs/depthnet/ttt.yaml``; no ground truth). ``steps`` 0: off, SLAM uses
-    the pre-trained network. Same frame size and loss terms as the pre-training."""
+    the pre-trained network. Same frame size and loss terms as the pre-training. The first
+    ``pose_warmup_steps`` train PoseNet alone (``model.pose_warmup_steps``)."""
 
     steps: int = 60
     batch_size: int = 4
     lr: float = 1e-4
     seed: int = 7
+    pose_warmup_steps: int = 30
 
 
 @dataclass(frozen=True)
@@ -123,7 +125,7 @@ def demo_config(quick: bool = False, from_scratch: bool = False) -> DemoConfig:
     if not from_scratch:
         base = demo_config(quick, from_scratch=True)
         sim = replace(base.simulate, train=(), train_frames=0, size=ZOO_SIZE)
-        ttt = replace(base.ttt, steps=3 if quick else ZOO_TTT_STEPS)
+        ttt = replace(base.ttt, steps=3 if quick else ZOO_TTT_STEPS, pose_warmup_steps=1 if quick else 30)
         return replace(base, simulate=sim, ttt=ttt, zoo=ZooModels())
     if not quick:
         return DemoConfig(depth=DepthTrainConfig(lr=5e-4))
@@ -131,7 +133,7 @@ def demo_config(quick: bool = False, from_scratch: bool = False) -> DemoConfig:
         simulate=SimulateConfig(train=(("seq1", 100),), train_frames=48, test_frames=40,
                                 train_coverage=0.025, test_coverage=0.02),
         depth=DepthTrainConfig(steps=12, batch_size=2),
-        ttt=TestTimeConfig(steps=3, batch_size=2),
+        ttt=TestTimeConfig(steps=3, batch_size=2, pose_warmup_steps=1),
         features=FeatureTrainConfig(steps=6),
         report=ReportConfig(sample_frames=3, depth_eval_stride=3, pair_frame=10, render_size=240),
         quick=True,

@@ -237,7 +237,7 @@ class TestTimeTrain(_Training):
         if ctx.cfg.from_zoo:
             return self._from_zoo(ctx)
         model_args = {"init_weights": str(_last_ckpt(ctx, "depthnet")), "loss": {"lambda_gt_depth": 0.0},
-                      "optim": {"lr": t.lr}}
+                      "optim": {"lr": t.lr}, "pose_warmup_steps": t.pose_warmup_steps}
         data_args = {"frames": {"size": [d.size, d.size]}, "loader": {"batch_size": t.batch_size, "num_workers": 0}}
         mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq)
         configs = [*_depth_model_configs(ctx.cfg), CONFIGS / "depthnet" / "ttt.yaml", mine]
@@ -251,7 +251,7 @@ class TestTimeTrain(_Training):
         from c3f_slam import zoo
 
         t, name = ctx.cfg.ttt, ctx.cfg.zoo.depth
-        model_args = {"init_weights": f"zoo:{name}", "optim": {"lr": t.lr}}
+        model_args = {"init_weights": f"zoo:{name}", "optim": {"lr": t.lr}, "pose_warmup_steps": t.pose_warmup_steps}
         data_args = {"loader": {"batch_size": t.batch_size, "num_workers": 0}}
         mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq)
         configs = [zoo.entry(name, "demo").folder / "config.yaml", CONFIGS / "depthnet" / "ttt.yaml",
