@@ -22,7 +22,6 @@ from torch import nn
 from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write
 from c3f_slam.models.metadata import ModelMetadata
-from export.graphs import OPSET, OPSET_DEFORM, has_deform_conv  # noqa: F401  (re-exported: the opsets)
 
 MIN_SIZE = 64
 MAX_SIZE = 4096
