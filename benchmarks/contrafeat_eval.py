@@ -4,7 +4,7 @@ For each checkpoint (saved by ``benchmarks.contrafeat_pr``, small configuration)
 keypoint-filter residual threshold: recall / precision of SIFT, SIFT+kpf, CDF and CDF+kpf,
 averaged over the sequences, and where the precision goes (near misses vs gross errors, see
 :mod:`c3f_slam.matching.match_accuracy`). The residual sweep shows what the kpf's threshold trades:
-the pairwise tolerance follows it (2 x residual, as in ``MatchFilterConfig.colon``).
+the pairwise tolerance follows it (2 x residual, as in ``MatchFilterConfig()``, the colon's).
 
     python -m benchmarks.contrafeat_eval --data DIR/test --checkpoint A.ckpt --checkpoint B.ckpt \
         --max-residual-mm 1.0 0.5 --out benchmarks/results/contrafeat_eval.md
@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seqs", nargs="+", default=None, help="sequence names inside --data (default: all)")
     ap.add_argument("--checkpoint", type=Path, action="append", required=True, help="repeat for several")
     ap.add_argument("--max-residual-mm", type=float, nargs="+", default=[1.0],
-                    help="kpf residual thresholds, millimetres (1.0 = MatchFilterConfig.colon)")
+                    help="kpf residual thresholds, millimetres (1.0 = the colon's MatchFilterConfig)")
     ap.add_argument("--size", type=int, default=128, help="frame size (square), pixels")
     ap.add_argument("--eval-gaps", type=int, nargs="+", default=[2, 4, 8], help="evaluation frame gaps")
     ap.add_argument("--eval-stride", type=int, default=3, help="evaluate every n-th pair of each gap")

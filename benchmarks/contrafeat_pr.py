@@ -236,7 +236,7 @@ def setup_lines(args: argparse.Namespace, res: Run) -> list[str]:
          f"neighbours (SIFT L2, CDF cosine), no ratio test; ground truth and correctness radius "
          f"{GROUND_TRUTH['pixel_radius']} px, "
          f"occlusion tolerance {100 * GROUND_TRUTH['depth_tolerance']:.0f} % of depth; "
-         f"kpf = `MatchFilterConfig.colon()` on ground-truth depth (>= 10 matches, residual <= 1 mm, pairwise "
+         f"kpf = `MatchFilterConfig()` (the colon's) on ground-truth depth (>= 10 matches, residual <= 1 mm, pairwise "
          f"tolerance 2 mm + 5 %, condition number < 100, area >= 10 mm^2). Counts summed over the pairs of a "
          f"sequence; the average is over sequences."),
         (f"- Wall time: {res.total / 60:.1f} min in all (data {res.t_data / 60:.1f}, training {res.t_train / 60:.1f}, "

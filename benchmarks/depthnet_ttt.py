@@ -77,11 +77,12 @@ def export(base_config: Path, ckpt: Path, out: Path) -> Path:
 
 
 def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
+    from c3f_slam.config import preset as slam_preset
     from c3f_slam.io import Sequence, read_tum
-    from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
+    from c3f_slam.pipeline import RunInputs, run_slam
     from c3f_slam.trajectory_metrics import evaluate_trajectory
 
-    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": min_corr}, fusion={"enabled": False})
+    cfg = slam_preset("colon", fragments={"min_correspondences": min_corr}, fusion={"enabled": False})
     try:
         s = run_slam(sequence, out, cfg, RunInputs("sift", "model", depth_model=str(depth_model)), progress=False,
                      overwrite=True)  # the benchmark owns its work folder

@@ -34,8 +34,9 @@ from pathlib import Path
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
+from c3f_slam.pipeline import RunInputs, run_slam
 from c3f_slam.trajectory_metrics import common_frames_ate, evaluate_trajectory, frame_motion
 from datamodules.synthetic.generate import read_event_labels
 
@@ -76,7 +77,7 @@ METHODS = {
 def run_one(seq: Path, out: Path, method: str, min_corr: int, mesh: bool, depth_model: str | None,
             feature_model: str | None, depth_scale: float | None = None) -> dict:
     mode, descriptors, depth_source = METHODS[method]
-    cfg = SlamConfig.preset_config("colon", mode=mode, fragments={"min_correspondences": min_corr},
+    cfg = slam_preset("colon", mode=mode, fragments={"min_correspondences": min_corr},
                                    fusion={"enabled": mesh})
     t = time.perf_counter()
     try:

@@ -25,8 +25,9 @@ import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from benchmarks.common.report import Report
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.matching import mutual_nearest_neighbours
-from c3f_slam.pipeline import SlamConfig, run_slam
+from c3f_slam.pipeline import run_slam
 
 STAGES = ("keypoints", "matching", "posegraph")
 #: The two settings compared: name -> ``SlamConfig.blas_threads``.
@@ -79,9 +80,10 @@ def _alternating_runs(a: argparse.Namespace) -> tuple[dict[str, list[dict]], dic
         with tempfile.TemporaryDirectory() as tmp:
             for r in range(a.repeats):
                 for name, limit in SETTINGS.items():
-                    cfg = SlamConfig.preset_config("colon", fusion={"enabled": False}, blas_threads=limit,
+                    cfg = slam_preset("colon", fusion={"enabled": False}, blas_threads=limit,
                                                    fragments={"min_correspondences": a.min_correspondences})
-                    s = run_slam(a.sequence, Path(tmp) / f"{r}_{limit}", cfg, progress=False, max_frames=a.max_frames)
+                    s = run_slam(a.sequence, Path(tmp) / f"{r}_{limit}", cfg.with_(frames={"max_frames": a.max_frames}),
+                                 progress=False)
                     res[name].append(s)
                     micro_ms[name].append(micro(limit))
     finally:

@@ -24,15 +24,16 @@ from pathlib import Path
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
+from c3f_slam.pipeline import RunInputs, run_slam
 from c3f_slam.trajectory_metrics import evaluate_trajectory
 from datamodules.synthetic.room import room_sequence
 
 
 def run_one(seq: Path, out: Path, preset: str, refine: dict) -> dict:
     """One run with the ``refine`` overrides; its summary, evaluation and wall seconds."""
-    cfg = SlamConfig.preset_config(preset, refine=refine, fusion={"enabled": False})
+    cfg = slam_preset(preset, refine=refine, fusion={"enabled": False})
     t = time.perf_counter()
     s = run_slam(seq, out, cfg, RunInputs("sift", "files"), progress=False, overwrite=True)
     wall = time.perf_counter() - t

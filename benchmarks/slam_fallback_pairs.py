@@ -23,10 +23,10 @@ from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.slam_tracking import PAPER_FRAMES
+from c3f_slam.config import FallbackConfig
 from c3f_slam.geometry import motion_magnitudes, relative_pose
 from c3f_slam.io import Sequence
 from c3f_slam.pipeline import SlamConfig
-from c3f_slam.pipeline.config import FallbackConfig
 from c3f_slam.pipeline.fallback import DenseFallback, RgbdFrame
 from c3f_slam.pipeline.frontend import Frontend, frame_matcher, guided_matcher
 

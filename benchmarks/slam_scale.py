@@ -26,6 +26,7 @@ import numpy as np
 
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.io import Sequence, write_tum
 from c3f_slam.pipeline import PAPER_RULES, SlamConfig, run_slam
 from c3f_slam.pipeline.run_evaluation import evaluate_run
@@ -156,7 +157,7 @@ def slam_config(args: argparse.Namespace) -> SlamConfig:
         over["keyframes"]["reuse"] = args.reuse_keyframes
     if args.min_correspondences is not None:
         over["fragments"] = {**over.get("fragments", {}), "min_correspondences": args.min_correspondences}
-    return SlamConfig.preset_config("colon", fusion={"enabled": args.mesh}, **over)
+    return slam_preset("colon", fusion={"enabled": args.mesh}, **over)
 
 
 def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], wall: float, s: dict, ev: dict,

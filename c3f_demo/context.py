@@ -37,7 +37,7 @@ def slam_runs(cfg: DemoConfig) -> dict[str, tuple[str, list[str]]]:
     runs["gt_sift"] = ("ground-truth depth + SIFT (RGB-D reference)",
                        ["--depth-source", "files", "--descriptors", "sift"])
     runs["odometry"] = ("frame-to-frame odometry, predicted depth" + (" after TTT" if tuned else "") + " + ContraFeat",
-                        [*_predicted("depthnet"), "--baseline", "odometry"])
+                        [*_predicted("depthnet"), "--set", "mode=odometry"])
     return runs
 
 

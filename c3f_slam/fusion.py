@@ -7,7 +7,8 @@
   settled (not inspected for more than ``eps_f_na`` frames and the camera farther than
   ``eps_cf_d`` metres from it), and re-fuses everything with the final poses at the end.
 
-Defaults (:data:`TSDF_PRESETS`), all metres:
+Defaults (:class:`~c3f_slam.config.TSDFConfig` and the presets of :mod:`c3f_slam.config.presets`),
+all metres:
 
 - colon: voxel 1 mm, truncation 4 mm, depth 1 mm..20 cm. The lumen is 2-3 cm in radius and
   haustral folds are a few mm thick: 1 mm voxels resolve folds and give ~150 voxels around
@@ -32,42 +33,16 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
+from c3f_slam.config import TSDFConfig, preset
 from c3f_slam.geometry import invert_pose
 from c3f_slam.io.atomic import atomic_write
-
-
-@dataclass(frozen=True)
-class TSDFConfig:
-    """TSDF options (metres). ``weight_threshold``: minimum fused weight for a surface."""
-
-    voxel_size: float = 0.001
-    trunc: float = 0.004
-    depth_min: float = 0.001
-    depth_max: float = 0.2
-    block_resolution: int = 8
-    block_count: int = 20_000
-    weight_threshold: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not (self.voxel_size > 0 and self.trunc > 0):
-            raise ValueError("voxel_size and trunc must be positive")
-        if not 0 <= self.depth_min < self.depth_max:
-            raise ValueError("need 0 <= depth_min < depth_max")
-
-
-TSDF_PRESETS: dict[str, TSDFConfig] = {
-    "colon": TSDFConfig(),
-    "room": TSDFConfig(
-        voxel_size=0.01, trunc=0.04, depth_min=0.1, depth_max=4.0, block_resolution=16, block_count=10_000
-    ),
-}
 
 
 class TSDFVolume:
     """Scalable TSDF with attributes tsdf, weight, colour (RGB in [0, 1]) on the CPU."""
 
     def __init__(self, config: TSDFConfig | str = "colon") -> None:
-        self.config = TSDF_PRESETS[config] if isinstance(config, str) else config
+        self.config = preset(config).fusion.tsdf if isinstance(config, str) else config
         self._device = o3c.Device("CPU:0")
         self.reset()
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from c3f_slam import geometry as g
-from c3f_slam.pipeline import SlamConfig
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
 from c3f_slam.pipeline.slam import FragmentSlam
 
@@ -78,6 +78,6 @@ class PlaceWorld:
 def keyframe_per_frame_slam(world: PlaceWorld, **over) -> FragmentSlam:
     """A FragmentSlam on ``world``'s matcher in which every frame opens a fragment (no frame
     reaches 10^6 correspondences): one keyframe per frame. ``over``: SlamConfig parts (dicts)."""
-    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
+    cfg = slam_preset("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
                                    **over)
     return world.use(FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3)))

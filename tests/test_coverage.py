@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from c3f_slam.camera import PinholeCamera
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.coverage import CoverageConfig, ViewSettings, centreline_from_path, compute_coverage
 from c3f_slam.geometry import transport_frames
 from tests.scenes import tube_mesh, tube_views
@@ -149,9 +150,11 @@ def test_no_coverage_and_bad_segment(sim_sequence, tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["coverage"]["status"] == "off" and "unseen_share" not in summary
     capsys.readouterr()
-    assert main(["run", str(sim_sequence), "--out", str(tmp_path / "bad"), "--coverage-segment", "0", *RUN]) == 2
+    with pytest.raises(SystemExit) as exc:  # a bad setting is a usage error, before the run folder
+        main(["run", str(sim_sequence), "--out", str(tmp_path / "bad"), "--coverage-segment", "0", *RUN])
+    assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: --coverage-segment")
+    assert len(err) == 1 and err[0].startswith("error: argument --coverage-segment: coverage.segment must be > 0")
     assert not (tmp_path / "bad").exists()
 
 
@@ -187,12 +190,11 @@ def test_evaluate_reports_estimate_vs_truth(coverage_run, sim_sequence, capsys):
 
 def test_settings_are_checked_and_room_has_none():
     from c3f_slam.errors import InputError
-    from c3f_slam.pipeline import SlamConfig
 
     with pytest.raises(InputError, match="coverage.segment"):
-        SlamConfig.preset_config("colon", coverage={"segment": -1.0})
-    assert SlamConfig.preset_config("colon").coverage.enabled
-    assert not SlamConfig.preset_config("room").coverage.enabled
+        slam_preset("colon", coverage={"segment": -1.0})
+    assert slam_preset("colon").coverage.enabled
+    assert not slam_preset("room").coverage.enabled
     assert CoverageConfig().depth_range(0.001, 0.2) == (0.001, 0.2)
     assert CoverageConfig(depth_max=0.05).depth_range(0.001, 0.2) == (0.001, 0.05)
 

@@ -7,6 +7,7 @@ import pytest
 
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
+from c3f_slam.config import PRESETS
 from c3f_slam.errors import InputError
 from c3f_slam.matching import (
     MatchFilterConfig,
@@ -228,7 +229,7 @@ def test_kpf_rejects_planted_outliers(seed):
     rng = np.random.default_rng(seed)
     pts_i, pts_j, T_ij = _correspondences(rng, 40, 15)
     perm = rng.permutation(55)
-    res = filter_matches(pts_i[perm], pts_j[perm], MatchFilterConfig.colon())
+    res = filter_matches(pts_i[perm], pts_j[perm], MatchFilterConfig())
     assert res.accepted, res.reason
     assert sorted(perm[res.kept].tolist()) == list(range(40))
     assert np.all(res.residuals <= MatchFilterConfig().max_residual)
@@ -269,14 +270,14 @@ def test_kpf_degenerate_sets():
 
 
 def test_filter_config_presets():
-    colon, room = MatchFilterConfig.colon(), MatchFilterConfig.room()
+    colon, room = PRESETS["colon"].match_filter, PRESETS["room"].match_filter
     assert colon.max_residual == 1e-3 and room.max_residual == 0.02 and room.min_area == 0.032
     assert colon.min_matches == room.min_matches == 10 and colon.max_condition == 100
     s = colon.scaled(20)
     assert np.isclose(s.max_residual, 0.02) and np.isclose(s.min_area, colon.min_area * 400)
-    assert MatchFilterConfig.preset("room", min_matches=20).min_matches == 20
-    with pytest.raises(InputError):
-        MatchFilterConfig.preset("galaxy")
+    assert colon == MatchFilterConfig()  # the class's defaults are the colon's
+    with pytest.raises(InputError, match="match_filter.min_matches"):
+        MatchFilterConfig(min_matches=2)
     with pytest.raises(InputError):
         MatchFilterConfig(max_residual=0)
     # the same room-scale points pass the room filter; shrunk to colon scale they pass the colon one

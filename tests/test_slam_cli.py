@@ -30,6 +30,13 @@ def _error_line(capsys) -> str:
     return err[0]
 
 
+def _usage_error(argv: list[str]) -> None:
+    """``argv`` is a usage error: exit status 2 (a bad setting is caught while the command line is read)."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+
+
 def test_help_lists_commands_and_options():
     out = subprocess.run([sys.executable, "-m", "c3f_slam", "run", "--help"], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)
@@ -76,8 +83,7 @@ def test_keyframe_candidates_option(seq, tmp_path, capsys):
         cfg = json.loads((out / "summary.json").read_text())["config"]
         assert cfg["candidates"]["max_candidates"] == expect
         assert (cfg["optimization"]["growth"] is None) == (expect is None)
-    assert main(["run", str(seq), "--out", str(tmp_path / "bad"), "--max-keyframe-candidates", "-1",
-                 "--quiet"]) == 2
+    _usage_error(["run", str(seq), "--out", str(tmp_path / "bad"), "--max-keyframe-candidates", "-1", "--quiet"])
     assert "--max-keyframe-candidates" in _error_line(capsys)
 
 
@@ -99,7 +105,8 @@ def test_option_reaches_config(seq, tmp_path, capsys, flag, key, cases, bad):
         for part in key:
             value = value[part]
         assert value == expect
-    assert main(["run", str(seq), "--out", str(tmp_path / "bad"), flag, bad, "--quiet"]) == 2
+    _usage_error(["run", str(seq), "--out", str(tmp_path / "bad"), flag, bad, "--quiet"])
+    assert not (tmp_path / "bad").exists()  # a bad setting stops the command before the run folder
     assert flag in _error_line(capsys)
 
 

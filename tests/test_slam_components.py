@@ -18,11 +18,12 @@ import pytest
 
 from c3f_slam import geometry as g
 from c3f_slam.cli import main
+from c3f_slam.config import ComponentConfig
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.io import Sequence, SequenceWriter, read_tum
 from c3f_slam.outputs import RunOutputs
 from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.components import MapComponent, plan_components
-from c3f_slam.pipeline.config import ComponentConfig
 from c3f_slam.pipeline.run_evaluation import evaluate_run, format_report
 from c3f_slam.pipeline.slam import FragmentSlam
 from datamodules.synthetic.fixture import make_tiny_sequence
@@ -103,7 +104,7 @@ def test_cli_min_frames_off_writes_no_component_and_overwrite_leaves_no_mix(two_
 
 @pytest.mark.e2e
 def test_min_frames_filters_small_components(two_scenes, tmp_path):
-    cfg = SlamConfig.preset_config("colon", components={"min_frames": FRAMES_B + 1}, fusion={"enabled": False})
+    cfg = slam_preset("colon", components={"min_frames": FRAMES_B + 1}, fusion={"enabled": False})
     s = run_slam(two_scenes, tmp_path / "out", cfg, progress=False)
     assert [c["not_written"] for c in s["components"]] == [None, "below_min_frames"]
     assert s["components"][1]["frames"] == FRAMES_B and not (tmp_path / "out" / "components").exists()
@@ -130,7 +131,7 @@ def _place_run(places: list[int], **cfg) -> tuple[FragmentSlam, PlaceWorld]:
     correspondences, a frame at the previous frame's place extends its fragment and a
     frame one place on opens a new fragment (a keyframe)."""
     world = PlaceWorld(260, reach=2, graded=True)
-    c = SlamConfig.preset_config("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False}, **cfg)
+    c = slam_preset("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False}, **cfg)
     slam = FragmentSlam(c.for_frame_size(128, 128), np.eye(3))
     slam.match = world.match
     for i, place in enumerate(places):

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from c3f_slam import geometry as g
+from c3f_slam.config import FallbackConfig
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
-from c3f_slam.pipeline.config import FallbackConfig
 from c3f_slam.pipeline.fallback import DenseFallback, RgbdFrame, verify_alignment
 from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.pipeline.slam import FragmentSlam
@@ -42,7 +43,7 @@ def _run(world: PlaceWorld, places: list[int], T_break: np.ndarray | None, keyfr
     """``places`` with a tracking break wherever consecutive places are out of the matcher's
     reach; the fallback (if ``T_break``) answers the first break with ``T_break``."""
     frag = {"min_correspondences": 10**6 if keyframe_per_frame else 40}
-    cfg = SlamConfig.preset_config("colon", fragments=frag, fusion={"enabled": False},
+    cfg = slam_preset("colon", fragments=frag, fusion={"enabled": False},
                                    fallback={"dense": T_break is not None, **fallback})
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
     world.use(slam)
@@ -166,11 +167,11 @@ def test_dense_fallback_aligns_a_pair_and_weights_its_information():
 
 def test_fallback_options_are_checked():
     with pytest.raises(InputError, match="fallback.trust"):
-        SlamConfig.preset_config("colon", fallback={"trust": 0.0})
+        slam_preset("colon", fallback={"trust": 0.0})
     with pytest.raises(InputError, match="fallback.points"):
-        SlamConfig.preset_config("colon", fallback={"points": 2})
+        slam_preset("colon", fallback={"points": 2})
     assert not SlamConfig().fallback.dense and SlamConfig().fallback.guided
-    assert SlamConfig.preset_config("room").fallback.max_step == 0.1
+    assert slam_preset("room").fallback.max_step == 0.1
 
 
 # ---------------------------------------------------------------------- guided matching
@@ -225,7 +226,7 @@ def test_guided_matching_bridges_a_break_in_the_back_end():
     places = list(range(30))
 
     def run(guided: bool) -> FragmentSlam:
-        cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
+        cfg = slam_preset("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
                                        fallback={"guided": guided}, rejoin={"enabled": False})
         slam = world.use(FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3)))
         slam.match = lambda a, b: (None, 0) if (a.index, b.index) == (14, 15) else world.match(a, b)

@@ -14,14 +14,15 @@ import pytest
 
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.fusion import TSDF_PRESETS, FragmentFusion, TSDFConfig, TSDFVolume, write_mesh
+from c3f_slam.config import PRESETS, TSDFConfig
+from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
 from c3f_slam.surface_metrics import coverage_mesh, distance_to_mesh, sample_surface, surface_coverage
 from tests.scenes import plane_texture, render_plane
 
 RADIUS = 0.02
 Z_END = 0.12  # the tube ends here (metres); the camera stays near z = 0
 CAM = PinholeCamera.from_fov(128, 128, 100.0)
-VOXEL = TSDF_PRESETS["colon"].voxel_size
+VOXEL = PRESETS["colon"].fusion.tsdf.voxel_size
 CFG = TSDFConfig(depth_max=0.06)  # colon preset, nearer far limit: small test volume
 
 
@@ -87,7 +88,7 @@ def tube_fused():
 
 
 def test_presets_are_metric():
-    colon, room = TSDF_PRESETS["colon"], TSDF_PRESETS["room"]
+    colon, room = PRESETS["colon"].fusion.tsdf, PRESETS["room"].fusion.tsdf
     assert colon.voxel_size == 0.001 and colon.trunc == 0.004
     assert room.voxel_size == 0.01 and room.trunc == 0.04
     with pytest.raises(ValueError):

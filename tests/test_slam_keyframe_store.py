@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.frontend import FrameFeatures
@@ -97,7 +98,7 @@ def _revisiting_walk(n: int = 90, places: int = 30) -> list[int]:
 def _fake_run(world: PlaceWorld, folder: Path | None) -> tuple[FragmentSlam, list[bytes]]:
     """One keyframe per frame on ``world``; the matcher checks what it gets from the store and
     records the bytes of every stored keyframe it is given."""
-    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
+    cfg = slam_preset("colon", fragments={"min_correspondences": 10**6}, fusion={"enabled": False},
                                    candidates={"max_candidates": 6}, optimization={"small_map": 10})
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3), keyframe_cache=folder)
     if folder is not None:
@@ -159,7 +160,7 @@ def test_run_slam_identical_and_cache_removed(seq, tmp_path):
 
     outs = {}
     for cache in (True, False):
-        cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False},
+        cfg = slam_preset("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False},
                                        keyframes={"cache": cache})
         out = tmp_path / f"cache_{cache}"
         s = run_slam(seq, out, cfg, progress=False, slam_factory=Spy)
@@ -185,7 +186,7 @@ def test_run_slam_removes_cache_on_error(seq, tmp_path):
                 raise RuntimeError("planted failure")
             return super().add(feat, depth, rgb)
 
-    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False})
+    cfg = slam_preset("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False})
     with pytest.raises(RuntimeError, match="planted failure"):
         run_slam(seq, out, cfg, progress=False, slam_factory=Boom)
     assert not (out / CACHE_DIR).exists()

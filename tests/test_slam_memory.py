@@ -236,8 +236,10 @@ def test_cli_loop_edge_cap_option(tiny_sequence, tmp_path, capsys):
                      "--no-mesh", "--quiet", *args]) == 0
         assert json.loads((out / "summary.json").read_text())["config"]["keyframes"]["max_loop_edges"] == expect
     capsys.readouterr()
-    assert main(["run", str(tiny_sequence), "--out", str(tmp_path / "bad"), "--max-loop-edges-per-keyframe", "-2",
-                 "--quiet"]) == 2
+    with pytest.raises(SystemExit) as exc:  # a bad setting is a usage error
+        main(["run", str(tiny_sequence), "--out", str(tmp_path / "bad"), "--max-loop-edges-per-keyframe", "-2",
+              "--quiet"])
+    assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--max-loop-edges-per-keyframe" in err[0]
 

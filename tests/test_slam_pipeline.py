@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.errors import InputError
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import make_pose
@@ -109,7 +110,7 @@ def test_fragment_chains_and_optimises_relative_to_keyframe():
 
 @pytest.mark.e2e
 def test_rgbd_end_to_end_full_system(seq, tmp_path):
-    cfg = SlamConfig.preset_config("colon", **CFG)
+    cfg = slam_preset("colon", **CFG)
     s = run_slam(seq, tmp_path / "full", cfg, progress=False)
     ev = _evaluate(tmp_path / "full", seq)
     length = ev["gt_length_m"]
@@ -125,7 +126,7 @@ def test_rgbd_end_to_end_full_system(seq, tmp_path):
 def test_odometry_baseline_and_injected_wrong_edge(seq, tmp_path):
     """The baseline tracks well; one wrong relative pose in its chain raises the ATE a lot
     (so the ATE checks above can fail)."""
-    cfg = SlamConfig.preset_config("colon", mode="odometry", fusion={"enabled": False}, **CFG)
+    cfg = slam_preset("colon", mode="odometry", fusion={"enabled": False}, **CFG)
     run_slam(seq, tmp_path / "odo", cfg, progress=False)
     clean = _evaluate(tmp_path / "odo", seq)["ate_sim3"]["rmse_m"]
 
@@ -164,12 +165,13 @@ def test_blas_threads_are_capped_during_a_run_and_restored(seq, tmp_path):
             seen.append(blas_threads())
             return super().add(feat, depth, rgb)
 
-    cfg = SlamConfig.preset_config("colon", mode="odometry", fusion={"enabled": False}, **CFG)
-    run_slam(seq, tmp_path / "b1", cfg, progress=False, max_frames=4, slam_factory=Watching)
+    cfg = slam_preset("colon", mode="odometry", fusion={"enabled": False}, **CFG)
+    run_slam(seq, tmp_path / "b1", cfg.with_(frames={"max_frames": 4}), progress=False, slam_factory=Watching)
     assert seen and all(all(n == 1 for n in t) for t in seen), seen
     assert blas_threads() == before
     seen.clear()
-    run_slam(seq, tmp_path / "b0", cfg.with_(blas_threads=None), progress=False, max_frames=4, slam_factory=Watching)
+    run_slam(seq, tmp_path / "b0", cfg.with_(blas_threads=None, frames={"max_frames": 4}), progress=False,
+             slam_factory=Watching)
     assert seen and all(t == before for t in seen)
     outer.restore_original_limits()
     with pytest.raises(InputError, match="blas_threads"):
@@ -191,7 +193,7 @@ def test_false_loop_closure_is_pruned(seq, tmp_path):
                 return m, n
             self.match = match
 
-    cfg = SlamConfig.preset_config("colon", fusion={"enabled": False}, **CFG)
+    cfg = slam_preset("colon", fusion={"enabled": False}, **CFG)
     s = run_slam(seq, tmp_path / "loop", cfg, progress=False, slam_factory=FalseLoop)
     ev = _evaluate(tmp_path / "loop", seq)
     assert s["loop_edges"] >= 1 and s["pruned_edges"] >= 1, s
@@ -229,7 +231,7 @@ def test_black_run_relocalises_to_the_map(seq, tmp_path, appearance_only):
     after, n_black = FRAMES // 2, 5
     dst = _with_black_run(seq, tmp_path / "black", after, n_black)
     extra = dict(candidates={"max_candidates": 3, "recent": 0, "spatial": 0}) if appearance_only else {}
-    cfg = SlamConfig.preset_config("colon", fusion={"enabled": False}, **CFG, **extra)
+    cfg = slam_preset("colon", fusion={"enabled": False}, **CFG, **extra)
     s = run_slam(dst, tmp_path / "out", cfg, progress=False)
     assert s["skipped_black"] == n_black
     assert s["relocalised_keyframes"] >= 1  # a keyframe with no odometry link joined the map
@@ -263,7 +265,7 @@ def test_readme_first_example_keeps_its_close_up_in_one_map(tmp_path, bounded):
     seq_dir = generate_sequence(p, tmp_path / "seq1", progress=False)
     shares = {}
     for rejoin in (True, False) if not bounded else (True,):
-        cfg = SlamConfig.preset_config("colon", fusion={"enabled": False}, rejoin={"enabled": rejoin})
+        cfg = slam_preset("colon", fusion={"enabled": False}, rejoin={"enabled": rejoin})
         out = tmp_path / f"out_{rejoin}"
         s = run_slam(seq_dir, out, cfg, progress=False)
         shares[rejoin] = s["registered_share_of_usable"]

@@ -7,8 +7,8 @@ import open3d as o3d
 import pytest
 
 from c3f_slam import geometry as g
+from c3f_slam.config import PRESETS
 from c3f_slam.posegraph import (
-    POSEGRAPH_PRESETS,
     EdgeKind,
     PoseGraph,
     PoseGraphConfig,
@@ -131,7 +131,7 @@ def _false_loop_graph(seed: int = 4):
 def test_prunes_planted_false_loop():
     pg, gt, bad = _false_loop_graph()
     before = np.linalg.norm(pg.poses[:, :3, 3] - gt[:, :3, 3], axis=1).max()
-    res = pg.optimize(POSEGRAPH_PRESETS["colon"])
+    res = pg.optimize(PRESETS["colon"].posegraph)
     assert res.pruned == [bad]
     assert pg.edges[bad].pruned and res.confidence[bad] == 0.0
     good_loops = [k for k, e in enumerate(pg.edges) if e.uncertain and k != bad]
@@ -145,7 +145,7 @@ def test_prunes_planted_false_loop():
 def test_false_loop_wins_without_pruning_power():
     """Control: with a huge loop preference the false edge is kept and distorts the poses."""
     pg, gt, bad = _false_loop_graph()
-    res = pg.optimize(POSEGRAPH_PRESETS["colon"], preference_loop_closure=1e6)
+    res = pg.optimize(PRESETS["colon"].posegraph, preference_loop_closure=1e6)
     assert bad not in res.pruned
     err = np.linalg.norm(res.poses[:, :3, 3] - gt[:, :3, 3], axis=1)
     assert err.max() > 1e-3
@@ -174,7 +174,7 @@ def test_loop_closure_corrects_drift():
                          for A, B in zip(poses, gt)])
 
     before = point_error(pg.poses)
-    res = pg.optimize(POSEGRAPH_PRESETS["colon"])
+    res = pg.optimize(PRESETS["colon"].posegraph)
     after = point_error(res.poses)
     assert res.pruned == [] and res.confidence[-1] > 0.9
     assert before[-1] > 5e-3  # 7 mm of drift at the end of the chain

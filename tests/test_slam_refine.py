@@ -8,9 +8,10 @@ import pytest
 
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.cli import _overrides, _parser
+from c3f_slam.cli import _parser, _settings
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.errors import InputError
-from c3f_slam.pipeline import RunInputs, SlamConfig, run_slam
+from c3f_slam.pipeline import RunInputs, run_slam
 from c3f_slam.pipeline.fallback import RgbdFrame
 from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.pipeline.keyframe_edges import KeyframeEdge
@@ -40,7 +41,7 @@ def _error(T, T_true):
 
 
 def _refiner(views, cfg=None):
-    r = EdgeRefiner(cfg or SlamConfig.preset_config("room").refine, CAM.K)
+    r = EdgeRefiner(cfg or slam_preset("room").refine, CAM.K)
     r.observe(*views[0])
     r.keep(0)
     r.observe(*views[1])
@@ -64,7 +65,7 @@ def test_a_sparse_edge_that_fits_as_well_is_kept(pair):
     r = _refiner(views)
     assert r.refine_edges([KeyframeEdge(0, PairMatch(T_true, np.zeros((0, 3)), 50), EdgeKind.LOOP)]) == {}
     assert r.stats()["refine_outcomes"] == {"no_gain": 1}
-    r = _refiner(views, SlamConfig.preset_config("room", refine={"min_gain": 0.0}).refine)
+    r = _refiner(views, slam_preset("room", refine={"min_gain": 0.0}).refine)
     out = r.refine_edges([KeyframeEdge(0, PairMatch(T_true, np.zeros((0, 3)), 50), EdgeKind.LOOP)])
     assert list(out) == [0] and _error(out[0].T, T_true)[0] < 0.01  # within the noise of the depth
 
@@ -81,7 +82,7 @@ def test_wrong_start_is_rejected_and_keeps_the_sparse_edge(pair):
 def test_textureless_plane_keeps_the_sparse_edge():
     """A flat grey wall fills both views: ICP can slide in the plane without changing the fit,
     so no start (2 or 15 cm off in the plane) is "refined"; the sparse edge stays."""
-    cfg = SlamConfig.preset_config("room").refine
+    cfg = slam_preset("room").refine
     depth = np.full((120, 160), 2.0, np.float32)
     rgb = np.full((120, 160, 3), 128, np.uint8)
     for offset in (0.02, 0.15):
@@ -96,7 +97,7 @@ def test_textureless_plane_keeps_the_sparse_edge():
 
 def test_no_depth_or_no_image_means_no_refinement(pair):
     views, _ = pair
-    cfg = SlamConfig.preset_config("room").refine
+    cfg = slam_preset("room").refine
     assert cloud_pyramid(RgbdFrame.from_rgb(views[0][0], np.zeros((120, 160))), CAM.K, cfg) is None
     r = _refiner(views)
     r.observe(None, views[1][1])
@@ -107,19 +108,21 @@ def test_no_depth_or_no_image_means_no_refinement(pair):
 
 
 def test_config_presets_and_validation():
-    room, colon = SlamConfig.preset_config("room").refine, SlamConfig.preset_config("colon").refine
+    room, colon = slam_preset("room").refine, slam_preset("colon").refine
     assert room.voxels == (0.08, 0.04, 0.02) and colon.voxels == (0.002, 0.001, 0.0005)
     assert not colon.enabled
     with pytest.raises(InputError, match="refine.voxels"):
-        SlamConfig.preset_config("room", refine={"voxels": (0.1, 0.05), "iterations": (10,)})
+        slam_preset("room", refine={"voxels": (0.1, 0.05), "iterations": (10,)})
     with pytest.raises(InputError, match="refine.min_fitness"):
-        SlamConfig.preset_config("room", refine={"min_fitness": 2.0})
+        slam_preset("room", refine={"min_fitness": 2.0})
 
 
-@pytest.mark.parametrize("flag, expect", [(["--dense-refine"], True), (["--no-dense-refine"], False), ([], None)])
+@pytest.mark.parametrize("flag, expect", [(["--dense-refine"], True), (["--no-dense-refine"], False), ([], False),
+                                          (["--dense-refine", "--set", "refine.enabled=false"], False)])
 def test_cli_flag(flag, expect):
+    """The alias and --set reach the same setting; the last one given wins."""
     args = _parser().parse_args(["run", "SEQ", "--out", "OUT", *flag])
-    assert _overrides(args).get("refine", {}).get("enabled") == expect
+    assert _settings(args)[0].refine.enabled is expect
 
 
 @pytest.mark.e2e
@@ -127,7 +130,7 @@ def test_run_with_refinement_counts_and_registers(tmp_path):
     seq = room_sequence(tmp_path / "room", frames=24, width=160, height=120)
     s = {}
     for on in (False, True):
-        cfg = SlamConfig.preset_config("room", refine={"enabled": on}, fusion={"enabled": False})
+        cfg = slam_preset("room", refine={"enabled": on}, fusion={"enabled": False})
         s[on] = run_slam(seq, tmp_path / f"out_{on}", cfg, RunInputs("sift", "files"), progress=False)
     assert s[False]["refine_attempts"] == 0
     assert s[True]["refine_attempts"] >= 1 and 0 <= s[True]["refine_accepted"] <= s[True]["refine_attempts"]

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from c3f_slam import geometry as g
+from c3f_slam.config import FragmentConfig
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
-from c3f_slam.pipeline.config import FragmentConfig
 from c3f_slam.pipeline.rejoin import _tail_index
 from c3f_slam.pipeline.slam import FragmentSlam
 from tests.fake_places import PlaceWorld
@@ -21,7 +22,7 @@ WALK = list(range(21)) + [24, 23] + [22] * 8
 
 
 def _run(world: PlaceWorld, places: list[int], **rejoin) -> FragmentSlam:
-    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
+    cfg = slam_preset("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
                                    rejoin=rejoin)
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
     world.use(slam)
@@ -115,7 +116,7 @@ def test_min_correspondences_scale_with_the_frame_size(size, expected):
     """The paper's 100 at 512 x 512, scaled with the pixel count, at least 1.5 x min_matches (10)."""
     cfg = SlamConfig().for_frame_size(*size)
     assert cfg.fragments.min_correspondences == expected
-    given = SlamConfig.preset_config("colon", fragments={"min_correspondences": 42}).for_frame_size(*size)
+    given = slam_preset("colon", fragments={"min_correspondences": 42}).for_frame_size(*size)
     assert given.fragments.min_correspondences == 42  # an explicit value is kept
     assert FragmentConfig().correspondences_for(*size, min_matches=10) == expected
 
@@ -127,8 +128,8 @@ def test_unresolved_threshold_is_refused_by_the_backend():
 
 def test_rejoin_options_are_checked():
     with pytest.raises(InputError, match="rejoin.window"):
-        SlamConfig.preset_config("colon", rejoin={"window": 0})
+        slam_preset("colon", rejoin={"window": 0})
     with pytest.raises(InputError, match="rejoin.relaxed_min_matches"):
-        SlamConfig.preset_config("colon", rejoin={"relaxed_min_matches": 3})
+        slam_preset("colon", rejoin={"relaxed_min_matches": 3})
     with pytest.raises(InputError, match="rejoin.relaxed_max_step"):
-        SlamConfig.preset_config("colon", rejoin={"relaxed_max_step": 0})
+        slam_preset("colon", rejoin={"relaxed_max_step": 0})

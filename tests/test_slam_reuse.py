@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from c3f_slam.config import preset as slam_preset
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
 from c3f_slam.pipeline.slam import FragmentSlam
@@ -21,7 +22,7 @@ def _slam(world: PlaceWorld, reuse: bool, candidates: dict | None = None, **keyf
     """Graded matches (40 inliers at the same place, one fewer per place of distance) and 40
     consecutive correspondences needed to stay in a fragment: moving to another place opens
     a fragment, a frame at an already mapped place can continue that place's fragment."""
-    cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
+    cfg = slam_preset("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
                                    keyframes={"reuse": reuse, **keyframes}, candidates=candidates or {})
     slam = FragmentSlam(cfg, K)
     world.use(slam)
@@ -186,7 +187,7 @@ def test_reuse_options_are_checked():
         SlamConfig(keyframes={"reuse_max_offset": -1.0})
     with pytest.raises(InputError, match="reuse_max_angle_deg"):
         SlamConfig(keyframes={"reuse_max_angle_deg": 200.0})
-    assert SlamConfig.preset_config("room").keyframes.reuse_max_offset == 0.25
+    assert slam_preset("room").keyframes.reuse_max_offset == 0.25
     from c3f_slam.pipeline import PAPER_RULES
 
     assert SlamConfig().keyframes.reuse and not SlamConfig(**PAPER_RULES).keyframes.reuse
@@ -248,7 +249,7 @@ def test_ping_pong_run_stops_adding_keyframes(tmp_path_factory):
     third_pass = 2 * 24 - 2  # first frame of the third pass
     res = {}
     for reuse in (True, False):
-        cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False},
+        cfg = slam_preset("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False},
                                        keyframes={"reuse": reuse})
         s = run_slam(seq, root / f"out_{reuse}", cfg, progress=False)
         ev = evaluate_run(root / f"out_{reuse}", seq)

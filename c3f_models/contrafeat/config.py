@@ -7,8 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from c3f_models.contrafeat.loss import TAU
+from c3f_slam.config import PRESETS, MatchFilterConfig
 from c3f_slam.errors import InputError
-from c3f_slam.matching import MatchFilterConfig
+from c3f_slam.settings import tree_from_mapping
 
 
 @dataclass(frozen=True)
@@ -83,10 +84,11 @@ class MatchEvaluationConfig:
 
     def match_filter(self) -> MatchFilterConfig:
         """The keypoint filter's thresholds: the preset with the overrides."""
-        try:
-            return MatchFilterConfig.preset(self.filter_preset, **(self.filter_overrides or {}))
-        except TypeError as exc:
-            raise InputError(f"model.evaluation.filter_overrides: {exc}") from None
+        if self.filter_preset not in PRESETS:
+            raise InputError(f"model.evaluation.filter_preset must be one of {tuple(PRESETS)}, "
+                             f"got {self.filter_preset!r}")
+        base = PRESETS[self.filter_preset].match_filter
+        return tree_from_mapping(base, self.filter_overrides or {}, "model.evaluation.filter_overrides")
 
 
 __all__ = ["ContraFeatLossConfig", "ContraFeatNetworkConfig", "MatchEvaluationConfig"]

@@ -8,8 +8,8 @@ reconstructed), :mod:`.visibility` (in view, in the fused depth range, not occlu
 mesh with the unseen wall painted). Torch-free (NumPy, SciPy, Open3D, matplotlib).
 """
 
+from c3f_slam.config import CoverageConfig
 from c3f_slam.coverage.centreline import Centreline, centreline_from_path
-from c3f_slam.coverage.config import CoverageConfig
 from c3f_slam.coverage.estimate import (
     CoverageMap,
     CoverageUnavailable,

@@ -15,8 +15,8 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import open3d as o3d
 
+from c3f_slam.config import CoverageConfig
 from c3f_slam.coverage.centreline import centreline_from_path
-from c3f_slam.coverage.config import CoverageConfig
 from c3f_slam.coverage.visibility import ViewSettings, observed, raycasting_scene, subsample_poses
 from c3f_slam.coverage.wall import WallModel, fit_wall, surface_samples
 

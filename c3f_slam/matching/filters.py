@@ -19,86 +19,20 @@ transform T_ij (p_i ~ T_ij p_j):
    axes and the area of their minimum-area bounding rectangle is measured; the set is
    rejected when both frames' areas are below ``min_area`` (m^2).
 
-All lengths are metres; :meth:`MatchFilterConfig.colon` (default) and
-:meth:`MatchFilterConfig.room` give presets, :meth:`MatchFilterConfig.scaled` rescales.
+All lengths are metres; :class:`~c3f_slam.config.MatchFilterConfig` holds the thresholds (its
+defaults are the colon's; the room preset's: :mod:`c3f_slam.config.presets`), and
+:meth:`~c3f_slam.config.MatchFilterConfig.scaled` rescales them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_slam.config import MatchFilterConfig
 from c3f_slam.matching.kabsch import kabsch, residuals
-
-
-@dataclass(frozen=True)
-class MatchFilterConfig:
-    """Thresholds of the match filters (lengths in metres, areas in m^2).
-
-    Colon defaults (viewing depths of about 1-6 cm, frames of 128-512 px with 110-125 deg
-    field of view, where one pixel spans 0.2-0.7 mm of wall at 3 cm):
-
-    - ``max_residual`` 1 mm: BundleFusion's 2 cm at room scale is about 5 px of a
-      640x480 Kinect frame at 2 m; 1 mm is 1.5-5 px at 3 cm here, i.e. the keypoint
-      localisation error, not the scene size, sets it.
-    - ``pairwise_tolerance`` 2 mm (+5 % of the distance): two endpoints, each off by up to
-      ``max_residual``; the relative part absorbs predicted-depth scale error.
-    - ``min_area`` 1e-5 m^2 (10 mm^2, e.g. 3x3 mm): BundleFusion's 0.032 m^2 scaled by
-      (1/50)^2 (2 m room viewing distance vs about 3-4 cm in the colon).
-    - ``max_condition`` 100 and ``min_matches`` 10: BundleFusion / the paper (scale-free).
-    """
-
-    min_matches: int = 10
-    max_residual: float = 1.0e-3
-    pairwise_tolerance: float = 2.0e-3
-    pairwise_relative_tolerance: float = 0.05
-    max_condition: float = 100.0
-    min_area: float = 1.0e-5
-    use_pairwise: bool = True
-    use_area: bool = True
-    max_matches: int | None = field(default=None)
-
-    def __post_init__(self) -> None:
-        if self.min_matches < 3:
-            raise InputError(f"min_matches must be >= 3 (a rigid fit needs 3 points), got {self.min_matches}")
-        for name in ("max_residual", "pairwise_tolerance", "max_condition"):
-            if not getattr(self, name) > 0:
-                raise InputError(f"{name} must be positive, got {getattr(self, name)}")
-        for name in ("pairwise_relative_tolerance", "min_area"):
-            if getattr(self, name) < 0:
-                raise InputError(f"{name} must be >= 0, got {getattr(self, name)}")
-
-    @classmethod
-    def colon(cls, **overrides) -> MatchFilterConfig:
-        """Colon scale (millimetres): the defaults."""
-        return cls(**overrides)
-
-    @classmethod
-    def room(cls, **overrides) -> MatchFilterConfig:
-        """Room scale (centimetres): BundleFusion's values (2 cm residual, 0.032 m^2 area)."""
-        base = dict(max_residual=0.02, pairwise_tolerance=0.04, pairwise_relative_tolerance=0.05, min_area=0.032)
-        return cls(**{**base, **overrides})
-
-    @classmethod
-    def preset(cls, name: str, **overrides) -> MatchFilterConfig:
-        """``colon`` or ``room``."""
-        if name not in ("colon", "room"):
-            raise InputError(f"match filter preset must be 'colon' or 'room', got {name!r}")
-        return getattr(cls, name)(**overrides)
-
-    def scaled(self, factor: float) -> MatchFilterConfig:
-        """The same filter for a scene ``factor`` times larger (lengths x f, areas x f^2)."""
-        if not factor > 0:
-            raise InputError(f"scale factor must be positive, got {factor}")
-        return replace(
-            self,
-            max_residual=self.max_residual * factor,
-            pairwise_tolerance=self.pairwise_tolerance * factor,
-            min_area=self.min_area * factor**2,
-        )
 
 
 @dataclass(frozen=True)
@@ -200,7 +134,7 @@ def filter_matches(
     Args:
         pts_i, pts_j: (N, 3) camera-frame points of the candidates in frames i and j
             (metres; NaN rows = no depth, dropped).
-        cfg: thresholds (default :meth:`MatchFilterConfig.colon`).
+        cfg: thresholds (default: the colon's, :class:`MatchFilterConfig`).
         priority: optional (N,) cost, lower = better (descriptor distance); breaks ties and,
             with ``cfg.max_matches``, chooses which candidates are considered.
     """

@@ -1,6 +1,5 @@
 """The SLAM runtime pipeline (SPEC §4): frontend, fragments, global keyframe graph, fusion.
 
-- :mod:`.config`: :class:`SlamConfig`, one small settings part per component, and presets;
 - :mod:`.sources`: the run's inputs (:class:`RunInputs`), checked and opened once;
 - :mod:`.frontend`: keypoints, descriptor / depth provider seams, pairwise matching;
 - :mod:`.backend`: the :class:`SlamBackend` protocol the run loop drives, frame log, timings;
@@ -16,7 +15,7 @@
 - :mod:`.run_evaluation`: the ``evaluate`` command: a run folder against ground truth (metrics and files).
 """
 
-from c3f_slam.pipeline.config import PAPER_RULES, SlamConfig
+from c3f_slam.config import PAPER_RULES, SlamConfig  # the settings tree (c3f_slam.config), for convenience
 from c3f_slam.pipeline.run import run_slam
 from c3f_slam.pipeline.sources import RunInputs
 

@@ -17,9 +17,9 @@ from typing import Protocol
 
 import numpy as np
 
+from c3f_slam.config import SlamConfig
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.components import MapComponent
-from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures
 
 

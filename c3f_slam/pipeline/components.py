@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 from open3d.geometry import TriangleMesh
 
+from c3f_slam.config import ComponentConfig
 from c3f_slam.fusion import write_mesh
 from c3f_slam.outputs import RunOutputs
-from c3f_slam.pipeline.config import ComponentConfig
 from c3f_slam.trajectory_metrics import path_length
 
 

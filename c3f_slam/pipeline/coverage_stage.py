@@ -22,6 +22,7 @@ import numpy as np
 from open3d.geometry import TriangleMesh
 
 from c3f_slam.camera import PinholeCamera
+from c3f_slam.config import SlamConfig
 from c3f_slam.coverage import (
     CoverageConfig,
     CoverageMap,
@@ -33,7 +34,6 @@ from c3f_slam.coverage import (
 from c3f_slam.coverage.render import draw_coverage_map, unseen_mesh
 from c3f_slam.fusion import write_mesh
 from c3f_slam.outputs import RunOutputs, write_json
-from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import ModelDepth
 from c3f_slam.pipeline.sources import RunSources
 

@@ -31,8 +31,8 @@ import cv2
 import numpy as np
 import open3d as o3d
 
+from c3f_slam.config import FallbackConfig, SlamConfig
 from c3f_slam.geometry import backproject_pixels, motion_magnitudes, project, transform_points
-from c3f_slam.pipeline.config import FallbackConfig, SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, GuidedMatcher, PairMatch, guided_matcher
 from c3f_slam.posegraph.information import information_from_points
 

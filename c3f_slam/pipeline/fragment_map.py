@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_slam.config import SlamConfig
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog
 from c3f_slam.pipeline.components import MapComponent
-from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fragments import Fragment
 from c3f_slam.pipeline.keyframe_store import KeyframeStore
 from c3f_slam.pipeline.retrieval import KeyframeRetrieval

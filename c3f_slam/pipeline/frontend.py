@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from c3f_slam.camera import PinholeCamera
+from c3f_slam.config import FrontendConfig, SlamConfig
 from c3f_slam.errors import InputError
 from c3f_slam.geometry import invert_pose, project, transform_points
 from c3f_slam.matching import (
@@ -33,7 +34,6 @@ from c3f_slam.matching import (
     to_gray_uint8,
 )
 from c3f_slam.models import DepthModel, DescriptorModel, NetworkView
-from c3f_slam.pipeline.config import FrontendConfig, SlamConfig
 from c3f_slam.preprocess import SPECULAR_DILATION_PX, specular_mask
 from c3f_slam.stream import StreamFrame
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_slam.config import SlamConfig
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog, Timings
 from c3f_slam.pipeline.components import MapComponent
-from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, frame_matcher
 
 

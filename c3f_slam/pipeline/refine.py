@@ -25,8 +25,8 @@ from typing import NamedTuple
 import numpy as np
 import open3d as o3d
 
+from c3f_slam.config import RefineConfig
 from c3f_slam.geometry import backproject_pixels, invert_pose, motion_magnitudes
-from c3f_slam.pipeline.config import RefineConfig
 from c3f_slam.pipeline.fallback import RgbdFrame
 from c3f_slam.posegraph import EdgeKind
 

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from c3f_slam.config import RejoinConfig
 from c3f_slam.geometry import invert_pose, motion_magnitudes, transform_points
-from c3f_slam.pipeline.config import RejoinConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch
 
 

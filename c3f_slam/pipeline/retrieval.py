@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from c3f_slam.blocks import BlockRows
-from c3f_slam.errors import InputError
+from c3f_slam.config import CandidateConfig
 
 
 def global_descriptor(descriptors: np.ndarray) -> np.ndarray:
@@ -138,24 +138,6 @@ class AppearanceIndex:
         assert self._rows is not None
         parts = [_matvec(B, v) for B in self._rows.filled(self._n)]
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
-
-
-@dataclass(frozen=True)
-class CandidateConfig:
-    """Which earlier keyframes a new keyframe is matched against (see the module notes). Metres, degrees."""
-
-    max_candidates: int | None = 24  #: at most this many once the map is bigger; None = all (quadratic)
-    recent: int = 4  #: the most recent keyframes
-    spatial: int = 8  #: keyframes near the odometry pose estimate ...
-    spatial_radius: float = 0.02  #: ... camera centre within this distance ...
-    spatial_max_angle_deg: float = 60.0  #: ... and viewing direction within this angle
-
-    def __post_init__(self) -> None:
-        if self.max_candidates is not None and self.max_candidates < 1:
-            raise InputError("candidates.max_candidates must be >= 1 (or None: all keyframes), "
-                             f"got {self.max_candidates}")
-        if self.recent < 0 or self.spatial < 0:
-            raise InputError("candidates.recent and candidates.spatial must be >= 0")
 
 
 @dataclass

@@ -29,6 +29,7 @@ import numpy as np
 from open3d.geometry import TriangleMesh
 from threadpoolctl import threadpool_limits
 
+from c3f_slam.config import SlamConfig
 from c3f_slam.errors import InputError
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
 from c3f_slam.outputs import RunFolder, RunOutputs
@@ -40,7 +41,6 @@ from c3f_slam.pipeline.components import (
     plan_components,
     write_components,
 )
-from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.coverage_stage import run_coverage
 from c3f_slam.pipeline.frontend import Frontend
 from c3f_slam.pipeline.fusion_frames import FusionFrames, fusion_frames
@@ -212,34 +212,32 @@ def run_slam(
     cfg: SlamConfig | None = None,
     inputs: RunInputs | None = None,
     *,
-    max_frames: int | None = None,
-    stride: int = 1,
     progress: bool = True,
     slam_factory: BackendFactory | None = None,
     overwrite: bool = False,
 ) -> dict:
     """Run on ``sequence`` (folder, or video file with model depth) and write the outputs into
-    the run folder ``out``; returns the summary. ``inputs``: descriptors, depth and camera
-    choices (:class:`RunInputs`, default SIFT and depth files); ``stride``: every k-th frame;
-    ``overwrite``: replace a complete earlier run in ``out`` (:class:`RunFolder`);
-    ``slam_factory`` may replace the back-end (tests). The run is built beside ``out`` and
-    moved into place when it ends, also on errors (summary.json then says ``error`` and how
-    far it got). Raises InputError on bad input, including a run in which no frame could be
-    registered (after writing its outputs)."""
+    the run folder ``out``; returns the summary. ``cfg``: the settings tree (default the colon
+    preset; which frames are read: ``cfg.frames``); ``inputs``: descriptors, depth and camera
+    choices (:class:`RunInputs`, default SIFT and depth files); ``overwrite``: replace a
+    complete earlier run in ``out`` (:class:`RunFolder`); ``slam_factory`` may replace the
+    back-end (tests). The run is built beside ``out`` and moved into place when it ends, also on
+    errors (summary.json says ``error`` and how far it got). InputError on bad input, including
+    a run in which no frame could be registered (after writing its outputs)."""
     cfg = cfg or SlamConfig()
     inputs = inputs or RunInputs()
     folder = RunFolder(out, overwrite)
     outputs = RunOutputs(folder.claim())
     summary: dict = {
         "sequence": str(sequence), "mode": cfg.mode, "descriptors": inputs.descriptors,
-        "depth_source": inputs.depth_source, "preset": cfg.preset, "stride": stride, "max_frames": max_frames,
-        "status": "running", "config": cfg.as_dict(),
+        "depth_source": inputs.depth_source, "preset": cfg.preset, "stride": cfg.frames.stride,
+        "max_frames": cfg.frames.max_frames, "status": "running", "config": cfg.as_dict(),
     }
     timings, run, t_start = Timings(), None, time.perf_counter()
     try:
         inputs = inputs.resolved()
         summary.update(descriptors=inputs.descriptors, depth_source=inputs.depth_source)
-        sources = open_sources(sequence, inputs, stride, max_frames)
+        sources = open_sources(sequence, inputs, cfg.frames.stride, cfg.frames.max_frames)
         summary.update(sources.summary())
         cfg = cfg.for_frame_size(sources.camera.width, sources.camera.height)
         summary["config"] = cfg.as_dict()  # with the thresholds derived from the frame size

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from c3f_slam.pipeline.config import OptimizationConfig
+from c3f_slam.config import OptimizationConfig
 from c3f_slam.posegraph import PoseGraph, PoseGraphConfig
 
 

@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_slam.config import SlamConfig
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import invert_pose, transform_points
 from c3f_slam.pipeline.backend import Timings
-from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason

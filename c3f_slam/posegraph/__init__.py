@@ -9,7 +9,7 @@ are camera-to-world ``T_wc`` (the "world" being the graph's reference frame); an
 Parts:
 
 - :mod:`~c3f_slam.posegraph.graph`: :class:`PoseGraph`, the facade composing the parts below;
-- :mod:`~c3f_slam.posegraph.config`: :class:`PoseGraphConfig` and :data:`POSEGRAPH_PRESETS`;
+- :mod:`~c3f_slam.posegraph.config`: one call's options (:class:`c3f_slam.config.PoseGraphConfig`);
 - :mod:`~c3f_slam.posegraph.information`: information matrices and edge residuals;
 - :mod:`~c3f_slam.posegraph.nodes`: the node poses in one growable (N, 4, 4) array;
 - :mod:`~c3f_slam.posegraph.edges`: the edge storage (block rows, triangle storage),
@@ -21,14 +21,13 @@ Parts:
 - :mod:`~c3f_slam.posegraph.open3d_adapter`: Open3D's pose graph and solver, its conventions.
 """
 
-from c3f_slam.posegraph.config import POSEGRAPH_PRESETS, PoseGraphConfig
+from c3f_slam.config import PoseGraphConfig
 from c3f_slam.posegraph.edges import Edge, EdgeKind, EdgeList
 from c3f_slam.posegraph.graph import PoseGraph
 from c3f_slam.posegraph.information import information_from_points, linearized_residual, transform_information
 from c3f_slam.posegraph.optimize import OptimizationResult
 
 __all__ = [
-    "POSEGRAPH_PRESETS",
     "Edge",
     "EdgeKind",
     "EdgeList",

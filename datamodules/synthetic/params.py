@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from c3f_slam.errors import InputError
+from c3f_slam.settings import convert_value, field_types
 
 PATH_KINDS = ("A", "B", "random")
 LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, SPEC §5.2)
@@ -191,45 +192,12 @@ _GROUP_TYPES = {
 }
 
 
-def _convert(value: Any, typ: Any, name: str) -> Any:
-    """Convert ``value`` (possibly a CLI string) to the field type ``typ``; an optional field
-    (``float | None``) also takes None / ``none`` / ``null``."""
-    if isinstance(typ, str) and typ.endswith(" | None"):
-        if value is None or (isinstance(value, str) and value.strip().lower() in ("none", "null")):
-            return None
-        typ = typ[: -len(" | None")]
-    typ = {"float": float, "int": int, "bool": bool, "str": str}.get(typ, typ) if isinstance(typ, str) else typ
-    try:
-        if typ is bool:
-            if isinstance(value, str):
-                low = value.strip().lower()
-                if low in ("1", "true", "yes", "on"):
-                    return True
-                if low in ("0", "false", "no", "off"):
-                    return False
-                raise ValueError(value)
-            return bool(value)
-        if typ is int:
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError(value)
-            if isinstance(value, bool):
-                raise ValueError(value)
-            return int(float(value)) if isinstance(value, str) else int(value)
-        if typ is float:
-            if isinstance(value, bool):
-                raise ValueError(value)
-            return float(value)
-        return str(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: cannot use {value!r} (expected {typ.__name__})") from None
-
-
 def set_param(params: SimParams, name: str, value: Any) -> None:
     """Set one parameter by (short or dotted) name, converting strings to the field type."""
     group, key = _resolve(name)
     target = params if group is None else getattr(params, group)
-    ftype = {f.name: f.type for f in fields(type(target))}[key]
-    value = _convert(value, ftype, name if group is None else f"{group}.{key}")
+    ftype = field_types(type(target))[key]
+    value = convert_value(value, ftype, name if group is None else f"{group}.{key}")
     if group == "path" and key == "kind":
         value = normalise_path_kind(value)
     setattr(target, key, value)

@@ -1,10 +1,44 @@
-"""Settings of the unseen-surface estimate (:mod:`c3f_slam.coverage`); lengths in metres."""
+"""Settings of the outputs: TSDF fusion (its volume and when a fragment settles) and the
+unseen-wall estimate. Lengths in metres; each group checks its own fields. The values of the
+``room`` preset: :mod:`c3f_slam.config.presets`."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from c3f_slam.config.checks import at_least, check
 from c3f_slam.errors import InputError
+
+
+@dataclass(frozen=True)
+class TSDFConfig:
+    """TSDF options (metres). ``weight_threshold``: minimum fused weight for a surface."""
+
+    voxel_size: float = 0.001  #: metres: voxel edge
+    trunc: float = 0.004  #: metres: truncation distance of the signed distance
+    depth_min: float = 0.001  #: metres: nearer depth is not integrated ...
+    depth_max: float = 0.2  #: ... nor farther depth
+    block_resolution: int = 8  #: voxels per block edge (Open3D's VoxelBlockGrid)
+    block_count: int = 20_000  #: blocks reserved at first (the hash map grows on demand)
+    weight_threshold: float = 1.0  #: minimum fused weight for a surface
+
+    def __post_init__(self) -> None:
+        check(self.voxel_size > 0 and self.trunc > 0,
+              f"fusion.tsdf.voxel_size and fusion.tsdf.trunc must be > 0 (metres), got {self.voxel_size}, {self.trunc}")
+        check(0 <= self.depth_min < self.depth_max,
+              f"fusion.tsdf needs 0 <= depth_min < depth_max (metres), got {self.depth_min}, {self.depth_max}")
+        at_least(self.block_resolution, 1, "fusion.tsdf.block_resolution")
+        at_least(self.block_count, 1, "fusion.tsdf.block_count")
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """TSDF fusion of settled fragments (:class:`c3f_slam.fusion.FragmentFusion`)."""
+
+    enabled: bool = True  #: fuse a mesh (and so estimate the unseen wall)
+    eps_f_na: int = 30  #: frames a fragment must be left behind before it is fused ...
+    eps_cf_d: float = 0.05  #: ... and metres the camera must have moved away from it
+    tsdf: TSDFConfig = field(default_factory=TSDFConfig)  #: the volume
 
 
 @dataclass(frozen=True)
@@ -21,7 +55,7 @@ class CoverageConfig:
     true mesh of the ground truth has surface everywhere).
     """
 
-    enabled: bool = True  #: False = --no-coverage
+    enabled: bool = True  #: estimate the unseen wall (coverage.json, coverage_map.png, unseen.ply)
     segment: float = 0.05  #: segment length along the centreline for the per-segment shares
     cell_length: float = 0.002  #: wall cell length along the centreline
     angle_bins: int = 90  #: wall cells around the centreline
@@ -30,10 +64,10 @@ class CoverageConfig:
     max_radius: float = 0.06  #: surface farther from the centreline is not wall of this segment
     fill_gap: float = 0.02  #: unobserved wall up to this long is interpolated along the centreline first
     depth_min: float | None = None  #: None: the fusion's depth range
-    depth_max: float | None = None
-    occlusion_tol: float = 0.001
-    occlusion_tol_rel: float = 0.02
-    require_surface: bool = True
+    depth_max: float | None = None  #: None: the fusion's depth range
+    occlusion_tol: float = 0.001  #: metres a ray may stop before a cell and still see it ...
+    occlusion_tol_rel: float = 0.02  #: ... plus this share of the distance
+    require_surface: bool = True  #: a cell also needs reconstructed surface in it to count as seen
     max_frames: int = 600  #: frames tested for visibility (evenly spaced subset of the registered ones)
 
     def __post_init__(self) -> None:

@@ -1,0 +1,43 @@
+"""The SLAM runtime's settings: one tree of small frozen dataclasses, its presets, and how a
+run reads it (a config file, ``--set part.field=value``, a previous run's summary.json).
+
+- :mod:`.tree`: :class:`SlamConfig`, the root, and :class:`FramesConfig`;
+- :mod:`.tracking`: frontend, match filter, fragments, fallbacks, re-joining;
+- :mod:`.mapping`: keyframe candidates, keyframes, dense refinement, pose graph, optimisation
+  schedule, components;
+- :mod:`.outputs`: TSDF fusion and the unseen-wall estimate;
+- :mod:`.presets`: ``colon`` and ``room`` as complete instances, and the paper's literal rules;
+- :mod:`.loading`: a tree from a preset, a YAML / JSON file and ``--set`` overrides, as YAML,
+  and the help of every setting.
+
+A leaf of the runtime: it imports only :mod:`c3f_slam.errors` and :mod:`c3f_slam.settings`
+(and PyYAML when a file is read), so every part of the runtime and the layers above can use it.
+"""
+
+from c3f_slam.config.mapping import (
+    CandidateConfig,
+    ComponentConfig,
+    KeyframeConfig,
+    OptimizationConfig,
+    PoseGraphConfig,
+    RefineConfig,
+)
+from c3f_slam.config.outputs import CoverageConfig, FusionConfig, TSDFConfig
+from c3f_slam.config.presets import PAPER_RULES, PRESETS, config_from_dict, preset
+from c3f_slam.config.tracking import (
+    PAPER_FRAME_PIXELS,
+    PAPER_MIN_CORRESPONDENCES,
+    FallbackConfig,
+    FragmentConfig,
+    FrontendConfig,
+    MatchFilterConfig,
+    RejoinConfig,
+)
+from c3f_slam.config.tree import MODES, PRESET_NAMES, SECTIONS, FramesConfig, SlamConfig
+
+__all__ = [
+    "MODES", "PAPER_FRAME_PIXELS", "PAPER_MIN_CORRESPONDENCES", "PAPER_RULES", "PRESETS", "PRESET_NAMES",
+    "SECTIONS", "CandidateConfig", "ComponentConfig", "CoverageConfig", "FallbackConfig", "FragmentConfig",
+    "FramesConfig", "FrontendConfig", "FusionConfig", "KeyframeConfig", "MatchFilterConfig", "OptimizationConfig",
+    "PoseGraphConfig", "RefineConfig", "RejoinConfig", "SlamConfig", "TSDFConfig", "config_from_dict", "preset",
+]
