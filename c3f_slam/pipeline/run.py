@@ -212,9 +212,7 @@ def run_slam(
     cfg: SlamConfig | None = None,
     inputs: RunInputs | None = None,
     *,
-    progress: bool = True,
-    slam_factory: BackendFactory | None = None,
-    overwrite: bool = False,
+    progress: bool = True, slam_factory: BackendFactory | None = None, overwrite: bool = False,
 ) -> dict:
     """Run on ``sequence`` (folder, or video file with model depth) and write the outputs into
     the run folder ``out``; returns the summary. ``cfg``: the settings tree (default the colon
