@@ -1,4 +1,4 @@
-"""Settings of the SLAM runtime (SPEC §4), grouped by the part that reads them, with presets.
+"""Settings of the SLAM runtime (docs/design.md, SLAM runtime), grouped by the part that reads them, with presets.
 
 All lengths are metres, angles degrees. :class:`SlamConfig` holds one small frozen dataclass
 per part: ``frontend`` (keypoints, ratio test), ``fragments`` (the new-fragment rule),
@@ -36,7 +36,7 @@ from c3f_slam.pipeline.retrieval import CandidateConfig
 from c3f_slam.posegraph import POSEGRAPH_PRESETS, PoseGraphConfig
 
 PRESETS = ("colon", "room")
-#: the paper's new-fragment rule (SPEC §4.2) is for 512 x 512 frames
+#: the paper's new-fragment rule (docs/design.md, Fragments and keyframes) is for 512 x 512 frames
 PAPER_MIN_CORRESPONDENCES, PAPER_FRAME_PIXELS = 100, 512 * 512
 MODES = ("full", "odometry")
 
@@ -59,7 +59,7 @@ class FrontendConfig:
     max_keypoints: int = 1000  #: SIFT keypoints per frame, strongest first
     sift_contrast_threshold: float = 0.005  #: OpenCV's 0.04 finds too few on small, smooth colon frames
     mask_specular: bool = True  #: no keypoints in specular highlights
-    #: dilation of the specular mask; None: SPEC's 13 px x min(W, H) / 512, at least 3 px
+    #: dilation of the specular mask; None: the paper's 13 px x min(W, H) / 512, at least 3 px
     specular_dilation_px: int | None = None
     ratio: float | None = 0.9  #: Lowe ratio test on top of mutual nearest neighbours; None = off
 
@@ -70,7 +70,7 @@ class FrontendConfig:
 
 @dataclass(frozen=True)
 class FragmentConfig:
-    """When a frame opens a new fragment (SPEC §4.2, :func:`c3f_slam.pipeline.fragments.new_fragment_reason`)."""
+    """When a frame opens a new fragment (:func:`c3f_slam.pipeline.fragments.new_fragment_reason`)."""
 
     #: fewer filtered correspondences to the previous frame: new fragment. None: derived from the
     #: frame size (:meth:`correspondences_for`; the paper's 100 at 512 x 512)

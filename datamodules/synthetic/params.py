@@ -21,7 +21,7 @@ from typing import Any
 from c3f_slam.errors import InputError
 
 PATH_KINDS = ("A", "B", "random")
-LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, SPEC §5.2)
+LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, docs/datasets.md)
 LAYOUT_ALIASES = {"simcol": "simcol3d"}  # earlier name
 PATH_ALIASES = {"a": "A", "b": "B", "random": "random", "rp": "random"}
 
