@@ -1,17 +1,20 @@
-# The two commands of a fresh clone (README, top):
-#   make demo   set up .venv if missing, install as README's Quickstart says, run the demo into
+# The two commands of a fresh clone (README, "Two commands"):
+#   make demo   set up .venv if missing, install as README's "Install" says (.[dev]), run the demo into
 #               demo_out/ (DEMO_OUT=DIR for another folder, DEMO_ARGS=--quick for the short one)
 #   make test   set up the same way, then `ruff check .` and README's test command (what CI runs)
 #   make check  the fast check while working: `ruff check .` and the tests that are neither end to end
 #               nor slow (pytest marks e2e, slow; under 2 minutes on 2 cores)
+#   make docs   install the docs extra if missing (.[docs]) and build the documentation strict into site/:
+#               a broken link, image or anchor fails it (CI runs it)
 PYTHON ?= python3
 VENV ?= .venv
 DEMO_OUT ?= demo_out
 DEMO_ARGS ?=
 PYTEST_ARGS ?= -n 2 --durations=15
 STAMP := $(VENV)/.installed
+DOCS_STAMP := $(VENV)/.installed-docs
 
-.PHONY: demo test check setup zoo
+.PHONY: demo test check docs setup zoo
 
 setup: $(STAMP)
 
@@ -30,6 +33,14 @@ test: $(STAMP)
 check: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/python -m pytest -n 2 -q -m "not e2e and not slow"
+
+$(DOCS_STAMP): pyproject.toml
+	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	$(VENV)/bin/mkdocs build --strict --site-dir site
 
 # the zoo's models, each by its recipe (python -m c3f_models zoo train NAME; resumable: rerun to continue)
 zoo: $(STAMP)

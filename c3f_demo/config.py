@@ -20,7 +20,7 @@ class SimulateConfig:
 
     ``train``: (preset, seed) of each training sequence; ``test``: the held-out one. ``coverage``:
     share of the colon each path travels (``path.coverage``); at ``frames`` frames this sets the
-    motion per frame (README "Speed per frame").
+    motion per frame (docs/datasets.md, Speed per frame).
     """
 
     train: tuple[tuple[str, int], ...] = (("seq1", 100), ("seq3", 101))

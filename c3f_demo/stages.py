@@ -4,7 +4,7 @@ export -> slam.
 Each stage is a small class: ``settings`` (what its key hashes), ``outputs`` (what it writes,
 removed before it reruns after an interruption), ``estimate_s`` (seconds on 2 CPU cores, for
 the ETA), ``probe`` (fraction done, when known) and ``run`` (returns notes for the report).
-Every step is the project's own command line (README), run by :meth:`DemoContext.run`.
+Every step is the project's own command line (docs/demo.md), run by :meth:`DemoContext.run`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""ContraFeat as a LightningModule (SPEC §3, paper §3.2).
+"""ContraFeat as a LightningModule (docs/design.md, ContraFeat; paper §3.2).
 
 Batches are frame pairs (:class:`datamodules.pairs.ContraFeatDataModule`, or any
 :mod:`datamodules.base` batch with depth and poses; frame 0 is paired with every later

@@ -1,4 +1,4 @@
-"""DepthNet: self-supervised monocular depth for colonoscopy as a LightningModule (SPEC §2).
+"""DepthNet: self-supervised monocular depth for colonoscopy as a LightningModule (docs/design.md, DepthNet).
 
 Batches come from :mod:`datamodules.base` with frame triplets (t-1, t, t+1): ``image``
 (B, 3, 3, H, W) in [0, 1], ``specular`` (B, 3, 1, H, W), ``K`` (B, 3, 3), optional ``depth``.

@@ -61,7 +61,7 @@ class PinholeCamera:
 
     @classmethod
     def from_json(cls, path: str | Path) -> PinholeCamera:
-        """Read ``camera.json`` of the project's sequence layout (SPEC §5.2)."""
+        """Read ``camera.json`` of the project's sequence layout (docs/datasets.md, Sequence layout)."""
         path = Path(path)
         if not path.is_file():
             raise InputError(f"{path}: camera file not found")

@@ -1,4 +1,4 @@
-"""View-frustum overlap between two frames (fragment condition (2) of SPEC §4.2).
+"""View-frustum overlap between two frames (fragment condition (2), docs/design.md, Fragments and keyframes).
 
 The overlap of frame i with frame j is the share of frame i's valid pixels (on a subsampled
 grid, back-projected with frame i's depth) whose 3D points land inside frame j's image, in

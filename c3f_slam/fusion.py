@@ -1,4 +1,4 @@
-"""TSDF fusion (SPEC §4.3) on Open3D's voxel-hashing ``VoxelBlockGrid`` and fragment scheduling.
+"""TSDF fusion (docs/design.md, Fusion) on Open3D's voxel-hashing ``VoxelBlockGrid`` and fragment scheduling.
 
 - :class:`TSDFVolume`: integrate RGB + depth (metres) with camera-to-world poses, extract a
   vertex-coloured triangle mesh with marching cubes. Unobserved space stays empty, so
@@ -123,7 +123,7 @@ class _Fragment:
 
 
 class FragmentFusion:
-    """Fuse fragments into a live preview volume once they are settled (SPEC §4.3).
+    """Fuse fragments into a live preview volume once they are settled (docs/design.md, Fusion).
 
     A fragment is settled at frame ``current`` when ``current - last_inspected > eps_f_na``
     (frames) and the current camera centre is farther than ``eps_cf_d`` (metres) from every

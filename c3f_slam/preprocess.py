@@ -3,9 +3,9 @@
 - :func:`center_crop_resize`: centre crop then resize, with the intrinsics updated to match.
 - :func:`prepare_network_input`: the whole chain a network sees (crop, resize, inpainting);
   training (:mod:`datamodules.base`) and the ONNX runtime (:mod:`c3f_slam.models`) both call it.
-- :func:`specular_mask` / :func:`inpaint_specular`: SPEC §2, the specular highlights are the
-  pixels whose YUV luma Y exceeds 0.9 of full range, dilated with a 13-px kernel; they are
-  inpainted in the input (OpenCV Telea) and excluded from the losses.
+- :func:`specular_mask` / :func:`inpaint_specular` (docs/design.md, Pre-processing): the
+  specular highlights are the pixels whose YUV luma Y exceeds 0.9 of full range, dilated with a
+  13-px kernel; they are inpainted in the input (OpenCV Telea) and excluded from the losses.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Surface coverage of a reconstruction (SPEC §4.4).
+"""Surface coverage of a reconstruction (docs/design.md, Evaluation).
 
 - :func:`surface_coverage`: share of the ground-truth surface that the reconstruction reaches;
 - :func:`coverage_mesh`: a copy of the ground-truth mesh painted seen / unseen.

@@ -1,4 +1,4 @@
-"""Trajectory metrics (SPEC §4.4).
+"""Trajectory metrics (docs/design.md, Evaluation).
 
 - :func:`associate`: pair estimated and ground-truth frames by timestamp.
 - :func:`umeyama`: least-squares similarity (or rigid) fit between point sets.

@@ -7,6 +7,6 @@ readers), ``datamodules.convert`` / ``python -m datamodules`` (the converter) an
 
 - :mod:`datamodules.base`: frame-tuple dataset and the sequence data-module base, with its
   settings groups in :mod:`datamodules.config` (``split``, ``sampling``, ``frames``, ``loader``);
-- :mod:`datamodules.sequence`: the project's own sequence layout (SPEC §5.2);
+- :mod:`datamodules.sequence`: the project's own sequence layout (docs/datasets.md, Sequence layout);
 - :mod:`datamodules.published`: UTS-synthetic, SimCol3D, C3VD and Colon10K as released.
 """

@@ -1,8 +1,9 @@
 """Frame-tuple datasets and the data-module base that every sequence loader shares.
 
 A sample is a tuple of frames around a centre frame t, by default (t-1, t, t+1) with a
-configurable stride, pre-processed as SPEC §2 says: centre crop, resize (intrinsics
-follow), specular mask (Y > 0.9, 13-px dilation) and inpainting of the masked pixels.
+configurable stride, pre-processed as the paper does (docs/design.md, Pre-processing): centre
+crop, resize (intrinsics follow), specular mask (Y > 0.9, 13-px dilation) and inpainting of the
+masked pixels.
 The settings groups (split, sampling, frames, loader) are those of :mod:`datamodules.config`.
 
 Batch layout (``F`` = frames per sample, in ``sampling.frame_offsets`` order; t is at index

@@ -86,7 +86,7 @@ class TupleSamplingConfig:
 
 @dataclass(frozen=True)
 class FramesConfig:
-    """Pre-processing of every frame (SPEC §2); the intrinsics follow the crop and the resize.
+    """Pre-processing of every frame (docs/design.md, Pre-processing); the intrinsics follow the crop and the resize.
 
     Attributes:
         crop: centre crop (width, height), pixels, applied first; null = none.

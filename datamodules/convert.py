@@ -1,4 +1,4 @@
-"""Convert a published data set into the project's sequence layout (SPEC §5.2).
+"""Convert a published data set into the project's sequence layout (docs/datasets.md, Sequence layout).
 
     python -m datamodules convert {uts,simcol3d,c3vd,colon10k} SRC --out DST
 

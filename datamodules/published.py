@@ -13,8 +13,8 @@ data module                ``data_dir`` (as published)                 ground tr
 
 (* UTS's public release has no depth maps; sequences rendered with its simulator do.)
 Every other argument is :class:`datamodules.base.SequenceDataModule`'s: the groups ``split``
-(by sequence), ``sampling`` (frame tuples), ``frames`` (the centre crop and resize of SPEC §2,
-intrinsics follow; specular masks) and ``loader``.
+(by sequence), ``sampling`` (frame tuples), ``frames`` (the centre crop and resize of the paper,
+docs/design.md, Pre-processing; intrinsics follow; specular masks) and ``loader``.
 The crops of the paper are in ``configs/depthnet/<data set>.yaml``.
 """
 

@@ -1,4 +1,4 @@
-"""Data module for the project's own sequence layout (SPEC §5.2).
+"""Data module for the project's own sequence layout (docs/datasets.md, Sequence layout).
 
 ``data_dir`` holds sequence folders, each with ``rgb/`` and ``camera.json`` (the simulator
 writes exactly this), at any depth below it; a ``data_dir`` that is itself a sequence is used

@@ -1,10 +1,10 @@
 """Run ``torch.onnx.export(dynamo=True)`` and write the file with its metadata, atomically.
 
 The file is one self-contained ONNX model (no external data), opset 18, or 19 for graphs
-with ``torchvision.ops.deform_conv2d`` (SPEC §6). Batch is always a dynamic axis; height and
-width are dynamic when ``dynamic_size`` (the fully convolutional nets allow it down to
-``MIN_SIZE`` pixels, or the training size if smaller: the depth decoder pads its coarsest
-(1/32) map by reflection).
+with ``torchvision.ops.deform_conv2d`` (docs/design.md, Technical choices). Batch is always a
+dynamic axis; height and width are dynamic when ``dynamic_size`` (the fully convolutional nets
+allow it down to ``MIN_SIZE`` pixels, or the training size if smaller: the depth decoder pads its
+coarsest (1/32) map by reflection).
 """
 
 from __future__ import annotations

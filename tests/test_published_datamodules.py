@@ -74,7 +74,8 @@ def test_contrafeat_pairs_from_a_published_layout(published):
         ContraFeatDataModule(str(root), layout="c3vd", layout_options={"fov": 90})
 
 
-#: SPEC §2: UTS renders 512 -> 400 centre crop; Colon10K's 270x216 scaled as they are; C3VD (ours): square crop
+#: the paper's crops (docs/design.md, Pre-processing): UTS renders 512 -> 400 centre crop; Colon10K's 270x216
+#: scaled as they are; C3VD (ours): square crop
 PAPER_CROPS = {"uts": [400, 400], "simcol3d": None, "c3vd": [1080, 1080], "colon10k": None}
 
 

@@ -1,5 +1,5 @@
-"""The seven depth metrics of the DepthNet benchmarks (SPEC §2, per-image median scaling) as
-the test step logs them, and their table cells: Sq Rel and RMSE in centimetres, as the paper's
+"""The seven depth metrics of the DepthNet benchmarks (docs/design.md, Depth metrics: per-image
+median scaling) as the test step logs them, and their table cells: Sq Rel and RMSE in centimetres, as the paper's
 table prints them, the others unitless."""
 
 from __future__ import annotations

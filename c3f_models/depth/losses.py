@@ -1,4 +1,4 @@
-"""Loss building blocks of DepthNet (SPEC §2), each a small pure function.
+"""Loss building blocks of DepthNet (docs/design.md, Depth network losses), each a small pure function.
 
 Shapes: images (B, 3, H, W) in [0, 1]; per-pixel errors and masks (B, 1, H, W);
 depths in metres. Masks are bool, True = the pixel counts.

@@ -1,4 +1,4 @@
-"""DepthNet's self-supervised objective on a frame triplet (SPEC §2, paper §3.1).
+"""DepthNet's self-supervised objective on a frame triplet (docs/design.md, Depth network losses; paper §3.1).
 
 Frames are indexed 0, 1, 2 = (t-1, t, t+1). A pair (i, j) means *target* i reconstructed
 from *source* j by inverse warping: the target's depth D_i and the pose T_ji carry i's

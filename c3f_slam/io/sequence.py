@@ -1,4 +1,4 @@
-"""The project's own sequence layout (SPEC §5.2), read and written.
+"""The project's own sequence layout (docs/datasets.md, Sequence layout), read and written.
 
 ::
 

@@ -1,4 +1,4 @@
-"""Ground-truth keypoint matches from depth, poses and intrinsics (SPEC §3).
+"""Ground-truth keypoint matches from depth, poses and intrinsics (docs/design.md, ContraFeat).
 
 Each keypoint of frame i is lifted with its depth, moved into frame j with the known
 poses (T_ji = inv(T_wj) @ T_wi), projected, and kept when it lands inside j and agrees

@@ -1,4 +1,4 @@
-"""Exported C3Fusion networks on onnxruntime, torch-free (SPEC §4).
+"""Exported C3Fusion networks on onnxruntime, torch-free (docs/design.md, SLAM runtime).
 
 - :mod:`.metadata`: the schema of the metadata every export carries (:class:`ModelMetadata`);
 - :mod:`.session`: :class:`OnnxModel`, the loader that checks file, metadata and graph and

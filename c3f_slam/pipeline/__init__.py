@@ -1,4 +1,4 @@
-"""The SLAM runtime pipeline (SPEC §4): frontend, fragments, global keyframe graph, fusion.
+"""The SLAM runtime pipeline (docs/design.md, SLAM runtime): frontend, fragments, global keyframe graph, fusion.
 
 - :mod:`.sources`: the run's inputs (:class:`RunInputs`), checked and opened once;
 - :mod:`.frontend`: keypoints, descriptor / depth provider seams, pairwise matching;

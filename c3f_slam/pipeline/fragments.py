@@ -1,4 +1,4 @@
-"""Fragments (SPEC §4.2): the new-fragment rule and the intra-fragment pose graph.
+"""Fragments (docs/design.md, Fragments and keyframes): the new-fragment rule and the intra-fragment pose graph.
 
 A fragment is a run of consecutive frames registered relative to its first frame, the
 keyframe (node 0, identity). Poses here are keyframe-from-frame (camera-to-keyframe)

@@ -1,5 +1,5 @@
 """Edges of a new keyframe into the global graph: how many are kept and where the keyframe
-goes (SPEC §4.2).
+goes (docs/design.md, Fragments and keyframes).
 
 A new keyframe has at most one odometry edge (to the previous fragment's node, certain), or
 in its place a ``fallback`` edge (dense alignment, uncertain: :mod:`.fallback`), and

@@ -1,4 +1,4 @@
-"""Keyframe candidates for global matching (SPEC §4.2 at scale).
+"""Keyframe candidates for global matching (docs/design.md, Scaling to long sequences).
 
 The paper matches each new keyframe against **all** earlier keyframes: O(#keyframes) pair
 matches per keyframe, quadratic over a sequence (a 20,000-frame stream makes thousands of

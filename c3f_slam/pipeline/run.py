@@ -1,4 +1,4 @@
-"""Run the SLAM runtime on a sequence folder or a video and write its outputs (SPEC §4, §5.2).
+"""Run the SLAM runtime on a sequence folder or a video and write its outputs (docs/runtime.md).
 
 :func:`run_slam` opens the run (inputs checked and opened once: :mod:`.sources`), then a
 :class:`SlamRun` (a context manager that owns the run's resources: the BLAS thread limit,

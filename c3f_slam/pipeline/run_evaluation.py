@@ -1,4 +1,4 @@
-"""``evaluate`` of a run folder against a ground-truth sequence (SPEC §4.4).
+"""``evaluate`` of a run folder against a ground-truth sequence (docs/design.md, Evaluation).
 
 Writes OUT/evaluation.json (lengths in metres), OUT/trajectory.png (estimate aligned with
 Sim(3) vs ground truth) and, when the sequence has mesh.ply and the run a mesh.ply,

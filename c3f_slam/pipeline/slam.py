@@ -1,4 +1,4 @@
-"""The full SLAM back-end (SPEC §4.2): fragments + global keyframe graph.
+"""The full SLAM back-end (docs/design.md, Fragments and keyframes): fragments + global keyframe graph.
 
 Poses are camera-to-world (metres); the world is the frame of the first keyframe of the
 component it belongs to. A frame is *registered* when its fragment's keyframe lies in the

@@ -1,8 +1,8 @@
 """Pose-graph optimisation with line-process edge pruning (Choi et al. 2015) on Open3D.
 
-One graph class serves both levels of SPEC §4.2: the intra-fragment graph (nodes = frames of a
-fragment, node 0 = its keyframe, poses relative to the keyframe) and the global graph (nodes =
-keyframes, node 0 = the first keyframe). Conventions (see ``c3f_slam.geometry``): node poses
+One graph class serves both levels (docs/design.md, Pose graphs): the intra-fragment graph
+(nodes = frames of a fragment, node 0 = its keyframe, poses relative to the keyframe) and the
+global graph (nodes = keyframes, node 0 = the first keyframe). Conventions (see ``c3f_slam.geometry``): node poses
 are camera-to-world ``T_wc`` (the "world" being the graph's reference frame); an edge
 ``(i, j, T_ij)`` says p_i = T_ij @ p_j, i.e. T_ij = inv(T_wi) @ T_wj. Metres and radians.
 

@@ -1,4 +1,4 @@
-"""The project's own sequence layout (SPEC §5.2) as a :class:`SequenceFormat`."""
+"""The project's own sequence layout (docs/datasets.md, Sequence layout) as a :class:`SequenceFormat`."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Generate a whole sequence: build the colon, plan the path, render, write the layout.
 
-Output (SPEC §5.2, via :class:`c3f_slam.io.SequenceWriter`)::
+Output (docs/datasets.md, Sequence layout; via :class:`c3f_slam.io.SequenceWriter`)::
 
     OUT/
       rgb/NNNNNN.png      uint8 RGB
@@ -71,7 +71,7 @@ def generate_sequence(
 ) -> Path:
     """Render ``params`` into the folder ``out``; returns its path.
 
-    ``layout``: ``c3f`` (the project's own, SPEC §5.2) or, additionally written from the
+    ``layout``: ``c3f`` (the project's own, docs/datasets.md) or, additionally written from the
     same frames, ``uts`` / ``simcol3d`` / ``c3vd`` / ``colon10k`` (see :mod:`datamodules.synthetic.layouts`).
     """
     params.validate()

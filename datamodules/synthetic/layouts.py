@@ -1,5 +1,5 @@
 """The same simulated sequence written in the published layouts of UTS-synthetic, SimCol3D,
-C3VD and Colon10K (SPEC §5), quirks included, so that each loader in
+C3VD and Colon10K (docs/datasets.md, Published data sets), quirks included, so that each loader in
 :mod:`datamodules.formats` is tested on files as the data sets publish them.
 
 ``generate_sequence(..., layout=NAME)`` writes them into ``OUT/NAME/`` beside the project's

@@ -22,7 +22,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.settings import convert_value, field_types
 
 PATH_KINDS = ("A", "B", "random")
-LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, SPEC §5.2)
+LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, docs/datasets.md)
 LAYOUT_ALIASES = {"simcol": "simcol3d"}  # earlier name
 PATH_ALIASES = {"a": "A", "b": "B", "random": "random", "rp": "random"}
 
