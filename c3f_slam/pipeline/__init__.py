@@ -3,7 +3,8 @@
 - :mod:`.config`: :class:`SlamConfig`, one small settings part per component, and presets;
 - :mod:`.sources`: the run's inputs (:class:`RunInputs`), checked and opened once;
 - :mod:`.frontend`: keypoints, descriptor / depth provider seams, pairwise matching;
-- :mod:`.backend`: the :class:`SlamBackend` protocol the run loop drives, frame log, timings;
+- :mod:`.backend`: the :class:`SlamBackend` protocol the run loop drives and the frame log;
+- :mod:`.timings`: seconds per stage;
 - :mod:`.slam`: the full back-end (fragments + global keyframe graph), built from
   :mod:`.fragments` (the new-fragment rule, intra-fragment graphs), :mod:`.retrieval`
   (keyframe candidates), :mod:`.keyframe_edges` (edge cap, placing a keyframe),

@@ -1,5 +1,5 @@
-"""What the run loop needs from a SLAM back-end (:class:`SlamBackend`), and the parts both
-back-ends share: the frame log (:class:`FrameLog`) and per-stage timings (:class:`Timings`).
+"""What the run loop needs from a SLAM back-end (:class:`SlamBackend`), and the frame log
+both back-ends keep (:class:`FrameLog`).
 
 Two back-ends implement the protocol: :class:`c3f_slam.pipeline.slam.FragmentSlam` (the
 full system) and :class:`c3f_slam.pipeline.odometry.OdometrySlam` (the baseline). Poses are
@@ -9,9 +9,7 @@ streamed frame, processed or skipped, in stream order).
 
 from __future__ import annotations
 
-import time
 from array import array
-from collections import defaultdict
 from pathlib import Path
 from typing import Protocol
 
@@ -21,31 +19,7 @@ from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures
-
-
-class Timings:
-    """Seconds per stage (io, depth, keypoints incl. descriptors, matching, the dense fallback,
-    the dense refinement of keyframe edges, posegraph, fusion)."""
-
-    STAGES = ("io", "depth", "keypoints", "matching", "fallback", "refine", "posegraph", "fusion")
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = defaultdict(float)
-
-    def add(self, stage: str, t0: float) -> float:
-        """Add the time since ``t0`` (``time.perf_counter()``) to ``stage``; returns now."""
-        now = time.perf_counter()
-        self.seconds[stage] += now - t0
-        return now
-
-    def as_dict(self, n_frames: int) -> dict:
-        out = {}
-        for s in self.STAGES:
-            sec = self.seconds.get(s, 0.0)
-            out[s] = {"seconds": sec, "ms_per_frame": 1000.0 * sec / max(n_frames, 1)}
-        total = sum(self.seconds.values())
-        out["total"] = {"seconds": total, "frames_per_second": n_frames / total if total > 0 else None}
-        return out
+from c3f_slam.pipeline.timings import Timings
 
 
 class FrameLog:

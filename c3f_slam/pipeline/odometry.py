@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from c3f_slam.outputs import KeyframeGraph
-from c3f_slam.pipeline.backend import FrameLog, Timings
+from c3f_slam.pipeline.backend import FrameLog
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, frame_matcher
+from c3f_slam.pipeline.timings import Timings
 
 
 class OdometrySlam:

@@ -32,7 +32,7 @@ from threadpoolctl import threadpool_limits
 from c3f_slam.errors import InputError
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
 from c3f_slam.outputs import RunFolder, RunOutputs
-from c3f_slam.pipeline.backend import BackendFactory, SlamBackend, Timings
+from c3f_slam.pipeline.backend import BackendFactory, SlamBackend
 from c3f_slam.pipeline.components import (
     ComponentEntry,
     MapComponent,
@@ -48,6 +48,7 @@ from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
 from c3f_slam.pipeline.odometry import OdometrySlam
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.pipeline.sources import RunInputs, RunSources, open_sources
+from c3f_slam.pipeline.timings import Timings
 from c3f_slam.stream import UNREADABLE, FrameStream, StreamFrame
 
 SKIP_REASONS = ("black", "saturated", "featureless", "unreadable")

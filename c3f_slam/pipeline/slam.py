@@ -34,7 +34,6 @@ import numpy as np
 
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import invert_pose, transform_points
-from c3f_slam.pipeline.backend import Timings
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
@@ -51,6 +50,7 @@ from c3f_slam.pipeline.refine import EdgeRefiner
 from c3f_slam.pipeline.rejoin import BreakTails
 from c3f_slam.pipeline.retrieval import Candidates, global_descriptor
 from c3f_slam.pipeline.reuse import find_host, revisit_edges
+from c3f_slam.pipeline.timings import Timings
 from c3f_slam.posegraph import EdgeKind
 from c3f_slam.posegraph.components import Components
 
