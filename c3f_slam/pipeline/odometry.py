@@ -3,7 +3,6 @@ without fragments, keyframes or optimisation. Poses camera-to-world, metres."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -51,9 +50,8 @@ class OdometrySlam:
         if self.last is None:
             T = np.eye(4)
         else:
-            t0 = time.perf_counter()
-            m, _ = self.match(self.last, feat)
-            self.t.add("matching", t0)
+            with self.t.stage("matching"):
+                m, _ = self.match(self.last, feat)
             if m is None:
                 self.n_lost += 1
                 self.log.append(feat.index, feat.timestamp)

@@ -118,11 +118,8 @@ class SlamRun:
 
     def run(self) -> TriangleMesh | None:
         """Every frame of the stream, then the end of the run; returns the mesh (None without fusion)."""
-        t0 = time.perf_counter()
-        for frame in self.sources.stream:
-            self.timings.add("io", t0)
+        for frame in self.timings.timed("io", self.sources.stream):
             self.step(frame)
-            t0 = time.perf_counter()
         return self.finish()
 
     def step(self, frame: StreamFrame) -> None:
@@ -135,20 +132,18 @@ class SlamRun:
             if frame.status == UNREADABLE:
                 self._check_bad_frames(frame)
             return
-        t0 = time.perf_counter()
-        depth = self.sources.depth.depth(frame)
-        t0 = self.timings.add("depth", t0)
-        feat = self.frontend.describe(frame, self.frontend.keypoints(frame.rgb), depth)
-        self.timings.add("keypoints", t0)
+        with self.timings.stage("depth"):
+            depth = self.sources.depth.depth(frame)
+        with self.timings.stage("keypoints"):
+            feat = self.frontend.describe(frame, self.frontend.keypoints(frame.rgb), depth)
         if int(np.isfinite(feat.points).all(axis=1).sum()) < self.cfg.match_filter.min_matches:
             self._skip(frame, "featureless")
             return
         self.counts.processed += 1
         fid, _ = self.backend.add(feat, depth, frame.rgb)
-        t0 = time.perf_counter()
         if self.fusion is not None and fid >= 0:
-            self._fuse(fid, frame)
-        self.timings.add("fusion", t0)
+            with self.timings.stage("fusion"):
+                self._fuse(fid, frame)
         if self.bar is not None:
             self.bar.set_postfix(kf=self.backend.n_keyframes(), refresh=False)
 
@@ -177,14 +172,12 @@ class SlamRun:
         main map written (:mod:`.components`), and the mesh of the main map."""
         self.backend.finish()
         self.components = plan_components(self.backend.components(), self.cfg.components, self.outputs)
-        t0 = time.perf_counter()
-        fuse = self._fuse_component if self.fusion is not None else None
-        write_components(self.components, np.asarray(self.backend.log.stamp), fuse)
-        if self.fusion is None:
-            return None
-        mesh = self.fusion.finalize(self.backend.pose_of_log, self.backend.main_fragments())
-        self.timings.add("fusion", t0)
-        return mesh
+        with self.timings.stage("fusion"):
+            fuse = self._fuse_component if self.fusion is not None else None
+            write_components(self.components, np.asarray(self.backend.log.stamp), fuse)
+            if self.fusion is None:
+                return None
+            return self.fusion.finalize(self.backend.pose_of_log, self.backend.main_fragments())
 
     def _fuse_component(self, comp: MapComponent) -> TriangleMesh:
         """The mesh of one component (its frames re-fused with their final poses)."""

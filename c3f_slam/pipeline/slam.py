@@ -27,7 +27,6 @@ what remains proportional to the map is vectorised (appearance scores, spatial d
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -95,17 +94,16 @@ class FragmentSlam(FragmentMap):
     def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
         """Process one frame (``rgb``: its (H, W, 3) uint8 image, for the dense fallback only);
         returns (fragment id, opened a new fragment)."""
-        t0 = time.perf_counter()
         self._rgb = rgb
         link, n = (None, 0)
-        if self.prev is not None and not self.gap:
-            link, n = self.match(self.prev, feat)
-            if link is None:
-                link, n = self.recovery.guided_link(self.prev, feat, min(depth.shape[:2]))
-        t0 = self.t.add("matching", t0)
-        frame = self.recovery.frame(rgb, depth)
-        dense = self.recovery.dense_link(frame) if link is None and self.prev is not None and not self.gap else None
-        self.t.add("fallback", t0)
+        with self.t.stage("matching"):
+            if self.prev is not None and not self.gap:
+                link, n = self.match(self.prev, feat)
+                if link is None:
+                    link, n = self.recovery.guided_link(self.prev, feat, min(depth.shape[:2]))
+        with self.t.stage("fallback"):
+            frame = self.recovery.frame(rgb, depth)
+            dense = self.recovery.dense_link(frame) if link is None and self.prev is not None and not self.gap else None
         reason = self._new_fragment_reason(link, n, depth)
         if reason is None:
             fid, opened = self._extend_active(feat, link), False
@@ -123,15 +121,14 @@ class FragmentSlam(FragmentMap):
         (:mod:`.rejoin`); an accepted match merges the two components with a rejoin edge."""
         act = self.active
         assert act is not None
-        t0 = time.perf_counter()
-        root = self.graph.find(act.node)
-        r = self.rejoin.step(feat, act.node_pose(len(act) - 1), lambda node: self.graph.find(node) == root)
-        t0 = self.t.add("matching", t0)
+        with self.t.stage("matching"):
+            root = self.graph.find(act.node)
+            r = self.rejoin.step(feat, act.node_pose(len(act) - 1), lambda node: self.graph.find(node) == root)
         if r is None:
             return
-        link_across_break(self.graph, r.tail_node, act.node, r.T_ij, r.points_j, self.sparse)
-        self.schedule.after_keyframe(act.node, True, len(self.keyframes))
-        self.t.add("posegraph", t0)
+        with self.t.stage("posegraph"):
+            link_across_break(self.graph, r.tail_node, act.node, r.T_ij, r.points_j, self.sparse)
+            self.schedule.after_keyframe(act.node, True, len(self.keyframes))
 
     def _new_fragment_reason(self, link: PairMatch | None, n: int, depth: np.ndarray) -> str | None:
         """Why this frame opens a new fragment (None: it extends the active one)."""
@@ -153,14 +150,13 @@ class FragmentSlam(FragmentMap):
         extra = []
         all_pairs = self.cfg.fragments.intra_all_pairs
         if all_pairs or len(act) > 1:
-            t1 = time.perf_counter()
-            for local in range(len(act) - 1) if all_pairs else [0]:
-                if local == len(act) - 1:
-                    continue
-                m, _ = self.match(act.features[local], feat)
-                if m is not None:
-                    extra.append((local, m))
-            self.t.add("matching", t1)
+            with self.t.stage("matching"):
+                for local in range(len(act) - 1) if all_pairs else [0]:
+                    if local == len(act) - 1:
+                        continue
+                    m, _ = self.match(act.features[local], feat)
+                    if m is not None:
+                        extra.append((local, m))
         local = act.add_frame(feat, link, extra)
         self.log.append(feat.index, feat.timestamp, act.id, local)
         return act.id
@@ -172,9 +168,8 @@ class FragmentSlam(FragmentMap):
         frag = self.active
         if frag is None or frag.rel_poses is not None:
             return
-        t0 = time.perf_counter()
-        frag.close(self.cfg.posegraph)
-        self.t.add("posegraph", t0)
+        with self.t.stage("posegraph"):
+            frag.close(self.cfg.posegraph)
         self.counts.intra_edges += frag.n_edges
         self.counts.intra_pruned += frag.pruned
         assert frag.rel_poses is not None
@@ -199,12 +194,11 @@ class FragmentSlam(FragmentMap):
         self._active_row = len(self.log)
         self.log.append(feat.index, feat.timestamp, fid, 0)
         kf = feat.subset(self.cfg.keyframes.keypoints)
-        t0 = time.perf_counter()
-        g = global_descriptor(kf.descriptors)
-        edges = self._keyframe_edges(kf, g, link, prev_frag, dense)
-        sparse = [e for e in edges if e.kind != EdgeKind.FALLBACK]  # a revisit is found by sparse matches only
-        host = self._reuse_host(sparse, depth, reason, prev_frag) if self.cfg.keyframes.reuse else None
-        self.t.add("matching", t0)
+        with self.t.stage("matching"):
+            g = global_descriptor(kf.descriptors)
+            edges = self._keyframe_edges(kf, g, link, prev_frag, dense)
+            sparse = [e for e in edges if e.kind != EdgeKind.FALLBACK]  # a revisit is found by sparse matches only
+            host = self._reuse_host(sparse, depth, reason, prev_frag) if self.cfg.keyframes.reuse else None
         if host is not None:
             return self._attach(fid, feat, depth, reason, sparse, host, prev_frag)
         return self._add_keyframe(fid, feat, kf, g, depth, reason, edges, link or dense, prev_frag)
@@ -257,30 +251,28 @@ class FragmentSlam(FragmentMap):
                       reason: str, edges: list[KeyframeEdge], link: PairMatch | None,
                       prev_frag: Fragment | None) -> int:
         """Open fragment ``fid`` on a new keyframe (node) with its capped ``edges``."""
-        t0 = time.perf_counter()
-        edges, dropped = cap_keyframe_edges(edges, self.cfg.keyframes.max_loop_edges, self.graph.find)
-        self.counts.edges_capped += dropped
-        self.keyframes.append(kf)
-        self.retrieval.add(g)
-        t0 = self.t.add("matching", t0)
-        node = self.graph.add_node(np.eye(4))
-        assert node == len(self.keyframes) - 1
-        self.node_fragment.append(fid)
-        self.frag_node.append(node)
-        self.active = Fragment(fid, feat, depth, reason, node=node)
-        if self.sparse is not None:
-            self.sparse.add_node()
-        self.t.add("posegraph", t0)  # node bookkeeping; the refinement times itself
+        with self.t.stage("matching"):
+            edges, dropped = cap_keyframe_edges(edges, self.cfg.keyframes.max_loop_edges, self.graph.find)
+            self.counts.edges_capped += dropped
+            self.keyframes.append(kf)
+            self.retrieval.add(g)
+        with self.t.stage("posegraph"):  # node bookkeeping; the refinement times itself
+            node = self.graph.add_node(np.eye(4))
+            assert node == len(self.keyframes) - 1
+            self.node_fragment.append(fid)
+            self.frag_node.append(node)
+            self.active = Fragment(fid, feat, depth, reason, node=node)
+            if self.sparse is not None:
+                self.sparse.add_node()
         edges, information = self._refine(node, edges, depth)
-        t0 = time.perf_counter()
-        merged = link_new_keyframe(self.graph, node, edges, self.recovery.information, self.sparse, information)
-        if not edges:
-            self.counts.lone_created += 1
-        elif link is None and prev_frag is not None:
-            self.counts.relocalised += 1
-        loops = any(e.kind == EdgeKind.LOOP for e in edges)
-        self.schedule.after_keyframe(node, loops or merged > 0, len(self.keyframes))
-        self.t.add("posegraph", t0)
+        with self.t.stage("posegraph"):
+            merged = link_new_keyframe(self.graph, node, edges, self.recovery.information, self.sparse, information)
+            if not edges:
+                self.counts.lone_created += 1
+            elif link is None and prev_frag is not None:
+                self.counts.relocalised += 1
+            loops = any(e.kind == EdgeKind.LOOP for e in edges)
+            self.schedule.after_keyframe(node, loops or merged > 0, len(self.keyframes))
         return fid
 
     def _refine(self, node: int, edges: list[KeyframeEdge],
@@ -289,20 +281,23 @@ class FragmentSlam(FragmentMap):
         in place, and their information matrices by edge index; the frame's clouds are kept."""
         if self.refiner is None:
             return edges, {}
-        t0 = time.perf_counter()
-        self.refiner.observe(self._rgb, depth)
-        refined = self.refiner.refine_edges(edges)
-        self.refiner.keep(node)
+        with self.t.stage("refine"):
+            self.refiner.observe(self._rgb, depth)
+            refined = self.refiner.refine_edges(edges)
+            self.refiner.keep(node)
         edges = [KeyframeEdge(e.k, PairMatch(refined[n].T, e.match.points_j, e.match.n), e.kind)
                  if n in refined else e for n, e in enumerate(edges)]
-        self.t.add("refine", t0)
         return edges, {n: r.information for n, r in refined.items()}
 
     def _attach(self, fid: int, feat: FrameFeatures, depth: np.ndarray, reason: str,
                 edges: list[KeyframeEdge], host: int, prev_frag: Fragment | None) -> int:
         """Open fragment ``fid`` on keyframe ``host`` (a revisit): no new node, no stored
         features, only the edges of :func:`revisit_edges` (as host-k edges)."""
-        t0 = time.perf_counter()
+        with self.t.stage("posegraph"):
+            return self._attach_to(fid, feat, depth, reason, edges, host, prev_frag)
+
+    def _attach_to(self, fid: int, feat: FrameFeatures, depth: np.ndarray, reason: str,
+                   edges: list[KeyframeEdge], host: int, prev_frag: Fragment | None) -> int:
         keep = revisit_edges(self.graph, edges, host, prev_frag is not None and prev_frag.base is None)
         m_host = keep[0].match
         _, merged = place_new_frame(self.graph, keep, self.sparse)
@@ -318,7 +313,6 @@ class FragmentSlam(FragmentMap):
         self.frag_node.append(host)
         self.active = Fragment(fid, feat, depth, reason, node=host, base=m_host.T_ij)
         self.schedule.after_keyframe(host, len(keep) > 1 or merged > 0, len(self.keyframes))
-        self.t.add("posegraph", t0)
         return fid
 
     def stats(self) -> dict:
@@ -332,13 +326,12 @@ class FragmentSlam(FragmentMap):
         will be written (:mod:`.components`: ``components.min_frames``, the largest
         ``components.max_written``) on its own."""
         self._close_active()
-        t0 = time.perf_counter()
-        main = self.choose_main()
-        if main >= 0:
-            self.schedule.finish(len(self.keyframes), main)
-        rule = self.cfg.components
-        others = [node for node, rows in self._frame_groups()[1:] if rule.writes(len(rows), 1) is None]
-        for node in others[:rule.max_written]:
-            self.schedule.finish(len(self.keyframes), node)
-        self.choose_main()  # pruning may have split the main component
-        self.t.add("posegraph", t0)
+        with self.t.stage("posegraph"):
+            main = self.choose_main()
+            if main >= 0:
+                self.schedule.finish(len(self.keyframes), main)
+            rule = self.cfg.components
+            others = [node for node, rows in self._frame_groups()[1:] if rule.writes(len(rows), 1) is None]
+            for node in others[:rule.max_written]:
+                self.schedule.finish(len(self.keyframes), node)
+            self.choose_main()  # pruning may have split the main component
