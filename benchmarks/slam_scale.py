@@ -103,8 +103,8 @@ class Probe(FragmentSlam):
                   f"{r['pairs']:.1f} pairs/fragment, {r['opts']} opt ({r['win']} windowed), "
                   + " ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()), flush=True)
 
-    def add(self, feat, depth, rgb=None):
-        out = super().add(feat, depth, rgb)
+    def add(self, frame):
+        out = super().add(frame)
         self._tick()
         return out
 

@@ -23,6 +23,7 @@ from c3f_slam.outputs import RunOutputs
 from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.components import MapComponent, plan_components
 from c3f_slam.pipeline.config import ComponentConfig
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.run_evaluation import evaluate_run, format_report
 from c3f_slam.pipeline.slam import FragmentSlam
 from datamodules.synthetic.fixture import make_tiny_sequence
@@ -134,7 +135,7 @@ def _place_run(places: list[int], **cfg) -> tuple[FragmentSlam, PlaceWorld]:
     slam = FragmentSlam(c.for_frame_size(128, 128), np.eye(3))
     slam.match = world.match
     for i, place in enumerate(places):
-        slam.add(world.frame(i, place), np.full((8, 8), 0.03))
+        slam.add(FrameInput(world.frame(i, place), np.full((8, 8), 0.03)))
     return slam, world
 
 

@@ -12,6 +12,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.config import FallbackConfig
 from c3f_slam.pipeline.fallback import DenseFallback, RgbdFrame, verify_alignment
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.posegraph import EdgeKind
@@ -51,7 +52,7 @@ def _run(world: PlaceWorld, places: list[int], T_break: np.ndarray | None, keyfr
         if not sparse_components:
             slam.sparse = None
     for i, place in enumerate(places):
-        slam.add(world.frame(i, place), DEPTH, RGB)
+        slam.add(FrameInput(world.frame(i, place), DEPTH, RGB))
     slam.finish()
     return slam
 
@@ -230,7 +231,7 @@ def test_guided_matching_bridges_a_break_in_the_back_end():
         slam = world.use(FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3)))
         slam.match = lambda a, b: (None, 0) if (a.index, b.index) == (14, 15) else world.match(a, b)
         for i, p in enumerate(places):
-            slam.add(world.frame(i, p), DEPTH)
+            slam.add(FrameInput(world.frame(i, p), DEPTH))
         slam.finish()
         return slam
 

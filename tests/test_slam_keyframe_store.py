@@ -14,6 +14,7 @@ import pytest
 
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig, run_slam
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR, DATA_FILE, KeyframeStore
 from c3f_slam.pipeline.slam import FragmentSlam
@@ -111,7 +112,7 @@ def _fake_run(world: PlaceWorld, folder: Path | None) -> tuple[FragmentSlam, lis
 
     slam.match = match
     for i, p in enumerate(_revisiting_walk()):
-        slam.add(world.frame(i, p), np.zeros((4, 4), np.float32))
+        slam.add(FrameInput(world.frame(i, p), np.zeros((4, 4), np.float32)))
     slam.finish()
     return slam, seen
 
@@ -151,11 +152,11 @@ def test_run_slam_identical_and_cache_removed(seq, tmp_path):
     seen = {}
 
     class Spy(FragmentSlam):
-        def add(self, feat, depth, rgb=None):
+        def add(self, frame):
             seen["on_disk"] = self.keyframes.on_disk
             seen["file"] = seen.get("file") or (self.keyframes.folder is not None
                                                 and (self.keyframes.folder / DATA_FILE).is_file())
-            return super().add(feat, depth, rgb)
+            return super().add(frame)
 
     outs = {}
     for cache in (True, False):
@@ -178,12 +179,12 @@ def test_run_slam_removes_cache_on_error(seq, tmp_path):
     out = tmp_path / "boom"
 
     class Boom(FragmentSlam):
-        def add(self, feat, depth, rgb=None):
+        def add(self, frame):
             if len(self.keyframes) >= 2:  # the cache is in the run being built (beside OUT)
                 assert self.keyframes.folder.name == CACHE_DIR and self.keyframes.folder.parent.parent == tmp_path
                 assert (self.keyframes.folder / DATA_FILE).stat().st_size > 0
                 raise RuntimeError("planted failure")
-            return super().add(feat, depth, rgb)
+            return super().add(frame)
 
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False})
     with pytest.raises(RuntimeError, match="planted failure"):

@@ -10,6 +10,7 @@ import pytest
 from c3f_slam import geometry as g
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.pipeline.keyframe_edges import cap_keyframe_edges
 from c3f_slam.pipeline.slam import FragmentSlam
@@ -170,7 +171,7 @@ def _run(cap: int | None, n_frames: int = 60) -> tuple[FragmentSlam, PlaceWorld]
     world = PlaceWorld(10, reach=3, seed=1, graded=True)
     slam = keyframe_per_frame_slam(world, candidates={"max_candidates": None}, keyframes={"max_loop_edges": cap})
     for k in range(n_frames):
-        slam.add(world.frame(k, [*range(10), *range(8, 0, -1)][k % 18]), np.zeros((4, 4)))
+        slam.add(FrameInput(world.frame(k, [*range(10), *range(8, 0, -1)][k % 18]), np.zeros((4, 4))))
     return slam, world
 
 

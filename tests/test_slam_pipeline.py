@@ -160,9 +160,9 @@ def test_blas_threads_are_capped_during_a_run_and_restored(seq, tmp_path):
     seen: list[list[int]] = []
 
     class Watching(OdometrySlam):
-        def add(self, feat, depth, rgb=None):
+        def add(self, frame):
             seen.append(blas_threads())
-            return super().add(feat, depth, rgb)
+            return super().add(frame)
 
     cfg = SlamConfig.preset_config("colon", mode="odometry", fusion={"enabled": False}, **CFG)
     run_slam(seq, tmp_path / "b1", cfg, progress=False, max_frames=4, slam_factory=Watching)

@@ -10,6 +10,7 @@ from c3f_slam import geometry as g
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.config import FragmentConfig
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.rejoin import _tail_index
 from c3f_slam.pipeline.slam import FragmentSlam
 from tests.fake_places import PlaceWorld
@@ -26,7 +27,7 @@ def _run(world: PlaceWorld, places: list[int], **rejoin) -> FragmentSlam:
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
     world.use(slam)
     for i, place in enumerate(places):
-        slam.add(world.frame(i, place), np.full((8, 8), 0.03))
+        slam.add(FrameInput(world.frame(i, place), np.full((8, 8), 0.03)))
     slam.finish()
     return slam
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from c3f_slam import geometry as g
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.retrieval import (
     AppearanceIndex,
     CandidateConfig,
@@ -217,7 +218,7 @@ def test_optimisation_schedule_small_then_geometric():
 
     slam.schedule.optimize = spy
     for k in range(60):
-        slam.add(world.frame(k, k), np.zeros((4, 4)))
+        slam.add(FrameInput(world.frame(k, k), np.zeros((4, 4))))
     # keyframe 2 (the 3rd) is the first with a loop (to 0); every loop keyframe optimises while
     # the map is small (< 10), then only once the keyframes added since the last optimisation
     # are 50 % of the component to optimise: 9 -> 18 -> 36 (geometric)
@@ -234,7 +235,7 @@ def test_every_keyframe_switch_and_paper_rules():
     world = PlaceWorld(30, reach=2)
     slam = keyframe_per_frame_slam(world, optimization={"growth": None}, candidates={"max_candidates": None})
     for k in range(30):
-        slam.add(world.frame(k, k), np.zeros((4, 4)))
+        slam.add(FrameInput(world.frame(k, k), np.zeros((4, 4))))
     assert slam.schedule.counts.optimizations == 28  # every keyframe with a loop (keyframes 2..29)
     assert slam.counts.candidates_matched == sum(max(k - 1, 0) for k in range(30))  # all earlier but the link pair
 
@@ -257,13 +258,13 @@ def test_bounded_candidates_windows_and_relocalisation():
     slam.graph.optimize = spy
     for k in range(70):
         before = slam.counts.candidates_matched
-        slam.add(world.frame(k, k), np.zeros((4, 4)))
+        slam.add(FrameInput(world.frame(k, k), np.zeros((4, 4))))
         assert slam.counts.candidates_matched - before <= 6
     assert max(sizes) <= 12 and slam.schedule.counts.windowed > 0
     # tracking lost; the camera is back at place 20 (50 places ago)
     slam.skip(70, 70 / 30.0)
     reloc = slam.counts.relocalised
-    slam.add(world.frame(71, 20), np.zeros((4, 4)))
+    slam.add(FrameInput(world.frame(71, 20), np.zeros((4, 4))))
     assert slam.counts.relocalised == reloc + 1
     new = len(slam.keyframes) - 1
     assert any({e.i, e.j} == {20, new} for e in slam.graph.edges)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from c3f_slam.pipeline import SlamConfig
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
 from c3f_slam.pipeline.slam import FragmentSlam
 from tests.fake_places import PlaceWorld
@@ -47,8 +48,8 @@ def test_revisits_add_no_keyframes_and_no_edges():
     places = _ping_pong(10, 60)
     edges_after_first_return = None
     for k, p in enumerate(places):
-        slam.add(world.frame(k, p), DEPTH)
-        plain.add(world.frame(k, p), DEPTH)
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
+        plain.add(FrameInput(world.frame(k, p), DEPTH))
         if k == 11:
             edges_after_first_return = slam.graph.n_edges
     # the first pass makes the 10 keyframes; after it every fragment hangs off one of them
@@ -78,7 +79,7 @@ def test_attach_needs_the_fragment_rules_overlap():
     turned = world.poses[1] @ np.array([[0, 0, 1, 0], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], float)
     slam = _slam(world, True)
     for k, p in enumerate([0, 1, 2]):
-        slam.add(world.frame(k, p), DEPTH)
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
     # a frame at place 1, matched with the right relative pose but turned 90 deg
     feat = world.frame(3, 1)
     inner = world.match
@@ -91,12 +92,12 @@ def test_attach_needs_the_fragment_rules_overlap():
         return m, n
 
     slam.match = match
-    slam.add(feat, DEPTH)
+    slam.add(FrameInput(feat, DEPTH))
     assert len(slam.keyframes) == 4 and slam.counts.attached == 0
     # and the same frame looking the right way hangs off keyframe 1
     slam.match = inner
     slam.skip(4, 4 / 30.0)
-    slam.add(world.frame(5, 1), DEPTH)
+    slam.add(FrameInput(world.frame(5, 1), DEPTH))
     assert len(slam.keyframes) == 4 and slam.counts.attached == 1 and slam.frag_node[-1] == 1
 
 
@@ -115,14 +116,14 @@ def test_attached_revisit_merges_a_lone_component():
 
     slam.match = match
     for k, p in enumerate([0, 1, 2, 3]):
-        slam.add(world.frame(k, p), DEPTH)
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
     slam.skip(4, 4 / 30.0)
     for k, p in zip(range(5, 9), [4, 5, 6, 7]):
-        slam.add(world.frame(k, p), DEPTH)
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
     assert slam.graph.find(0) != slam.graph.find(7)  # two components
     hide["on"] = False
     for k, p in zip(range(9, 12), [6, 5, 4]):
-        slam.add(world.frame(k, p), DEPTH)
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
     assert len(slam.keyframes) == 8 and slam.counts.attached == 3
     assert slam.graph.find(0) == slam.graph.find(7)
     slam.finish()
@@ -167,7 +168,7 @@ def test_a_wrong_keyframe_match_does_not_attach_against_the_odometry(check):
 
     slam.match = match
     for k in range(7):
-        slam.add(world.frame(k, k), DEPTH)
+        slam.add(FrameInput(world.frame(k, k), DEPTH))
     slam.finish()
     if check:
         assert len(slam.keyframes) == 7 and slam.counts.attached == 0
@@ -199,14 +200,14 @@ def test_no_attach_to_the_keyframe_the_overlap_test_just_failed():
     hang off that very keyframe."""
     world = PlaceWorld(3, reach=2, seed=5, graded=True)
     slam = _slam(world, True)
-    slam.add(world.frame(0, 0), DEPTH)
-    slam.add(world.frame(1, 0), DEPTH)  # appended to the keyframe's fragment
-    slam.add(world.frame(2, 0), DEPTH * 2.0 / 3.0)
+    slam.add(FrameInput(world.frame(0, 0), DEPTH))
+    slam.add(FrameInput(world.frame(1, 0), DEPTH))  # appended to the keyframe's fragment
+    slam.add(FrameInput(world.frame(2, 0), DEPTH * 2.0 / 3.0))
     assert slam.counts.reasons["overlap"] == 1
     assert len(slam.keyframes) == 2 and slam.counts.attached == 0
     # the same frame after a gap (no overlap test against the active keyframe) does hang off it
     slam.skip(3, 3 / 30.0)
-    slam.add(world.frame(4, 0), DEPTH * 2.0 / 3.0)
+    slam.add(FrameInput(world.frame(4, 0), DEPTH * 2.0 / 3.0))
     assert len(slam.keyframes) == 2 and slam.counts.attached == 1 and slam.counts.relocalised == 1
 
 

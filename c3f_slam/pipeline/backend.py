@@ -18,7 +18,7 @@ import numpy as np
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
-from c3f_slam.pipeline.frontend import FrameFeatures
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.timings import Timings
 
 
@@ -74,9 +74,8 @@ class SlamBackend(Protocol):
     def skip(self, index: int, stamp: float) -> None:
         """A streamed frame that was not processed (black / saturated / featureless)."""
 
-    def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
-        """Process one frame (``rgb``: its image, for back-ends that align images); (fragment id
-        for fusion, -1 = not placed; opened a new fragment)."""
+    def add(self, frame: FrameInput) -> tuple[int, bool]:
+        """Process one frame; (fragment id for fusion, -1 = not placed; opened a new fragment)."""
 
     def pose_of_log(self, row: int) -> np.ndarray | None:
         """Camera-to-world pose of log row ``row`` now (None when unregistered)."""

@@ -11,6 +11,7 @@ from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, frame_matcher
 from c3f_slam.pipeline.timings import Timings
 
@@ -44,8 +45,9 @@ class OdometrySlam:
     def close(self) -> None:
         """Nothing to free."""
 
-    def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
-        """Match to the last frame (``rgb`` unused: the baseline has no dense fallback)."""
+    def add(self, frame: FrameInput) -> tuple[int, bool]:
+        """Match to the last frame (its image is unused: the baseline has no dense fallback)."""
+        feat = frame.features
         fid = len(self.log) // self.chunk  # fusion chunks
         if self.last is None:
             T = np.eye(4)

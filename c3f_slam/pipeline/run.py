@@ -42,6 +42,7 @@ from c3f_slam.pipeline.components import (
 )
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.coverage_stage import run_coverage
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import Frontend
 from c3f_slam.pipeline.fusion_frames import FusionFrames, fusion_frames
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
@@ -140,7 +141,7 @@ class SlamRun:
             self._skip(frame, "featureless")
             return
         self.counts.processed += 1
-        fid, _ = self.backend.add(feat, depth, frame.rgb)
+        fid, _ = self.backend.add(FrameInput(feat, depth, frame.rgb))
         if self.fusion is not None and fid >= 0:
             with self.timings.stage("fusion"):
                 self._fuse(fid, frame)

@@ -37,6 +37,7 @@ from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import FIRST, OVERLAP, Fragment, new_fragment_reason
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch, frame_matcher
 from c3f_slam.pipeline.keyframe_edges import (
     KeyframeEdge,
@@ -79,7 +80,6 @@ class FragmentSlam(FragmentMap):
         #: not reflected), so that matches across a fallback edge re-place the side after it
         self.sparse = Components() if cfg.fallback.dense else None
         self.refiner = EdgeRefiner(cfg.refine, self.K) if cfg.refine.enabled else None  # dense keyframe edges
-        self._rgb: np.ndarray | None = None  # the current frame's image (for the refinement)
         if cfg.fragments.min_correspondences is None:
             raise ValueError("fragments.min_correspondences is derived from the frame size: "
                              "pass SlamConfig.for_frame_size(width, height)")
@@ -91,27 +91,26 @@ class FragmentSlam(FragmentMap):
         self.gap = True
         self.recovery.gap()
 
-    def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
-        """Process one frame (``rgb``: its (H, W, 3) uint8 image, for the dense fallback only);
-        returns (fragment id, opened a new fragment)."""
-        self._rgb = rgb
+    def add(self, frame: FrameInput) -> tuple[int, bool]:
+        """Process one frame; returns (fragment id, opened a new fragment)."""
+        feat = frame.features
         link, n = (None, 0)
         with self.t.stage("matching"):
             if self.prev is not None and not self.gap:
                 link, n = self.match(self.prev, feat)
                 if link is None:
-                    link, n = self.recovery.guided_link(self.prev, feat, min(depth.shape[:2]))
+                    link, n = self.recovery.guided_link(self.prev, feat, min(frame.depth.shape[:2]))
         with self.t.stage("fallback"):
-            frame = self.recovery.frame(rgb, depth)
-            dense = self.recovery.dense_link(frame) if link is None and self.prev is not None and not self.gap else None
-        reason = self._new_fragment_reason(link, n, depth)
+            rgbd = self.recovery.frame(frame.rgb, frame.depth)
+            dense = self.recovery.dense_link(rgbd) if link is None and self.prev is not None and not self.gap else None
+        reason = self._new_fragment_reason(link, n, frame.depth)
         if reason is None:
             fid, opened = self._extend_active(feat, link), False
         else:
-            fid, opened = self._open_fragment(feat, depth, link, reason, dense), True
+            fid, opened = self._open_fragment(frame, link, reason, dense), True
         self._last_row = len(self.log) - 1
         self.prev, self.gap = feat, False
-        self.recovery.settle(link or dense, frame)
+        self.recovery.settle(link or dense, rgbd)
         if self.rejoin.pending:
             self._try_rejoin(feat)
         return fid, opened
@@ -176,9 +175,9 @@ class FragmentSlam(FragmentMap):
         poses = frag.rel_poses if frag.base is None else frag.base @ frag.rel_poses
         self.log.settle(self._active_row, frag.node, poses)
 
-    def _open_fragment(self, feat: FrameFeatures, depth: np.ndarray, link: PairMatch | None, reason: str,
+    def _open_fragment(self, frame: FrameInput, link: PairMatch | None, reason: str,
                        dense: PairMatch | None = None) -> int:
-        """Close the active fragment and open one on ``feat``: on an earlier keyframe (reuse)
+        """Close the active fragment and open one on ``frame``: on an earlier keyframe (reuse)
         or as a new keyframe. ``dense``: the fallback's T_prev,cur where sparse ``link`` is
         None. Returns its id."""
         self.counts.reasons[reason] += 1
@@ -192,16 +191,16 @@ class FragmentSlam(FragmentMap):
         fid = self.counts.fragments
         self.counts.fragments += 1
         self._active_row = len(self.log)
-        self.log.append(feat.index, feat.timestamp, fid, 0)
-        kf = feat.subset(self.cfg.keyframes.keypoints)
+        self.log.append(frame.index, frame.timestamp, fid, 0)
+        kf = frame.features.subset(self.cfg.keyframes.keypoints)
         with self.t.stage("matching"):
             g = global_descriptor(kf.descriptors)
             edges = self._keyframe_edges(kf, g, link, prev_frag, dense)
             sparse = [e for e in edges if e.kind != EdgeKind.FALLBACK]  # a revisit is found by sparse matches only
-            host = self._reuse_host(sparse, depth, reason, prev_frag) if self.cfg.keyframes.reuse else None
+            host = self._reuse_host(sparse, frame.depth, reason, prev_frag) if self.cfg.keyframes.reuse else None
         if host is not None:
-            return self._attach(fid, feat, depth, reason, sparse, host, prev_frag)
-        return self._add_keyframe(fid, feat, kf, g, depth, reason, edges, link or dense, prev_frag)
+            return self._attach(fid, frame, reason, sparse, host, prev_frag)
+        return self._add_keyframe(fid, frame, kf, g, reason, edges, link or dense, prev_frag)
 
     def _keyframe_edges(self, kf: FrameFeatures, g: np.ndarray, link: PairMatch | None,
                         prev_frag: Fragment | None, dense: PairMatch | None = None) -> list[KeyframeEdge]:
@@ -247,9 +246,8 @@ class FragmentSlam(FragmentMap):
         return find_host(self.graph, [e for e in edges if e.k != skip], depth, self.K,
                          (self.cfg.fragments, self.cfg.keyframes), odometry)
 
-    def _add_keyframe(self, fid: int, feat: FrameFeatures, kf: FrameFeatures, g: np.ndarray, depth: np.ndarray,
-                      reason: str, edges: list[KeyframeEdge], link: PairMatch | None,
-                      prev_frag: Fragment | None) -> int:
+    def _add_keyframe(self, fid: int, frame: FrameInput, kf: FrameFeatures, g: np.ndarray, reason: str,
+                      edges: list[KeyframeEdge], link: PairMatch | None, prev_frag: Fragment | None) -> int:
         """Open fragment ``fid`` on a new keyframe (node) with its capped ``edges``."""
         with self.t.stage("matching"):
             edges, dropped = cap_keyframe_edges(edges, self.cfg.keyframes.max_loop_edges, self.graph.find)
@@ -261,10 +259,10 @@ class FragmentSlam(FragmentMap):
             assert node == len(self.keyframes) - 1
             self.node_fragment.append(fid)
             self.frag_node.append(node)
-            self.active = Fragment(fid, feat, depth, reason, node=node)
+            self.active = Fragment(fid, frame.features, frame.depth, reason, node=node)
             if self.sparse is not None:
                 self.sparse.add_node()
-        edges, information = self._refine(node, edges, depth)
+        edges, information = self._refine(node, edges, frame)
         with self.t.stage("posegraph"):
             merged = link_new_keyframe(self.graph, node, edges, self.recovery.information, self.sparse, information)
             if not edges:
@@ -276,27 +274,27 @@ class FragmentSlam(FragmentMap):
         return fid
 
     def _refine(self, node: int, edges: list[KeyframeEdge],
-                depth: np.ndarray) -> tuple[list[KeyframeEdge], dict[int, np.ndarray]]:
+                frame: FrameInput) -> tuple[list[KeyframeEdge], dict[int, np.ndarray]]:
         """The new keyframe ``node``'s edges with the accepted dense refinements (:mod:`.refine`)
         in place, and their information matrices by edge index; the frame's clouds are kept."""
         if self.refiner is None:
             return edges, {}
         with self.t.stage("refine"):
-            self.refiner.observe(self._rgb, depth)
+            self.refiner.observe(frame.rgb, frame.depth)
             refined = self.refiner.refine_edges(edges)
             self.refiner.keep(node)
         edges = [KeyframeEdge(e.k, PairMatch(refined[n].T, e.match.points_j, e.match.n), e.kind)
                  if n in refined else e for n, e in enumerate(edges)]
         return edges, {n: r.information for n, r in refined.items()}
 
-    def _attach(self, fid: int, feat: FrameFeatures, depth: np.ndarray, reason: str,
+    def _attach(self, fid: int, frame: FrameInput, reason: str,
                 edges: list[KeyframeEdge], host: int, prev_frag: Fragment | None) -> int:
         """Open fragment ``fid`` on keyframe ``host`` (a revisit): no new node, no stored
         features, only the edges of :func:`revisit_edges` (as host-k edges)."""
         with self.t.stage("posegraph"):
-            return self._attach_to(fid, feat, depth, reason, edges, host, prev_frag)
+            return self._attach_to(fid, frame, reason, edges, host, prev_frag)
 
-    def _attach_to(self, fid: int, feat: FrameFeatures, depth: np.ndarray, reason: str,
+    def _attach_to(self, fid: int, frame: FrameInput, reason: str,
                    edges: list[KeyframeEdge], host: int, prev_frag: Fragment | None) -> int:
         keep = revisit_edges(self.graph, edges, host, prev_frag is not None and prev_frag.base is None)
         m_host = keep[0].match
@@ -311,7 +309,7 @@ class FragmentSlam(FragmentMap):
         if not any(e.kind == EdgeKind.ODOMETRY for e in edges) and prev_frag is not None:
             self.counts.relocalised += 1
         self.frag_node.append(host)
-        self.active = Fragment(fid, feat, depth, reason, node=host, base=m_host.T_ij)
+        self.active = Fragment(fid, frame.features, frame.depth, reason, node=host, base=m_host.T_ij)
         self.schedule.after_keyframe(host, len(keep) > 1 or merged > 0, len(self.keyframes))
         return fid
 
