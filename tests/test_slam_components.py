@@ -148,18 +148,18 @@ SHORT = list(range(200, 205))
 
 def test_main_map_is_the_component_with_the_most_frames_not_keyframes():
     slam, world = _place_run(PAUSES + WALK + SHORT)
-    assert not slam.in_main(0)  # while running, the main component is the one with the most keyframes
+    assert not slam.map.in_main(0)  # while running, the main component is the one with the most keyframes
     slam.finish()
-    comps = slam.components()
+    comps = slam.map.components()
     assert [c.frames for c in comps] == [30, 10, 5] and [c.keyframes for c in comps] == [3, 10, 5]
-    assert slam.in_main(0) and comps[0].rows.tolist() == list(range(30))
-    _, _, poses, reg = slam.trajectory()
+    assert slam.map.in_main(0) and comps[0].rows.tolist() == list(range(30))
+    _, _, poses, reg = slam.map.trajectory()
     assert reg.tolist() == [True] * 30 + [False] * 15
     # the walk in its own world frame (its first keyframe), optimised on its own: exact
     T0 = world.poses[WALK[0]]
     for row, pose in zip(comps[1].rows.tolist(), comps[1].poses):
         assert np.allclose(pose, g.relative_pose(T0, world.poses[(PAUSES + WALK)[row]]), atol=1e-6)
-    assert slam.keyframe_graph().nodes[3].lone and not slam.keyframe_graph().nodes[0].lone
+    assert slam.map.keyframe_graph().nodes[3].lone and not slam.map.keyframe_graph().nodes[0].lone
 
 
 def test_components_are_optimised_only_when_written():
@@ -168,9 +168,9 @@ def test_components_are_optimised_only_when_written():
     runs = {}
     for min_frames in (10, 0):
         slam, _ = _place_run(PAUSES + WALK + SHORT, components={"min_frames": min_frames})
-        before = slam.schedule.counts.optimizations
+        before = slam.map.schedule.counts.optimizations
         slam.finish()
-        runs[min_frames] = slam.schedule.counts.optimizations - before
+        runs[min_frames] = slam.map.schedule.counts.optimizations - before
     assert runs == {10: 2, 0: 1}
 
 
@@ -181,5 +181,5 @@ def test_a_break_that_rejoins_leaves_one_component():
     from tests.test_slam_rejoin import _run
 
     slam = _run(PlaceWorld(30, reach=2), REJOIN_WALK)
-    comps = slam.components()
+    comps = slam.map.components()
     assert len(comps) == 1 and comps[0].frames == len(REJOIN_WALK)

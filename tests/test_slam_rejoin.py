@@ -35,7 +35,7 @@ def _run(world: PlaceWorld, places: list[int], **rejoin) -> FragmentSlam:
 def test_frames_after_a_break_rejoin_the_map_at_the_right_place():
     world = PlaceWorld(30, reach=2)
     slam = _run(world, WALK)
-    _, _, poses, reg = slam.trajectory()
+    _, _, poses, reg = slam.map.trajectory()
     assert reg.all(), f"unregistered frames: {np.flatnonzero(~reg).tolist()}"
     stats = slam.stats()
     assert stats["tracking_breaks"] == 1 and stats["breaks_rejoined"] == 1 and stats["rejoin_edges"] == 1
@@ -50,7 +50,7 @@ def test_without_rejoin_the_frames_after_the_break_are_lost():
     """The same stream with re-joining off: the frames after the break form a lone component
     (so the test above can fail)."""
     slam = _run(PlaceWorld(30, reach=2), WALK, enabled=False)
-    _, _, _, reg = slam.trajectory()
+    _, _, _, reg = slam.map.trajectory()
     assert reg[:21].all() and not reg[21:].any()
     assert slam.stats()["breaks_rejoined"] == 0
 
@@ -73,7 +73,7 @@ STAY = list(range(21)) + [24] + [23] * 12
 def test_a_relaxed_match_just_after_the_break_rejoins():
     world = PlaceWorld(30, reach=2, relaxed_reach=3)
     slam = _run(world, STAY, relaxed_max_step=0.01)
-    _, _, poses, reg = slam.trajectory()
+    _, _, poses, reg = slam.map.trajectory()
     assert reg[:21].all() and reg[22:].all()
     stats = slam.stats()
     assert stats["breaks_rejoined"] == 1 and stats["breaks_rejoined_relaxed"] == 1
@@ -91,7 +91,7 @@ def test_relaxed_rejoin_needs_a_plausible_motion(over):
     """The same stream: without the relaxed matcher, or with a motion bound the link breaks,
     the frames after the break stay a lone component (so the test above can fail)."""
     slam = _run(PlaceWorld(30, reach=2, relaxed_reach=3), STAY, **{"relaxed_max_step": 0.01, **over})
-    _, _, _, reg = slam.trajectory()
+    _, _, _, reg = slam.map.trajectory()
     assert reg[:21].all() and not reg[22:].any()
     assert slam.stats()["breaks_rejoined_relaxed"] == 0
 

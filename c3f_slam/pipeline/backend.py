@@ -1,10 +1,12 @@
-"""What the run loop needs from a SLAM back-end (:class:`SlamBackend`), and the frame log
-both back-ends keep (:class:`FrameLog`).
+"""What the run loop needs from a SLAM back-end (:class:`SlamBackend`) and its map
+(:class:`SlamMap`), and the frame log both maps keep (:class:`FrameLog`).
 
 Two back-ends implement the protocol: :class:`c3f_slam.pipeline.slam.FragmentSlam` (the
-full system) and :class:`c3f_slam.pipeline.odometry.OdometrySlam` (the baseline). Poses are
-camera-to-world 4x4 matrices in metres; a frame is addressed by its log row (one row per
-streamed frame, processed or skipped, in stream order).
+full system, holding a :class:`~c3f_slam.pipeline.fragment_map.FragmentMap`) and
+:class:`c3f_slam.pipeline.odometry.OdometrySlam` (the baseline, holding an
+:class:`~c3f_slam.pipeline.odometry.OdometryMap`). Poses are camera-to-world 4x4 matrices in
+metres; a frame is addressed by its log row (one row per streamed frame, processed or
+skipped, in stream order).
 """
 
 from __future__ import annotations
@@ -52,6 +54,10 @@ class FrameLog:
         self.node[row0:row0 + n] = array("q", [node]) * n
         self.rel[16 * row0:16 * (row0 + n)] = array("d", np.ascontiguousarray(poses, np.float64).tobytes())
 
+    def fragments(self) -> np.ndarray:
+        """Fragment id per row (-1: not placed), int64, a copy (a view would pin the array)."""
+        return np.frombuffer(self.fragment, dtype=np.int64).copy() if len(self) else np.zeros(0, np.int64)
+
     def node_pose(self, row: int) -> np.ndarray:
         """Node-from-frame pose of a settled row."""
         return np.array(self.rel[16 * row:16 * row + 16], dtype=np.float64).reshape(4, 4)
@@ -60,22 +66,11 @@ class FrameLog:
         return len(self.index)
 
 
-class SlamBackend(Protocol):
-    """A back-end the run loop drives (:mod:`c3f_slam.pipeline.run`).
+class SlamMap(Protocol):
+    """The read side of a back-end's map (``backend.map``): what the run loop, fusion and the
+    output writers read. Poses camera-to-world, metres; frames addressed by log row."""
 
-    Constructed as ``factory(cfg, K, metric, timings, keyframe_cache=folder or None)``
-    (:data:`BackendFactory`); ``K`` the 3x3 intrinsics, ``metric`` the descriptors' distance
-    (``l2``), ``keyframe_cache`` a folder it may use for stored features.
-    """
-
-    mode: str  #: "full" or "odometry" (SlamConfig.mode)
     log: FrameLog
-
-    def skip(self, index: int, stamp: float) -> None:
-        """A streamed frame that was not processed (black / saturated / featureless)."""
-
-    def add(self, frame: FrameInput) -> tuple[int, bool]:
-        """Process one frame; (fragment id for fusion, -1 = not placed; opened a new fragment)."""
 
     def pose_of_log(self, row: int) -> np.ndarray | None:
         """Camera-to-world pose of log row ``row`` now (None when unregistered)."""
@@ -89,27 +84,46 @@ class SlamBackend(Protocol):
     def main_fragments(self) -> set[int]:
         """The registered fragments."""
 
-    def finish(self) -> None:
-        """End of the stream: close what is open, final optimisation."""
-
     def components(self) -> list[MapComponent]:
-        """After :meth:`finish`: every connected component with its frames, the main map
-        first, then by frames (:mod:`c3f_slam.pipeline.components`)."""
-
-    def close(self) -> None:
-        """Free files and folders (always called, also after errors)."""
+        """After the back-end's ``finish``: every connected component with its frames, the main
+        map first, then by frames (:mod:`c3f_slam.pipeline.components`)."""
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(frame indices, timestamps, poses (N, 4, 4) NaN when unregistered, registered mask)."""
-
-    def stats(self) -> dict:
-        """Counters for summary.json."""
 
     def keyframe_graph(self) -> KeyframeGraph | None:
         """The global keyframe graph for keyframe_graph.json (None: the back-end has none)."""
 
     def n_keyframes(self) -> int:
         """Keyframes so far (progress display)."""
+
+
+class SlamBackend(Protocol):
+    """A back-end the run loop drives (:mod:`c3f_slam.pipeline.run`): a tracker that holds its
+    map (``map``, :class:`SlamMap`).
+
+    Constructed as ``factory(cfg, K, metric, timings, keyframe_cache=folder or None)``
+    (:data:`BackendFactory`); ``K`` the 3x3 intrinsics, ``metric`` the descriptors' distance
+    (``l2``), ``keyframe_cache`` a folder it may use for stored features.
+    """
+
+    mode: str  #: "full" or "odometry" (SlamConfig.mode)
+    map: SlamMap
+
+    def skip(self, index: int, stamp: float) -> None:
+        """A streamed frame that was not processed (black / saturated / featureless)."""
+
+    def add(self, frame: FrameInput) -> tuple[int, bool]:
+        """Process one frame; (fragment id for fusion, -1 = not placed; opened a new fragment)."""
+
+    def finish(self) -> None:
+        """End of the stream: close what is open, final optimisation."""
+
+    def close(self) -> None:
+        """Free files and folders (always called, also after errors); the map stays readable."""
+
+    def stats(self) -> dict:
+        """Counters for summary.json."""
 
 
 class BackendFactory(Protocol):

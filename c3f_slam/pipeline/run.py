@@ -105,7 +105,7 @@ class SlamRun:
         self.backend = backend = factory(cfg, K, sources.describer.metric, self.timings, keyframe_cache=cache)
         self.frontend = Frontend(K, sources.describer, cfg.frontend)
         if cfg.fusion.enabled:
-            self.frames = fusion_frames(sources.depth, sources.stream.sequence, lambda row: backend.log.index[row],
+            self.frames = fusion_frames(sources.depth, sources.stream.sequence, lambda row: backend.map.log.index[row],
                                         outputs.root)
             f = cfg.fusion
             self.fusion = FragmentFusion(TSDFVolume(f.tsdf), self.frames.load, self.frames.K, f.eps_f_na, f.eps_cf_d)
@@ -146,7 +146,7 @@ class SlamRun:
             with self.timings.stage("fusion"):
                 self._fuse(fid, frame)
         if self.bar is not None:
-            self.bar.set_postfix(kf=self.backend.n_keyframes(), refresh=False)
+            self.bar.set_postfix(kf=self.backend.map.n_keyframes(), refresh=False)
 
     def _check_bad_frames(self, frame: StreamFrame) -> None:
         """InputError once more frames were unreadable than ``--max-bad-frames`` allows."""
@@ -161,24 +161,26 @@ class SlamRun:
     def _fuse(self, fid: int, frame: StreamFrame) -> None:
         """Record the frame for fusion and integrate whatever has settled."""
         assert self.fusion is not None and self.frames is not None
-        row = len(self.backend.log) - 1
+        slam_map = self.backend.map
+        row = len(slam_map.log) - 1
         self.frames.record(row, frame)
         self.fusion.add_frame(fid, row)
-        T = self.backend.current_pose()
+        T = slam_map.current_pose()
         if T is not None:
-            self.fusion.step(row, T, self.backend.pose_of_log, eligible=self.backend.in_main)
+            self.fusion.step(row, T, slam_map.pose_of_log, eligible=slam_map.in_main)
 
     def finish(self) -> TriangleMesh | None:
         """End of the stream: the back-end's final optimisation, the components beside the
         main map written (:mod:`.components`), and the mesh of the main map."""
         self.backend.finish()
-        self.components = plan_components(self.backend.components(), self.cfg.components, self.outputs)
+        slam_map = self.backend.map
+        self.components = plan_components(slam_map.components(), self.cfg.components, self.outputs)
         with self.timings.stage("fusion"):
             fuse = self._fuse_component if self.fusion is not None else None
-            write_components(self.components, np.asarray(self.backend.log.stamp), fuse)
+            write_components(self.components, np.asarray(slam_map.log.stamp), fuse)
             if self.fusion is None:
                 return None
-            return self.fusion.finalize(self.backend.pose_of_log, self.backend.main_fragments())
+            return self.fusion.finalize(slam_map.pose_of_log, slam_map.main_fragments())
 
     def _fuse_component(self, comp: MapComponent) -> TriangleMesh:
         """The mesh of one component (its frames re-fused with their final poses)."""
@@ -241,17 +243,11 @@ def run_slam(
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
         with SlamRun(cfg, sources, outputs, timings, factory, progress) as run:
             mesh = run.run()
-        if mesh is not None:
-            if len(mesh.triangles):
-                write_mesh(mesh, outputs.mesh)
-            summary["mesh_triangles"] = int(len(mesh.triangles))
-        summary.update(run_coverage(outputs, mesh, run.backend, sources, cfg))
+        summary.update(_write_main_mesh(outputs, mesh))
+        summary.update(run_coverage(outputs, mesh, run.backend.map, sources, cfg))
         summary["status"] = "ok"
     except BaseException as exc:  # write what we have, then pass the error on
-        summary["status"] = "error"
-        summary["error"] = f"{type(exc).__name__}: {exc}" if not isinstance(exc, InputError) else str(exc)
-        if not isinstance(exc, (InputError, KeyboardInterrupt)):
-            summary["traceback"] = traceback.format_exc(limit=8)
+        _record_error(summary, exc)
         write_run_outputs(outputs, run, summary, t_start)
         with contextlib.suppress(OSError):  # keep the original error visible
             folder.publish()
@@ -264,6 +260,23 @@ def run_slam(
     if failed:
         raise InputError(summary["error"])
     return summary
+
+
+def _write_main_mesh(outputs: RunOutputs, mesh: TriangleMesh | None) -> dict:
+    """Write the main map's mesh (unless empty); summary.json's ``mesh_triangles`` (nothing without fusion)."""
+    if mesh is None:
+        return {}
+    if len(mesh.triangles):
+        write_mesh(mesh, outputs.mesh)
+    return {"mesh_triangles": int(len(mesh.triangles))}
+
+
+def _record_error(summary: dict, exc: BaseException) -> None:
+    """Mark the summary with the error being handled (a traceback unless bad input or an interrupt)."""
+    summary["status"] = "error"
+    summary["error"] = f"{type(exc).__name__}: {exc}" if not isinstance(exc, InputError) else str(exc)
+    if not isinstance(exc, (InputError, KeyboardInterrupt)):
+        summary["traceback"] = traceback.format_exc(limit=8)
 
 
 def _truncated(summary: dict, stream: FrameStream) -> bool:
@@ -296,16 +309,16 @@ def write_run_outputs(outputs: RunOutputs, run: SlamRun | None, summary: dict, t
     summary["timings"] = run.timings.as_dict(counts.frames) if run is not None else Timings().as_dict(0)
     try:
         if run is not None and run.backend is not None:
-            backend = run.backend
-            _, stamps, poses, reg = backend.trajectory()
+            backend, slam_map = run.backend, run.backend.map
+            _, stamps, poses, reg = slam_map.trajectory()
             n = outputs.write_trajectory(stamps, poses, reg)
             summary["registered_frames"] = n
             summary["registered_share"] = n / counts.frames if counts.frames else 0.0
             summary["registered_share_of_usable"] = n / counts.processed if counts.processed else 0.0
             summary.update(backend.stats())
             if run.components is not None:
-                summary["components"] = component_summary(run.components, np.asarray(backend.log.index), outputs)
-            graph = backend.keyframe_graph()
+                summary["components"] = component_summary(run.components, np.asarray(slam_map.log.index), outputs)
+            graph = slam_map.keyframe_graph()
             if graph is not None:
                 outputs.write_graph(graph)
     except Exception as exc:  # pragma: no cover - keep the original error visible
