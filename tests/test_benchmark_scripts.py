@@ -257,3 +257,33 @@ def test_trajectory_identity_sets_and_comparison(tmp_path):
     lines = ti.table([{"name": "seq", "group": "test", "identical": False, "mesh_identical": None,
                        "before": r, "after": other}])
     assert "| seq | test | 3 | 100.0 / 100.0 | **no** |" in lines[-1]
+
+
+def test_trajectory_identity_mesh_fingerprint_ignores_triangle_order(tmp_path):
+    """The same triangles listed in another order (and turned, winding kept) give the same
+    fingerprint; a moved vertex or a flipped triangle does not."""
+    import numpy as np
+    import open3d as o3d
+
+    from benchmarks.trajectory_identity import mesh_fingerprint
+
+    rng = np.random.default_rng(0)
+    v, t = rng.random((30, 3)), rng.permutation(30)[:27].reshape(9, 3)
+    c = rng.random((30, 3))
+
+    def write(name: str, verts: np.ndarray, tris: np.ndarray, perm: np.ndarray | None = None) -> Path:
+        perm = np.arange(len(verts)) if perm is None else perm  # vertex k of the new mesh is verts[perm[k]]
+        inv = np.argsort(perm)
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts[perm]), o3d.utility.Vector3iVector(inv[tris]))
+        mesh.vertex_colors = o3d.utility.Vector3dVector(c[perm])
+        o3d.io.write_triangle_mesh(str(tmp_path / name), mesh)
+        return tmp_path / name
+
+    ref = mesh_fingerprint(write("a.ply", v, t))
+    shuffled = np.roll(t[rng.permutation(len(t))], 1, axis=1)  # other order, each triangle turned
+    assert mesh_fingerprint(write("b.ply", v, shuffled, rng.permutation(30))) == ref
+    moved = v.copy()
+    moved[t[0, 0]] += 1e-12
+    assert mesh_fingerprint(write("c.ply", moved, t)) != ref
+    assert mesh_fingerprint(write("d.ply", v, t[:, ::-1])) != ref  # the winding counts
+    assert mesh_fingerprint(tmp_path / "none.ply") is None
