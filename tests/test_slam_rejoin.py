@@ -10,7 +10,7 @@ from c3f_slam import geometry as g
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.config import FragmentConfig
-from c3f_slam.pipeline.frame_step import FrameInput
+from c3f_slam.pipeline.frame_step import FrameDecision, FrameInput
 from c3f_slam.pipeline.rejoin import _tail_index
 from c3f_slam.pipeline.slam import FragmentSlam
 from tests.fake_places import PlaceWorld
@@ -22,23 +22,30 @@ WALK = list(range(21)) + [24, 23] + [22] * 8
 
 
 def _run(world: PlaceWorld, places: list[int], **rejoin) -> FragmentSlam:
+    return _run_with_decisions(world, places, **rejoin)[0]
+
+
+def _run_with_decisions(world: PlaceWorld, places: list[int], **rejoin) -> tuple[FragmentSlam, list[FrameDecision]]:
     cfg = SlamConfig.preset_config("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
                                    rejoin=rejoin)
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
     world.use(slam)
-    for i, place in enumerate(places):
-        slam.add(FrameInput(world.frame(i, place), np.full((8, 8), 0.03)))
+    decisions = [slam.add(FrameInput(world.frame(i, place), np.full((8, 8), 0.03))) for i, place in enumerate(places)]
     slam.finish()
-    return slam
+    return slam, decisions
 
 
 def test_frames_after_a_break_rejoin_the_map_at_the_right_place():
     world = PlaceWorld(30, reach=2)
-    slam = _run(world, WALK)
+    slam, d = _run_with_decisions(world, WALK)
     _, _, poses, reg = slam.map.trajectory()
     assert reg.all(), f"unregistered frames: {np.flatnonzero(~reg).tolist()}"
     stats = slam.stats()
     assert stats["tracking_breaks"] == 1 and stats["breaks_rejoined"] == 1 and stats["rejoin_edges"] == 1
+    # frame 21 (place 24) breaks tracking: a lone keyframe opened for too few correspondences;
+    # frame 23 (place 22, within reach of place 20 before the break) re-joins the map
+    assert (d[21].kind, d[21].reason) == ("lone", "correspondences")
+    assert [k for k, x in enumerate(d) if x.rejoined] == [23]
     # every pose where the world says, relative to the first frame (world = first keyframe)
     T0 = world.poses[WALK[0]]
     for i, place in enumerate(WALK):

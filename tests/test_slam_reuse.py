@@ -47,11 +47,18 @@ def test_revisits_add_no_keyframes_and_no_edges():
     slam, plain = _slam(world, True), _slam(world, False)
     places = _ping_pong(10, 60)
     edges_after_first_return = None
+    decisions = []
     for k, p in enumerate(places):
-        slam.add(FrameInput(world.frame(k, p), DEPTH))
+        decisions.append(slam.add(FrameInput(world.frame(k, p), DEPTH)))
         plain.add(FrameInput(world.frame(k, p), DEPTH))
         if k == 11:
             edges_after_first_return = slam.map.graph.n_edges
+    # every frame moves to another place: each opens a fragment, the first pass on new
+    # keyframes (the first one lone), every later one attached to its place's keyframe
+    assert [(d.index, d.fragment) for d in decisions] == [(k, k) for k in range(60)]
+    assert [d.kind for d in decisions] == ["lone"] + ["keyframe"] * 9 + ["attached"] * 50
+    assert decisions[0].reason == "first" and {d.reason for d in decisions[1:]} == {"correspondences"}
+    assert all(d.opened and not d.rejoined for d in decisions)
     # the first pass makes the 10 keyframes; after it every fragment hangs off one of them
     assert len(slam.map.keyframes) == slam.map.graph.n_nodes == 10
     assert slam.map.counts.attached == slam.map.counts.fragments - 10 == 50

@@ -20,7 +20,7 @@ import numpy as np
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
-from c3f_slam.pipeline.frame_step import FrameInput
+from c3f_slam.pipeline.frame_step import FrameDecision, FrameInput
 from c3f_slam.pipeline.timings import Timings
 
 
@@ -113,8 +113,8 @@ class SlamBackend(Protocol):
     def skip(self, index: int, stamp: float) -> None:
         """A streamed frame that was not processed (black / saturated / featureless)."""
 
-    def add(self, frame: FrameInput) -> tuple[int, bool]:
-        """Process one frame; (fragment id for fusion, -1 = not placed; opened a new fragment)."""
+    def add(self, frame: FrameInput) -> FrameDecision:
+        """Process one frame; what was done with it (its fragment id for fusion, -1 = not placed)."""
 
     def finish(self) -> None:
         """End of the stream: close what is open, final optimisation."""

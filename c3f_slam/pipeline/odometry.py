@@ -14,7 +14,7 @@ from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.config import SlamConfig
-from c3f_slam.pipeline.frame_step import FrameInput
+from c3f_slam.pipeline.frame_step import EXTENDED, LOST, FrameDecision, FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, frame_matcher
 from c3f_slam.pipeline.timings import Timings
 
@@ -102,8 +102,9 @@ class OdometrySlam:
     def close(self) -> None:
         """Nothing to free."""
 
-    def add(self, frame: FrameInput) -> tuple[int, bool]:
-        """Match to the last frame (its image is unused: the baseline has no dense fallback)."""
+    def add(self, frame: FrameInput) -> FrameDecision:
+        """Match to the last frame (its image is unused: the baseline has no dense fallback):
+        extended (chained; the first frame too) or lost."""
         feat = frame.features
         if self.last is None:
             T = np.eye(4)
@@ -112,11 +113,10 @@ class OdometrySlam:
                 m, _ = self.match(self.last, feat)
             if m is None:
                 self.n_lost += 1
-                self.map.append(feat.index, feat.timestamp, None)
-                return -1, False
+                return FrameDecision(feat.index, self.map.append(feat.index, feat.timestamp, None), LOST)
             T = self.T_last @ m.T_ij
         self.last, self.T_last = feat, T
-        return self.map.append(feat.index, feat.timestamp, T), False
+        return FrameDecision(feat.index, self.map.append(feat.index, feat.timestamp, T), EXTENDED)
 
     def finish(self) -> None:
         """Nothing to close or optimise."""

@@ -18,7 +18,7 @@ from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import OVERLAP, Fragment
-from c3f_slam.pipeline.frame_step import FrameInput
+from c3f_slam.pipeline.frame_step import ATTACHED, KEYFRAME, LONE, FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch
 from c3f_slam.pipeline.keyframe_edges import KeyframeEdge, cap_keyframe_edges
 from c3f_slam.pipeline.refine import EdgeRefiner
@@ -68,9 +68,10 @@ class FragmentPlacer:
         self.refiner = EdgeRefiner(cfg.refine, K) if cfg.refine.enabled else None  # dense keyframe edges
         self.counts = PlacementCounts()
 
-    def place(self, new: NewFragment) -> None:
+    def place(self, new: NewFragment) -> str:
         """Place fragment ``new.fid`` (its first frame already logged): on an earlier keyframe
-        (reuse) or on a new keyframe."""
+        (reuse) or on a new keyframe. Returns the decision kind: attached, keyframe or lone
+        (a new keyframe without edges)."""
         self.counts.reasons[new.reason] += 1
         kf = new.frame.features.subset(self.cfg.keyframes.keypoints)
         with self.t.stage("matching"):
@@ -78,11 +79,11 @@ class FragmentPlacer:
             edges = self._keyframe_edges(new, kf, g)
             sparse = [e for e in edges if e.kind != EdgeKind.FALLBACK]  # a revisit is found by sparse matches only
             host = self._reuse_host(new, sparse) if self.cfg.keyframes.reuse else None
-        if host is not None:
-            with self.t.stage("posegraph"):
-                self._attach(new, sparse, host)
-        else:
-            self._add_keyframe(new, kf, g, edges)
+        if host is None:
+            return self._add_keyframe(new, kf, g, edges)
+        with self.t.stage("posegraph"):
+            self._attach(new, sparse, host)
+        return ATTACHED
 
     def _keyframe_edges(self, new: NewFragment, kf: FrameFeatures, g: np.ndarray) -> list[KeyframeEdge]:
         """Edges of a new keyframe: odometry to the previous fragment's node (or the dense
@@ -129,8 +130,9 @@ class FragmentPlacer:
         return find_host(self.map.graph, [e for e in edges if e.k != skip], new.frame.depth, self.K,
                          (self.cfg.fragments, self.cfg.keyframes), odometry)
 
-    def _add_keyframe(self, new: NewFragment, kf: FrameFeatures, g: np.ndarray, edges: list[KeyframeEdge]) -> None:
-        """Open fragment ``new.fid`` on a new keyframe (node) with its capped ``edges``."""
+    def _add_keyframe(self, new: NewFragment, kf: FrameFeatures, g: np.ndarray, edges: list[KeyframeEdge]) -> str:
+        """Open fragment ``new.fid`` on a new keyframe (node) with its capped ``edges``; returns
+        the decision kind (lone without edges)."""
         with self.t.stage("matching"):
             edges, dropped = cap_keyframe_edges(edges, self.cfg.keyframes.max_loop_edges, self.map.graph.find)
             self.counts.edges_capped += dropped
@@ -146,6 +148,7 @@ class FragmentPlacer:
                 self.counts.relocalised += 1
             loops = any(e.kind == EdgeKind.LOOP for e in edges)
             self.map.after_keyframe(node, loops or merged > 0)
+        return KEYFRAME if edges else LONE
 
     def _refine(self, node: int, edges: list[KeyframeEdge],
                 frame: FrameInput) -> tuple[list[KeyframeEdge], dict[int, np.ndarray]]:

@@ -42,7 +42,7 @@ from c3f_slam.pipeline.components import (
 )
 from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.coverage_stage import run_coverage
-from c3f_slam.pipeline.frame_step import FrameInput
+from c3f_slam.pipeline.frame_step import DecisionCounts, FrameInput
 from c3f_slam.pipeline.frontend import Frontend
 from c3f_slam.pipeline.fusion_frames import FusionFrames, fusion_frames
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
@@ -57,15 +57,17 @@ SKIP_REASONS = ("black", "saturated", "featureless", "unreadable")
 
 @dataclass
 class FrameCounts:
-    """Frames streamed, processed, and skipped by reason (summary.json)."""
+    """Frames streamed, processed, skipped by reason, and the back-end's decisions on the
+    processed ones by kind (summary.json; ``frame_decisions``)."""
 
     frames: int = 0
     processed: int = 0
     skipped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(SKIP_REASONS, 0))
+    decisions: DecisionCounts = field(default_factory=DecisionCounts)
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "processed": self.processed,
-                **{f"skipped_{k}": v for k, v in self.skipped.items()}}
+                **{f"skipped_{k}": v for k, v in self.skipped.items()}, "frame_decisions": self.decisions.as_dict()}
 
 
 def _progress(total: int | None, enabled: bool):
@@ -141,10 +143,11 @@ class SlamRun:
             self._skip(frame, "featureless")
             return
         self.counts.processed += 1
-        fid, _ = self.backend.add(FrameInput(feat, depth, frame.rgb))
-        if self.fusion is not None and fid >= 0:
+        decision = self.backend.add(FrameInput(feat, depth, frame.rgb))
+        self.counts.decisions.add(decision)
+        if self.fusion is not None and decision.fragment >= 0:
             with self.timings.stage("fusion"):
-                self._fuse(fid, frame)
+                self._fuse(decision.fragment, frame)
         if self.bar is not None:
             self.bar.set_postfix(kf=self.backend.map.n_keyframes(), refresh=False)
 

@@ -41,7 +41,7 @@ from c3f_slam.pipeline.config import SlamConfig
 from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import FIRST, new_fragment_reason
-from c3f_slam.pipeline.frame_step import FrameInput
+from c3f_slam.pipeline.frame_step import EXTENDED, FrameDecision, FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch, frame_matcher
 from c3f_slam.pipeline.placement import FragmentPlacer, NewFragment
 from c3f_slam.pipeline.rejoin import BreakTails
@@ -82,8 +82,9 @@ class FragmentSlam:
         self.gap = True
         self.recovery.gap()
 
-    def add(self, frame: FrameInput) -> tuple[int, bool]:
-        """Process one frame; returns (fragment id, opened a new fragment)."""
+    def add(self, frame: FrameInput) -> FrameDecision:
+        """Process one frame; returns what was done with it (extended the active fragment, or
+        opened one: on a new keyframe, lone, or attached to an earlier keyframe; re-joined)."""
         feat = frame.features
         link, n = (None, 0)
         with self.t.stage("matching"):
@@ -96,27 +97,28 @@ class FragmentSlam:
             dense = self.recovery.dense_link(rgbd) if link is None and self.prev is not None and not self.gap else None
         reason = self._new_fragment_reason(link, n, frame.depth)
         if reason is None:
-            fid, opened = self._extend_active(feat, link), False
+            fid, kind = self._extend_active(feat, link), EXTENDED
         else:
-            fid, opened = self._open_fragment(frame, link, reason, dense), True
+            fid, kind = self._open_fragment(frame, link, reason, dense)
         self.prev, self.gap = feat, False
         self.recovery.settle(link or dense, rgbd)
-        if self.rejoin.pending:
-            self._try_rejoin(feat)
-        return fid, opened
+        rejoined = bool(self.rejoin.pending) and self._try_rejoin(feat)
+        return FrameDecision(frame.index, fid, kind, reason, rejoined)
 
-    def _try_rejoin(self, feat: FrameFeatures) -> None:
+    def _try_rejoin(self, feat: FrameFeatures) -> bool:
         """Match the frame against the frames before a pending tracking break
-        (:mod:`.rejoin`); an accepted match merges the two components with a rejoin edge."""
+        (:mod:`.rejoin`); an accepted match merges the two components with a rejoin edge
+        (returns True)."""
         act, graph = self.map.active, self.map.graph
         assert act is not None
         with self.t.stage("matching"):
             root = graph.find(act.node)
             r = self.rejoin.step(feat, act.node_pose(len(act) - 1), lambda node: graph.find(node) == root)
         if r is None:
-            return
+            return False
         with self.t.stage("posegraph"):
             self.map.join_break(r.tail_node, r.T_ij, r.points_j)
+        return True
 
     def _new_fragment_reason(self, link: PairMatch | None, n: int, depth: np.ndarray) -> str | None:
         """Why this frame (``depth``: (H, W) metres) opens a new fragment (None: it extends the active one)."""
@@ -148,9 +150,10 @@ class FragmentSlam:
         return self.map.extend(feat, link, extra)
 
     def _open_fragment(self, frame: FrameInput, link: PairMatch | None, reason: str,
-                       dense: PairMatch | None = None) -> int:
+                       dense: PairMatch | None = None) -> tuple[int, str]:
         """Close the active fragment and open one on ``frame`` (:class:`FragmentPlacer`).
-        ``dense``: the fallback's T_prev,cur where sparse ``link`` is None. Returns its id."""
+        ``dense``: the fallback's T_prev,cur where sparse ``link`` is None. Returns its id and
+        the decision kind (keyframe, lone or attached)."""
         prev_frag = self.map.active
         broken = prev_frag is not None and link is None and dense is None
         tail = list(prev_frag.features or []) if broken else []
@@ -160,8 +163,7 @@ class FragmentSlam:
             assert prev_frag is not None
             self.rejoin.record(prev_frag.node, tail, [prev_frag.node_pose(i) for i in range(len(tail))])
         fid = self.map.start_fragment(frame.index, frame.timestamp)
-        self.placer.place(NewFragment(fid, frame, reason, link, dense, prev_frag, self.prev))
-        return fid
+        return fid, self.placer.place(NewFragment(fid, frame, reason, link, dense, prev_frag, self.prev))
 
     # ------------------------------------------------------------------ end of the stream
     def stats(self) -> dict:
