@@ -278,38 +278,3 @@ def test_bounded_candidates_windows_and_relocalisation():
     truth = np.array([world.poses[world.place[i]] for i in slam.map.log.index if i != 70])
     np.testing.assert_allclose(P[reg][:, :3, 3], truth[:, :3, 3], atol=1e-5)
     assert slam.stats()["keyframe_candidates_per_fragment"] <= 6
-
-
-# ---------------------------------------------------------------------- fusion bookkeeping
-
-
-def test_fusion_looks_at_a_bounded_number_of_fragments_per_frame():
-    from c3f_slam.fusion import FragmentFusion
-
-    class Volume:  # stands in for the TSDF volume
-        def __init__(self) -> None:
-            self.n = 0
-
-        def integrate(self, rgb, depth, K, T) -> None:
-            self.n += 1
-
-    looked: list[int] = []
-
-    def pose_of(frame: int) -> np.ndarray:
-        looked.append(frame)
-        return np.eye(4)  # every frame at the origin
-
-    vol = Volume()
-    ff = FragmentFusion(vol, lambda fr: (None, np.zeros((2, 2))), np.eye(3), eps_f_na=0, eps_cf_d=0.01, max_checks=3)
-    for f in range(10):
-        ff.add_frame(f, f)  # 10 fragments of one frame each
-    for cur in range(10, 20):  # the camera stays at them: nothing settles, <= 3 looked at per frame
-        looked.clear()
-        assert ff.step(cur, np.eye(4), pose_of) == []
-        assert len(looked) <= 3
-    far = g.make_pose(np.eye(3), [1.0, 0.0, 0.0])
-    done: list[int] = []
-    for cur in range(20, 24):  # the camera left: all settle within ceil(10 / 3) frames, odd ones wait
-        done += ff.step(cur, far, pose_of, eligible=lambda k: k % 2 == 0)
-    assert sorted(done) == [0, 2, 4, 6, 8] and vol.n == 5
-    assert sorted(ff.step(24, far, pose_of) + ff.step(25, far, pose_of)) == [1, 3, 5, 7, 9]

@@ -6,11 +6,12 @@ the progress bar, the frames fusion re-reads, the back-end) takes one frame at a
 (:meth:`SlamRun.step`): :class:`c3f_slam.stream.FrameStream` reads it, flagged frames
 (black / saturated) are skipped and counted, the depth provider gives its depth (files, or
 DepthNet ONNX), the frontend keeps only keypoints, descriptors (SIFT or ContraFeat ONNX) and
-3D points, the back-end (:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame,
-and fusion integrates settled fragments, re-reading their frames through
-:mod:`c3f_slam.pipeline.fusion_frames` (the sequence's files, or the on-disk cache of
-predicted depth, removed at the end). At the end, the components of the map that could not
-be joined to the main map are written beside it (:mod:`c3f_slam.pipeline.components`).
+3D points, the back-end (:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame
+(its :class:`~c3f_slam.pipeline.frame_step.FrameDecision` is counted), and fusion records the
+frame under its fragment. At the end the main map is fused with its final poses, re-reading
+its frames through :mod:`c3f_slam.pipeline.fusion_frames` (the sequence's files, or the
+on-disk cache of predicted depth, removed at the end), and the components of the map that
+could not be joined to it are written beside it (:mod:`c3f_slam.pipeline.components`).
 The global stage keeps its keyframes' features in ``OUT/.keyframe_cache`` (removed at the
 end, also on errors; ``keyframes.cache=False`` keeps them in RAM). Whatever happens, the
 outputs so far (trajectory.txt, summary.json with the error, keyframe graph) are written
@@ -109,8 +110,7 @@ class SlamRun:
         if cfg.fusion.enabled:
             self.frames = fusion_frames(sources.depth, sources.stream.sequence, lambda row: backend.map.log.index[row],
                                         outputs.root)
-            f = cfg.fusion
-            self.fusion = FragmentFusion(TSDFVolume(f.tsdf), self.frames.load, self.frames.K, f.eps_f_na, f.eps_cf_d)
+            self.fusion = FragmentFusion(TSDFVolume(cfg.fusion.tsdf), self.frames.load, self.frames.K)
         self.bar = _progress(len(sources.stream), progress)
 
     def __enter__(self) -> SlamRun:
@@ -162,15 +162,11 @@ class SlamRun:
         self.backend.skip(frame.index, frame.timestamp)
 
     def _fuse(self, fid: int, frame: StreamFrame) -> None:
-        """Record the frame for fusion and integrate whatever has settled."""
+        """Record the frame (log row) under its fragment for the fusion at the end."""
         assert self.fusion is not None and self.frames is not None
-        slam_map = self.backend.map
-        row = len(slam_map.log) - 1
+        row = len(self.backend.map.log) - 1
         self.frames.record(row, frame)
         self.fusion.add_frame(fid, row)
-        T = slam_map.current_pose()
-        if T is not None:
-            self.fusion.step(row, T, slam_map.pose_of_log, eligible=slam_map.in_main)
 
     def finish(self) -> TriangleMesh | None:
         """End of the stream: the back-end's final optimisation, the components beside the
