@@ -27,6 +27,7 @@ from benchmarks.common import RESULTS, ROOT
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 
+PRESET, SEED, FRAMES, SIZE = "seq1", 7, 300, 128  #: the cases' simulator defaults (size in pixels)
 BASE = ("path.coverage=0.15",)  #: README's first example: 19 cm of colon in 300 frames (~0.6 mm per frame)
 
 
@@ -48,14 +49,25 @@ CASES = (
 )
 
 
+def case_sequence(case: Case, preset: str = PRESET, seed: int = SEED, frames: int = FRAMES,
+                  size: int = SIZE) -> SimSequence:
+    """The simulator settings of ``case`` (frame size in pixels)."""
+    return SimSequence(preset, seed, frames, size, case.overrides)
+
+
+def slam_command(seq: Path, out: Path, depth_model: Path | None = None) -> list[str]:
+    """The SLAM run of a case on ``seq`` into ``out`` (replaced): ground-truth depth (or
+    ``depth_model``'s), SIFT, default settings, mesh and coverage on."""
+    depth = ["--depth-model", str(depth_model)] if depth_model else ["--depth-source", "files"]
+    return [sys.executable, "-m", "c3f_slam", "run", str(seq), *depth, "--descriptors", "sift", "--quiet",
+            "--overwrite", "--out", str(out)]
+
+
 def run_case(case: Case, a: argparse.Namespace) -> dict:
     """Generate, run, evaluate one case; returns evaluation.json's ``unseen`` plus the run's registered share."""
-    seq = ensure_sequence(SimSequence(a.preset, a.seed, a.frames, a.size, case.overrides), a.work / case.name)
+    seq = ensure_sequence(case_sequence(case, a.preset, a.seed, a.frames, a.size), a.work / case.name)
     out = a.work / "runs" / case.name
-    depth = ["--depth-model", str(a.depth_model)] if a.depth_model else ["--depth-source", "files"]
-    cmd = [sys.executable, "-m", "c3f_slam", "run", str(seq), *depth, "--descriptors", "sift", "--quiet",
-           "--overwrite", "--out", str(out)]
-    run = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    run = subprocess.run(slam_command(seq, out, a.depth_model), cwd=ROOT, capture_output=True, text=True)
     if run.returncode != 0:
         return {"status": f"run failed: {run.stderr.strip()[-200:]}"}
     ev = subprocess.run([sys.executable, "-m", "c3f_slam", "evaluate", str(out), "--gt", str(seq)], cwd=ROOT,
@@ -100,10 +112,10 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, required=True, help="folder for sequences and runs")
     ap.add_argument("--cases", nargs="+", choices=[c.name for c in CASES], default=[c.name for c in CASES])
-    ap.add_argument("--preset", default="seq1")
-    ap.add_argument("--seed", type=int, default=7)
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--preset", default=PRESET)
+    ap.add_argument("--seed", type=int, default=SEED)
+    ap.add_argument("--frames", type=int, default=FRAMES)
+    ap.add_argument("--size", type=int, default=SIZE)
     ap.add_argument("--jobs", type=int, default=2, help="cases run at once")
     ap.add_argument("--depth-model", type=Path, help="DepthNet ONNX: predicted depth instead of the true depth")
     ap.add_argument("--report", type=Path, default=RESULTS / "coverage_accuracy.md")

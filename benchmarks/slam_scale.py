@@ -83,29 +83,29 @@ class Probe(FragmentSlam):
         if self._n % self.every == 0:
             now, cpu = time.perf_counter(), time.process_time()
             sec = {st: self.t.seconds.get(st, 0.0) for st in STAGES}
-            new_frag = self.counts.fragments - self._frag
+            new_frag = self.map.counts.fragments - self._frag
             self.samples.append({
                 "frames": self._n, "ms": 1000 * (now - self._t) / self.every,
                 "cpu_ms": 1000 * (cpu - self._cpu) / self.every,
-                "rss": rss_mb(), "kf": len(self.keyframes),
-                "kf_mb": self.keyframe_memory_bytes() / 2**20, "kf_disk_mb": self.keyframes.disk_bytes / 2**20,
-                "edges": self.graph.n_edges, "edge_mb": self.graph.edge_nbytes() / 2**20,
+                "rss": rss_mb(), "kf": len(self.map.keyframes),
+                "kf_mb": self.map.keyframe_memory_bytes() / 2**20, "kf_disk_mb": self.map.keyframes.disk_bytes / 2**20,
+                "edges": self.map.graph.n_edges, "edge_mb": self.map.graph.edge_nbytes() / 2**20,
                 "stage_ms": {st: 1000 * (sec[st] - self._stages[st]) / self.every for st in STAGES},
-                "pairs": (self.counts.candidates_matched - self._pairs) / max(new_frag, 1),
-                "opts": self.schedule.counts.optimizations - self._opts,
-                "win": self.schedule.counts.windowed - self._win,
+                "pairs": (self.placer.counts.candidates_matched - self._pairs) / max(new_frag, 1),
+                "opts": self.map.schedule.counts.optimizations - self._opts,
+                "win": self.map.schedule.counts.windowed - self._win,
             })
-            self._t, self._cpu, self._stages, self._frag = now, cpu, sec, self.counts.fragments
-            self._pairs, self._opts, self._win = self.counts.candidates_matched, self.schedule.counts.optimizations, \
-                self.schedule.counts.windowed
+            self._t, self._cpu, self._stages, self._frag = now, cpu, sec, self.map.counts.fragments
+            opt = self.map.schedule.counts
+            self._pairs, self._opts, self._win = self.placer.counts.candidates_matched, opt.optimizations, opt.windowed
             r = self.samples[-1]
             print(f"{r['frames']} frames: {r['ms']:.1f} ms/frame (CPU {r['cpu_ms']:.1f}), "
                   f"RSS {r['rss']:.0f} MB, {r['kf']} keyframes, "
                   f"{r['pairs']:.1f} pairs/fragment, {r['opts']} opt ({r['win']} windowed), "
                   + " ".join(f"{k} {v:.1f}" for k, v in r["stage_ms"].items()), flush=True)
 
-    def add(self, feat, depth, rgb=None):
-        out = super().add(feat, depth, rgb)
+    def add(self, frame):
+        out = super().add(frame)
         self._tick()
         return out
 
@@ -115,9 +115,9 @@ class Probe(FragmentSlam):
 
     def finish(self):
         t0 = time.perf_counter()
-        n0 = self.schedule.counts.optimizations
+        n0 = self.map.schedule.counts.optimizations
         super().finish()
-        self.final.update(seconds=time.perf_counter() - t0, optimizations=self.schedule.counts.optimizations - n0)
+        self.final.update(seconds=time.perf_counter() - t0, optimizations=self.map.schedule.counts.optimizations - n0)
 
 
 def probe_class(every: int) -> type[Probe]:

@@ -43,6 +43,7 @@ from datamodules.synthetic.generate import read_event_labels
 PAPER_FRAMES = 4500  #: frames of the paper's sequences over the whole colon
 #: simulator overrides per event timing (``--events``)
 EVENT_TIMINGS = {"bounded": (), "unbounded": ("path.max_turn_rate=none", "path.max_event_speed=none")}
+PRESETS, SEEDS, PACES = ("seq1", "seq3", "seq2"), (1, 2), (1.0, 3.0)  #: the default sequences
 
 
 @dataclass(frozen=True)
@@ -54,14 +55,29 @@ class Variant:
     options: tuple[str, ...] = ()
 
 
+def tracking_sequence(preset: str, seed: int, pace: float, frames: int, size: int,
+                      timing: str = "bounded") -> tuple[str, SimSequence]:
+    """The sequence of one preset x seed x pace x frame size (pixels) with the simulator's
+    event ``timing`` (:data:`EVENT_TIMINGS`): its name (the folder under ``--work``) and settings."""
+    cov = min(1.0, pace * frames / PAPER_FRAMES)
+    spec = SimSequence(preset, seed, frames, size, (f"path.coverage={cov:.4f}", *EVENT_TIMINGS[timing]))
+    name = f"{preset}_s{seed}_{size}px_pace{pace:g}" + ("" if timing == "bounded" else "_unbounded")
+    return name, spec
+
+
+def slam_command(seq: Path, out: Path, options: tuple[str, ...] = ()) -> list[str]:
+    """The SLAM run of this benchmark on ``seq`` into ``out`` (replaced): ground-truth depth
+    (unless ``options`` name a depth model), SIFT, default settings, no mesh."""
+    depth = () if "--depth-model" in options else ("--depth-source", "files")
+    return [sys.executable, "-m", "c3f_slam", "run", str(seq), *depth, "--descriptors", "sift",
+            "--no-mesh", "--quiet", "--overwrite", "--out", str(out), *options]
+
+
 def run_variant(v: Variant, seq: Path, out: Path) -> dict:
     """Run the CLI of ``v`` on ``seq`` into ``out`` (replaced) and return its summary plus the
     ATE against the sequence's ground truth (None where nothing registered)."""
-    depth = () if "--depth-model" in v.options else ("--depth-source", "files")
-    cmd = [sys.executable, "-m", "c3f_slam", "run", str(seq), *depth, "--descriptors", "sift",
-           "--no-mesh", "--quiet", "--overwrite", "--out", str(out), *v.options]
     env = {**os.environ, "PYTHONPATH": str(v.checkout)}
-    proc = subprocess.run(cmd, cwd=v.checkout, env=env, capture_output=True, text=True)
+    proc = subprocess.run(slam_command(seq, out, v.options), cwd=v.checkout, env=env, capture_output=True, text=True)
     summary_path = out / "summary.json"
     if not summary_path.is_file():
         raise SystemExit(f"{v.name} on {seq}: no summary.json ({proc.stderr.strip()[-300:]})")
@@ -93,9 +109,9 @@ def row(seq_name: str, v: Variant, s: dict, events: float) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--presets", nargs="+", default=["seq1", "seq3", "seq2"])
-    ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2])
-    ap.add_argument("--paces", nargs="+", type=float, default=[1.0, 3.0], help="multiples of the paper's pace")
+    ap.add_argument("--presets", nargs="+", default=list(PRESETS))
+    ap.add_argument("--seeds", nargs="+", type=int, default=list(SEEDS))
+    ap.add_argument("--paces", nargs="+", type=float, default=list(PACES), help="multiples of the paper's pace")
     ap.add_argument("--frames", type=int, default=1500)
     ap.add_argument("--sizes", nargs="+", type=int, default=[128])
     ap.add_argument("--work", type=Path, required=True, help="folder for sequences and runs")
@@ -118,9 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     lines = ["| sequence | events % | code | min corr. | registered % of usable | ATE Sim(3) cm | ATE % of path "
              "| path cm | breaks / re-joined | frames/s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for timing, size, pace, preset, seed in itertools.product(a.events, a.sizes, a.paces, a.presets, a.seeds):
-        cov = min(1.0, pace * a.frames / PAPER_FRAMES)
-        spec = SimSequence(preset, seed, a.frames, size, (f"path.coverage={cov:.4f}", *EVENT_TIMINGS[timing]))
-        name = f"{preset}_s{seed}_{size}px_pace{pace:g}" + ("" if timing == "bounded" else "_unbounded")
+        name, spec = tracking_sequence(preset, seed, pace, a.frames, size, timing)
         seq = ensure_sequence(spec, a.work / name, echo=True)
         events = read_event_labels(seq)
         ev_share = sum(1 for e in events if e) / max(len(events), 1)

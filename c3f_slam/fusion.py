@@ -3,9 +3,8 @@
 - :class:`TSDFVolume`: integrate RGB + depth (metres) with camera-to-world poses, extract a
   vertex-coloured triangle mesh with marching cubes. Unobserved space stays empty, so
   unseen colon wall shows up as holes in the mesh (the clinical output).
-- :class:`FragmentFusion`: keeps each fragment's frame list, fuses a fragment once it is
-  settled (not inspected for more than ``eps_f_na`` frames and the camera farther than
-  ``eps_cf_d`` metres from it), and re-fuses everything with the final poses at the end.
+- :class:`FragmentFusion`: keeps each fragment's frame list and fuses the chosen fragments
+  with their final poses at the end of the run.
 
 Defaults (:class:`~c3f_slam.config.TSDFConfig` and the presets of :mod:`c3f_slam.config.presets`),
 all metres:
@@ -25,8 +24,6 @@ the CPU hash map grows beyond ``block_count`` on demand.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from itertools import islice
 from pathlib import Path
 
 import numpy as np
@@ -115,146 +112,38 @@ FrameLoader = Callable[[int], tuple[np.ndarray | None, np.ndarray]]
 PoseLookup = Callable[[int], "np.ndarray | None"]
 
 
-@dataclass
-class _Fragment:
-    frames: list[int] = field(default_factory=list)
-    last_inspected: int = -1
-    fused: bool = False
-
-
 class FragmentFusion:
-    """Fuse fragments into a live preview volume once they are settled (docs/design.md, Fusion).
+    """The frames of each fragment, and the mesh fused from them with the final poses.
 
-    A fragment is settled at frame ``current`` when ``current - last_inspected > eps_f_na``
-    (frames) and the current camera centre is farther than ``eps_cf_d`` (metres) from every
-    camera centre of the fragment's frames. ``load_frame(index)`` returns (rgb, depth_m) of a
-    frame (frames are re-read, never kept in memory); ``pose_of(index)`` returns its current
-    camera-to-world pose, or None when it is not registered (then it is skipped).
-    Defaults: 30 frames (1 s at 30 fps) and 5 cm (about one lumen diameter, colon); a room
-    would use about 1 m.
-
-    Bounded work per frame: only fragments not yet fused are considered, and when more than
-    ``max_checks`` of them wait, :meth:`settled` looks at ``max_checks`` of them per call in
-    round-robin order (a fragment may then settle a few frames late in the live preview;
-    the final mesh is unaffected). None checks all of them every frame.
+    The run records each processed frame under its fragment (:meth:`add_frame`); at the end
+    :meth:`finalize` fuses the chosen fragments (the main map's, or one component's) into an
+    empty volume with their final poses. No volume is kept while the stream runs: nothing
+    would read it, and every frame is fused once, with its final pose, per mesh made.
+    ``load_frame(frame)`` returns (rgb, depth in metres) of a frame (frames are re-read,
+    never kept in memory); ``pose_of(frame)`` its camera-to-world pose, or None when it is
+    not registered (then it is skipped); ``K`` the 3x3 intrinsics of the loaded images (px).
     """
 
-    def __init__(
-        self,
-        volume: TSDFVolume,
-        load_frame: FrameLoader,
-        K: np.ndarray,
-        eps_f_na: int = 30,
-        eps_cf_d: float = 0.05,
-        max_checks: int | None = 16,
-    ) -> None:
+    def __init__(self, volume: TSDFVolume, load_frame: FrameLoader, K: np.ndarray) -> None:
         self.volume = volume
         self.load_frame = load_frame
         self.K = np.asarray(K, dtype=np.float64)
-        self.eps_f_na = int(eps_f_na)
-        self.eps_cf_d = float(eps_cf_d)
-        self.max_checks = max_checks
-        self.fragments: dict[int, _Fragment] = {}
-        self._pending: dict[int, None] = {}  # not yet fused, in round-robin order
-
-    def _get(self, fragment: int) -> _Fragment:
-        f = self.fragments.get(fragment)
-        if f is None:
-            f = self.fragments[fragment] = _Fragment()
-            self._pending[fragment] = None
-        return f
+        self.fragments: dict[int, list[int]] = {}  # fragment id -> its frames, in stream order
 
     def add_frame(self, fragment: int, frame: int) -> None:
-        """Record that ``frame`` belongs to ``fragment`` (and that it was inspected then)."""
-        f = self._get(fragment)
-        f.frames.append(frame)
-        f.last_inspected = max(f.last_inspected, frame)
-
-    def mark_inspected(self, fragment: int, frame: int) -> None:
-        """The camera saw ``fragment`` again at ``frame`` (e.g. its keyframe matched)."""
-        f = self._get(fragment)
-        f.last_inspected = max(f.last_inspected, frame)
-
-    @property
-    def fused(self) -> list[int]:
-        return sorted(k for k, f in self.fragments.items() if f.fused)
-
-    def _far(self, fragment: _Fragment, centre: np.ndarray, pose_of: PoseLookup) -> bool:
-        """Every registered camera centre of the fragment is farther than eps_cf_d (stops at
-        the first near one)."""
-        for fr in fragment.frames:
-            T = pose_of(fr)
-            if T is not None and float(np.linalg.norm(np.asarray(T)[:3, 3] - centre)) <= self.eps_cf_d:
-                return False
-        return True
-
-    def settled(
-        self,
-        current: int,
-        T_wc: np.ndarray,
-        pose_of: PoseLookup,
-        eligible: Iterable[int] | Callable[[int], bool] | None = None,
-    ) -> list[int]:
-        """Fragments (not yet fused, ``eligible`` if given: ids, or a predicate) that are
-        settled at frame ``current`` with the camera at pose ``T_wc`` (at most ``max_checks``
-        of the waiting fragments are looked at per call, see the class notes)."""
-        if eligible is None or callable(eligible):
-            allowed = eligible
-        else:
-            ids = eligible if isinstance(eligible, (set, frozenset, dict)) else set(eligible)
-            allowed = ids.__contains__
-        centre = np.asarray(T_wc, dtype=np.float64)[:3, 3]
-        if self.max_checks is None or len(self._pending) <= self.max_checks:
-            batch = sorted(self._pending)
-        else:  # round robin: look at the first max_checks, then move them to the back
-            batch = list(islice(self._pending, self.max_checks))
-            for k in batch:
-                del self._pending[k]
-                self._pending[k] = None
-        out = []
-        for k in batch:
-            f = self.fragments[k]
-            if f.fused:
-                self._pending.pop(k, None)
-                continue
-            if allowed is not None and not allowed(k):
-                continue
-            if current - f.last_inspected > self.eps_f_na and self._far(f, centre, pose_of):
-                out.append(k)
-        return sorted(out)
-
-    def _fuse(self, fragment: _Fragment, pose_of: PoseLookup) -> None:
-        for fr in fragment.frames:
-            T = pose_of(fr)
-            if T is None:
-                continue
-            rgb, depth = self.load_frame(fr)
-            self.volume.integrate(rgb, depth, self.K, T)
-        fragment.fused = True
-
-    def step(
-        self, current: int, T_wc: np.ndarray, pose_of: PoseLookup, eligible: Iterable[int] | None = None
-    ) -> list[int]:
-        """Fuse every settled fragment into the preview volume; returns their ids.
-
-        Pass ``eligible`` = the fragments connected to the map (ids or a predicate), so that
-        lone fragments wait.
-        """
-        done = self.settled(current, T_wc, pose_of, eligible)
-        for k in done:
-            self._fuse(self.fragments[k], pose_of)
-            self._pending.pop(k, None)
-        return done
+        """Record that ``frame`` belongs to ``fragment``."""
+        self.fragments.setdefault(fragment, []).append(frame)
 
     def finalize(self, pose_of: PoseLookup, fragments: Iterable[int] | None = None) -> o3d.geometry.TriangleMesh:
-        """Re-fuse ``fragments`` (default: all; leave lone ones out) with the final poses from
-        an empty volume, and return the mesh."""
+        """Fuse ``fragments`` (default: all; leave lone ones out) with the poses of ``pose_of``
+        into an empty volume, in fragment order, and return the mesh."""
         self.volume.reset()
         keep = sorted(self.fragments) if fragments is None else sorted(set(fragments))
-        for f in self.fragments.values():
-            f.fused = False
         for k in keep:
-            if k in self.fragments:
-                self._fuse(self.fragments[k], pose_of)
-        self._pending = {k: None for k, f in sorted(self.fragments.items()) if not f.fused}
+            for frame in self.fragments.get(k, ()):
+                T = pose_of(frame)
+                if T is None:
+                    continue
+                rgb, depth = self.load_frame(frame)
+                self.volume.integrate(rgb, depth, self.K, T)
         return self.volume.extract_mesh()

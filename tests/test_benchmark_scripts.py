@@ -221,3 +221,69 @@ def test_fallback_pairs_compares_plain_guided_and_dense(tmp_path):
     motion = np.array([r["motion"][0] for r in rows])
     assert (motion > 1.0).all() and (np.array([r["plain"][1] for r in rows]) < 0.5 * motion).all()
     assert summary_line("tiny", rows).startswith("| tiny | 7 | 0 | 0 |")
+
+
+def test_trajectory_identity_sets_and_comparison(tmp_path):
+    """benchmarks/trajectory_identity.py: its sets are the benchmarks' sequences, run as each
+    benchmark runs them (tracking without a mesh, coverage with one); two runs that write the
+    same trajectory are identical, a different one is not, and a run of the same code key is
+    reused instead of run again."""
+    from benchmarks import trajectory_identity as ti
+
+    sets = {s: ti.targets([s]) for s in ("coverage", "tracking128", "tracking256", "smoke")}
+    assert [len(v) for v in sets.values()] == [7, 12, 12, 1]
+    assert {t.spec.frames for t in sets["tracking128"]} == {600} and {t.spec.size for t in sets["coverage"]} == {128}
+    assert "--no-mesh" in sets["tracking256"][0].command(Path("s"), Path("o"))
+    assert "--no-mesh" not in sets["coverage"][0].command(Path("s"), Path("o"))
+    assert len(ti.targets(["coverage", "smoke"])) == 7
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    (seq / "camera.json").write_text("{}")  # an existing sequence: not generated again
+    write = ("import json, pathlib, sys; o = pathlib.Path(sys.argv[1]); o.mkdir(parents=True, exist_ok=True); "
+             "(o / 'trajectory.txt').write_text(sys.argv[2]); "
+             "(o / 'summary.json').write_text(json.dumps({'status': 'ok', 'frames': 3, 'registered_share': 1.0}))")
+
+    def target(text: str) -> ti.Target:
+        return ti.Target("seq", "test", ti.SimSequence("seq1", 1, 3, 64), lambda s, o: [sys.executable, "-c", write,
+                                                                                         str(o), text])
+
+    r = ti.run_side(target("0 0 0\n"), seq, ROOT, "key1", tmp_path / "a")
+    assert r["status"] == "ok" and r["frames"] == 3 and not r["reused"] and r["mesh_sha256"] is None
+    again = ti.run_side(target("1 1 1\n"), seq, ROOT, "key1", tmp_path / "a")
+    assert again["reused"] and again["sha256"] == r["sha256"]  # same code: the run is not repeated
+    other = ti.run_side(target("1 1 1\n"), seq, ROOT, None, tmp_path / "a")
+    assert not other["reused"] and other["sha256"] != r["sha256"]
+    lines = ti.table([{"name": "seq", "group": "test", "identical": False, "mesh_identical": None,
+                       "before": r, "after": other}])
+    assert "| seq | test | 3 | 100.0 / 100.0 | **no** |" in lines[-1]
+
+
+def test_trajectory_identity_mesh_fingerprint_ignores_triangle_order(tmp_path):
+    """The same triangles listed in another order (and turned, winding kept) give the same
+    fingerprint; a moved vertex or a flipped triangle does not."""
+    import numpy as np
+    import open3d as o3d
+
+    from benchmarks.trajectory_identity import mesh_fingerprint
+
+    rng = np.random.default_rng(0)
+    v, t = rng.random((30, 3)), rng.permutation(30)[:27].reshape(9, 3)
+    c = rng.random((30, 3))
+
+    def write(name: str, verts: np.ndarray, tris: np.ndarray, perm: np.ndarray | None = None) -> Path:
+        perm = np.arange(len(verts)) if perm is None else perm  # vertex k of the new mesh is verts[perm[k]]
+        inv = np.argsort(perm)
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts[perm]), o3d.utility.Vector3iVector(inv[tris]))
+        mesh.vertex_colors = o3d.utility.Vector3dVector(c[perm])
+        o3d.io.write_triangle_mesh(str(tmp_path / name), mesh)
+        return tmp_path / name
+
+    ref = mesh_fingerprint(write("a.ply", v, t))
+    shuffled = np.roll(t[rng.permutation(len(t))], 1, axis=1)  # other order, each triangle turned
+    assert mesh_fingerprint(write("b.ply", v, shuffled, rng.permutation(30))) == ref
+    moved = v.copy()
+    moved[t[0, 0]] += 1e-12
+    assert mesh_fingerprint(write("c.ply", moved, t)) != ref
+    assert mesh_fingerprint(write("d.ply", v, t[:, ::-1])) != ref  # the winding counts
+    assert mesh_fingerprint(tmp_path / "none.ply") is None

@@ -24,6 +24,7 @@ from c3f_slam.io import Sequence, SequenceWriter, read_tum
 from c3f_slam.outputs import RunOutputs
 from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.components import MapComponent, plan_components
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.run_evaluation import evaluate_run, format_report
 from c3f_slam.pipeline.slam import FragmentSlam
 from datamodules.synthetic.fixture import make_tiny_sequence
@@ -135,7 +136,7 @@ def _place_run(places: list[int], **cfg) -> tuple[FragmentSlam, PlaceWorld]:
     slam = FragmentSlam(c.for_frame_size(128, 128), np.eye(3))
     slam.match = world.match
     for i, place in enumerate(places):
-        slam.add(world.frame(i, place), np.full((8, 8), 0.03))
+        slam.add(FrameInput(world.frame(i, place), np.full((8, 8), 0.03)))
     return slam, world
 
 
@@ -148,18 +149,18 @@ SHORT = list(range(200, 205))
 
 def test_main_map_is_the_component_with_the_most_frames_not_keyframes():
     slam, world = _place_run(PAUSES + WALK + SHORT)
-    assert not slam.in_main(0)  # while running, the main component is the one with the most keyframes
+    assert not slam.map.in_main(0)  # while running, the main component is the one with the most keyframes
     slam.finish()
-    comps = slam.components()
+    comps = slam.map.components()
     assert [c.frames for c in comps] == [30, 10, 5] and [c.keyframes for c in comps] == [3, 10, 5]
-    assert slam.in_main(0) and comps[0].rows.tolist() == list(range(30))
-    _, _, poses, reg = slam.trajectory()
+    assert slam.map.in_main(0) and comps[0].rows.tolist() == list(range(30))
+    _, _, poses, reg = slam.map.trajectory()
     assert reg.tolist() == [True] * 30 + [False] * 15
     # the walk in its own world frame (its first keyframe), optimised on its own: exact
     T0 = world.poses[WALK[0]]
     for row, pose in zip(comps[1].rows.tolist(), comps[1].poses):
         assert np.allclose(pose, g.relative_pose(T0, world.poses[(PAUSES + WALK)[row]]), atol=1e-6)
-    assert slam.keyframe_graph().nodes[3].lone and not slam.keyframe_graph().nodes[0].lone
+    assert slam.map.keyframe_graph().nodes[3].lone and not slam.map.keyframe_graph().nodes[0].lone
 
 
 def test_components_are_optimised_only_when_written():
@@ -168,9 +169,9 @@ def test_components_are_optimised_only_when_written():
     runs = {}
     for min_frames in (10, 0):
         slam, _ = _place_run(PAUSES + WALK + SHORT, components={"min_frames": min_frames})
-        before = slam.schedule.counts.optimizations
+        before = slam.map.schedule.counts.optimizations
         slam.finish()
-        runs[min_frames] = slam.schedule.counts.optimizations - before
+        runs[min_frames] = slam.map.schedule.counts.optimizations - before
     assert runs == {10: 2, 0: 1}
 
 
@@ -181,5 +182,5 @@ def test_a_break_that_rejoins_leaves_one_component():
     from tests.test_slam_rejoin import _run
 
     slam = _run(PlaceWorld(30, reach=2), REJOIN_WALK)
-    comps = slam.components()
+    comps = slam.map.components()
     assert len(comps) == 1 and comps[0].frames == len(REJOIN_WALK)

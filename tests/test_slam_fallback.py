@@ -13,6 +13,7 @@ from c3f_slam.config import preset as slam_preset
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.fallback import DenseFallback, RgbdFrame, verify_alignment
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.posegraph import EdgeKind
@@ -50,9 +51,9 @@ def _run(world: PlaceWorld, places: list[int], T_break: np.ndarray | None, keyfr
     if T_break is not None:
         slam.recovery.dense = PlantedFallback(cfg.fallback, T_break)
         if not sparse_components:
-            slam.sparse = None
+            slam.map.sparse = None
     for i, place in enumerate(places):
-        slam.add(world.frame(i, place), DEPTH, RGB)
+        slam.add(FrameInput(world.frame(i, place), DEPTH, RGB))
     slam.finish()
     return slam
 
@@ -71,10 +72,10 @@ BACK = list(range(21)) + [24, 23, 22, 21, 21, 21]
 def test_a_verified_fallback_bridges_a_break_that_never_comes_back():
     world = PlaceWorld(40, reach=2)
     lost = _run(world, AWAY, None, keyframe_per_frame=False)
-    assert not lost.trajectory()[3][21:].any()  # without the fallback the frames after the jump are lost
+    assert not lost.map.trajectory()[3][21:].any()  # without the fallback the frames after the jump are lost
     true_step = g.relative_pose(world.poses[20], world.poses[24])
     slam = _run(world, AWAY, true_step, keyframe_per_frame=False)
-    _, _, poses, reg = slam.trajectory()
+    _, _, poses, reg = slam.map.trajectory()
     assert reg.all()
     assert _poses_right(world, AWAY, poses, 1e-6)
     stats = slam.stats()
@@ -94,9 +95,9 @@ def test_a_planted_wrong_fallback_edge_is_pruned(deg, metres):
     slam = _run(world, BACK, wrong, keyframe_per_frame=True)
     stats = slam.stats()
     assert stats["fallback_edges"] == 1 and stats["fallback_edges_pruned"] == 1, stats
-    kinds = {e.kind for e in slam.keyframe_graph().edges if e.pruned}
+    kinds = {e.kind for e in slam.map.keyframe_graph().edges if e.pruned}
     assert kinds == {EdgeKind.FALLBACK.value}
-    _, _, poses, reg = slam.trajectory()
+    _, _, poses, reg = slam.map.trajectory()
     assert reg.all() and _poses_right(world, BACK, poses, 1e-4)
 
 
@@ -104,7 +105,7 @@ def test_a_right_fallback_edge_is_kept_when_the_matches_agree():
     world = PlaceWorld(40, reach=2)
     slam = _run(world, BACK, g.relative_pose(world.poses[20], world.poses[24]), keyframe_per_frame=True)
     assert slam.stats()["fallback_edges_pruned"] == 0 and slam.stats()["pruned_edges"] == 0
-    assert _poses_right(world, BACK, slam.trajectory()[2], 1e-6)
+    assert _poses_right(world, BACK, slam.map.trajectory()[2], 1e-6)
 
 
 def test_without_sparse_components_the_matches_are_pruned_instead():
@@ -117,7 +118,7 @@ def test_without_sparse_components_the_matches_are_pruned_instead():
     slam = _run(world, BACK, wrong, keyframe_per_frame=True, sparse_components=False)
     stats = slam.stats()
     assert stats["fallback_edges_pruned"] == 0 and stats["pruned_edges"] > 0
-    assert not _poses_right(world, BACK, slam.trajectory()[2], 1e-3)
+    assert not _poses_right(world, BACK, slam.map.trajectory()[2], 1e-3)
 
 
 # ---------------------------------------------------------------------- the dense aligner
@@ -231,10 +232,10 @@ def test_guided_matching_bridges_a_break_in_the_back_end():
         slam = world.use(FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3)))
         slam.match = lambda a, b: (None, 0) if (a.index, b.index) == (14, 15) else world.match(a, b)
         for i, p in enumerate(places):
-            slam.add(world.frame(i, p), DEPTH)
+            slam.add(FrameInput(world.frame(i, p), DEPTH))
         slam.finish()
         return slam
 
     on, off = run(True), run(False)
-    assert on.stats()["guided_links"] == 1 and on.stats()["tracking_breaks"] == 0 and on.trajectory()[3].all()
+    assert on.stats()["guided_links"] == 1 and on.stats()["tracking_breaks"] == 0 and on.map.trajectory()[3].all()
     assert off.stats()["tracking_breaks"] == 1 and off.stats()["guided_links"] == 0

@@ -143,7 +143,7 @@ def test_write_mesh_atomic(tmp_path, tube_fused):
 # ---------------------------------------------------------------------- fragments
 
 
-def test_fragment_fusion_schedule_and_final_poses():
+def test_fragment_fusion_fuses_the_chosen_fragments_with_final_poses_at_the_end():
     poses = tube_poses(8)
     frames = {k: render_tube(T) for k, T in enumerate(poses)}
     loads: list[int] = []
@@ -152,28 +152,16 @@ def test_fragment_fusion_schedule_and_final_poses():
         loads.append(k)
         return frames[k]
 
-    # preview poses are 5 mm off; the final ones are exact
-    wrong = {k: g.make_pose(np.eye(3), [0.005, 0.0, 0.0]) @ T for k, T in enumerate(poses)}
-    ff = FragmentFusion(TSDFVolume(CFG), load, CAM.K, eps_f_na=2, eps_cf_d=0.006)
-    fused_at: dict[int, int] = {}
+    ff = FragmentFusion(TSDFVolume(CFG), load, CAM.K)
     for k in range(8):
         ff.add_frame(k // 2, k)  # fragments {0,1}, {2,3}, {4,5}, {6,7}
-        for f in ff.step(k, wrong[k], wrong.get, eligible=[0, 2, 3]):  # fragment 1 is lone
-            fused_at[f] = k
-    # fragment 0 (frames 0, 1): last inspected at 1, settled once k - 1 > 2 and the camera is > 6 mm away
-    assert fused_at == {0: 4}
-    assert 1 not in ff.fused and ff.fused == [0]
-    ff.mark_inspected(2, 7)
-    assert ff.settled(9, wrong[7], wrong.get, eligible=[2]) == []  # inspected again at 7
-    assert loads == [0, 1]
-
-    mesh = ff.finalize(lambda k: poses[k], fragments=[0, 1, 2, 3])
-    err = _radial_error(mesh)
-    assert np.percentile(err, 99) < VOXEL  # the final mesh uses the final poses, not the preview
-    assert ff.fused == [0, 1, 2, 3]
-    # a frame without a pose (unregistered) is skipped
+    assert loads == [] and ff.fragments == {0: [0, 1], 1: [2, 3], 2: [4, 5], 3: [6, 7]}  # nothing fused yet
+    mesh = ff.finalize(lambda k: poses[k], fragments=[3, 0, 1, 2, 7])  # 7: no such fragment
+    assert loads == list(range(8))  # each frame read once, in fragment order
+    assert np.percentile(_radial_error(mesh), 99) < VOXEL
+    # another mesh starts from an empty volume; a frame without a pose (unregistered) is skipped
     ff.finalize(lambda k: None if k == 0 else poses[k], fragments=[0])
-    assert ff.volume.n_integrated == 1
+    assert ff.volume.n_integrated == 1 and loads[8:] == [1]
 
 
 # ---------------------------------------------------------------------- coverage

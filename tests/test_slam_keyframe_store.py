@@ -15,6 +15,7 @@ import pytest
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig, run_slam
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR, DATA_FILE, KeyframeStore
 from c3f_slam.pipeline.slam import FragmentSlam
@@ -102,7 +103,7 @@ def _fake_run(world: PlaceWorld, folder: Path | None) -> tuple[FragmentSlam, lis
                                    candidates={"max_candidates": 6}, optimization={"small_map": 10})
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3), keyframe_cache=folder)
     if folder is not None:
-        slam.keyframes = KeyframeStore(folder, lru=4)  # small LRU: most candidates come from the file
+        slam.map.keyframes = KeyframeStore(folder, lru=4)  # small LRU: most candidates come from the file
     seen: list[bytes] = []
 
     def match(a: FrameFeatures, b: FrameFeatures):
@@ -112,7 +113,7 @@ def _fake_run(world: PlaceWorld, folder: Path | None) -> tuple[FragmentSlam, lis
 
     slam.match = match
     for i, p in enumerate(_revisiting_walk()):
-        slam.add(world.frame(i, p), np.zeros((4, 4), np.float32))
+        slam.add(FrameInput(world.frame(i, p), np.zeros((4, 4), np.float32)))
     slam.finish()
     return slam, seen
 
@@ -120,13 +121,13 @@ def _fake_run(world: PlaceWorld, folder: Path | None) -> tuple[FragmentSlam, lis
 def test_fake_world_identical_in_ram_and_on_disk(tmp_path):
     ram, seen_ram = _fake_run(PlaceWorld(30, reach=2, seed=4, graded=True), None)
     disk, seen_disk = _fake_run(PlaceWorld(30, reach=2, seed=4, graded=True), tmp_path / "kf")
-    assert disk.keyframes.on_disk and not ram.keyframes.on_disk
+    assert disk.map.keyframes.on_disk and not ram.map.keyframes.on_disk
     assert seen_ram == seen_disk and len(seen_ram) > 100
-    assert [(e.i, e.j, e.kind, e.uncertain) for e in ram.graph.edges] == \
-        [(e.i, e.j, e.kind, e.uncertain) for e in disk.graph.edges]
-    assert ram.graph.pose_array().tobytes() == disk.graph.pose_array().tobytes()
-    idx_r, st_r, P_r, reg_r = ram.trajectory()
-    idx_d, st_d, P_d, reg_d = disk.trajectory()
+    assert [(e.i, e.j, e.kind, e.uncertain) for e in ram.map.graph.edges] == \
+        [(e.i, e.j, e.kind, e.uncertain) for e in disk.map.graph.edges]
+    assert ram.map.graph.pose_array().tobytes() == disk.map.graph.pose_array().tobytes()
+    idx_r, st_r, P_r, reg_r = ram.map.trajectory()
+    idx_d, st_d, P_d, reg_d = disk.map.trajectory()
     assert P_r.tobytes() == P_d.tobytes() and (reg_r == reg_d).all() and (st_r == st_d).all()
     s_r, s_d = ram.stats(), disk.stats()
     assert s_r["keyframe_disk_bytes"] == 0 and s_d["keyframe_disk_bytes"] == 90 * 40 * (128 + 12)
@@ -152,11 +153,11 @@ def test_run_slam_identical_and_cache_removed(seq, tmp_path):
     seen = {}
 
     class Spy(FragmentSlam):
-        def add(self, feat, depth, rgb=None):
-            seen["on_disk"] = self.keyframes.on_disk
-            seen["file"] = seen.get("file") or (self.keyframes.folder is not None
-                                                and (self.keyframes.folder / DATA_FILE).is_file())
-            return super().add(feat, depth, rgb)
+        def add(self, frame):
+            seen["on_disk"] = self.map.keyframes.on_disk
+            seen["file"] = seen.get("file") or (self.map.keyframes.folder is not None
+                                                and (self.map.keyframes.folder / DATA_FILE).is_file())
+            return super().add(frame)
 
     outs = {}
     for cache in (True, False):
@@ -179,12 +180,13 @@ def test_run_slam_removes_cache_on_error(seq, tmp_path):
     out = tmp_path / "boom"
 
     class Boom(FragmentSlam):
-        def add(self, feat, depth, rgb=None):
-            if len(self.keyframes) >= 2:  # the cache is in the run being built (beside OUT)
-                assert self.keyframes.folder.name == CACHE_DIR and self.keyframes.folder.parent.parent == tmp_path
-                assert (self.keyframes.folder / DATA_FILE).stat().st_size > 0
+        def add(self, frame):
+            store = self.map.keyframes
+            if len(store) >= 2:  # the cache is in the run being built (beside OUT)
+                assert store.folder.name == CACHE_DIR and store.folder.parent.parent == tmp_path
+                assert (store.folder / DATA_FILE).stat().st_size > 0
                 raise RuntimeError("planted failure")
-            return super().add(feat, depth, rgb)
+            return super().add(frame)
 
     cfg = slam_preset("colon", fragments={"min_correspondences": 15}, fusion={"enabled": False})
     with pytest.raises(RuntimeError, match="planted failure"):

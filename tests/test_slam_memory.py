@@ -10,6 +10,7 @@ import pytest
 from c3f_slam import geometry as g
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.pipeline.keyframe_edges import cap_keyframe_edges
 from c3f_slam.pipeline.slam import FragmentSlam
@@ -170,13 +171,13 @@ def _run(cap: int | None, n_frames: int = 60) -> tuple[FragmentSlam, PlaceWorld]
     world = PlaceWorld(10, reach=3, seed=1, graded=True)
     slam = keyframe_per_frame_slam(world, candidates={"max_candidates": None}, keyframes={"max_loop_edges": cap})
     for k in range(n_frames):
-        slam.add(world.frame(k, [*range(10), *range(8, 0, -1)][k % 18]), np.zeros((4, 4)))
+        slam.add(FrameInput(world.frame(k, [*range(10), *range(8, 0, -1)][k % 18]), np.zeros((4, 4))))
     return slam, world
 
 
 def _loop_edges_by_keyframe(slam: FragmentSlam) -> dict[int, list[int]]:
     out: dict[int, list[int]] = {}
-    for e in slam.graph.edges:
+    for e in slam.map.graph.edges:
         if e.uncertain:
             out.setdefault(max(e.i, e.j), []).append(min(e.i, e.j))
     return out
@@ -188,22 +189,22 @@ def test_slam_keeps_at_most_cap_loop_edges_and_the_most_recent(cap):
     full, _ = _run(None)
     capped, every = _loop_edges_by_keyframe(slam), _loop_edges_by_keyframe(full)
     assert max(len(v) for v in every.values()) > cap  # the cap does bite on this stream
-    assert slam.counts.edges_capped == sum(max(len(v) - cap, 0) for v in every.values()) > 0
+    assert slam.placer.counts.edges_capped == sum(max(len(v) - cap, 0) for v in every.values()) > 0
     for node, olds in every.items():
         assert len(capped[node]) == min(len(olds), cap)
         assert max(olds) in capped[node]  # the most recent matched keyframe is kept
-    assert slam.stats()["keyframe_matches_capped"] == slam.counts.edges_capped
+    assert slam.stats()["keyframe_matches_capped"] == slam.placer.counts.edges_capped
     # the map stays one piece and correct
-    _, _, P, reg = slam.trajectory()
+    _, _, P, reg = slam.map.trajectory()
     assert reg.all()
-    truth = np.array([world.poses[world.place[i]] for i in slam.log.index])
+    truth = np.array([world.poses[world.place[i]] for i in slam.map.log.index])
     np.testing.assert_allclose(P[:, :3, 3], truth[:, :3, 3], atol=1e-6)
 
 
 def test_cap_none_or_zero_keeps_every_match():
     full, _ = _run(None, 40)
     zero, _ = _run(0, 40)
-    assert full.counts.edges_capped == zero.counts.edges_capped == 0
+    assert full.placer.counts.edges_capped == zero.placer.counts.edges_capped == 0
     assert _loop_edges_by_keyframe(full) == _loop_edges_by_keyframe(zero)
     with pytest.raises(InputError, match="keyframes.max_loop_edges"):
         SlamConfig(keyframes={"max_loop_edges": -1})
@@ -214,7 +215,7 @@ def test_cap_none_or_zero_keeps_every_match():
 
 def test_stored_keyframes_keep_only_what_matching_reads():
     slam, _ = _run(None, 5)
-    kf = slam.keyframes[-1]
+    kf = slam.map.keyframes[-1]
     assert kf.xy.shape == (0, 2) and len(kf) == 40
     assert kf.descriptors.dtype == np.uint8 and kf.points.dtype == np.float32
     assert kf.nbytes == 40 * (128 + 12)

@@ -18,6 +18,7 @@ from c3f_slam.io import Sequence, read_tum, write_tum
 from c3f_slam.matching import MatchFilterConfig
 from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.fragments import CORRESPONDENCES, OVERLAP, SIZE, Fragment, new_fragment_reason
+from c3f_slam.pipeline.frame_step import KINDS
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, explain_match, match_frames
 from c3f_slam.pipeline.odometry import OdometrySlam
 from c3f_slam.pipeline.slam import FragmentSlam
@@ -118,6 +119,10 @@ def test_rgbd_end_to_end_full_system(seq, tmp_path):
     assert ev["ate_sim3"]["rmse_m"] < 0.05 * length, ev  # measured: about 0.2 % of ~9 cm
     assert ev["ate_se3"]["rmse_m"] < 0.002
     assert s["fragments"] >= 2 and s["keyframes"] == s["fragments"]
+    d = s["frame_decisions"]  # the back-end's decision per processed frame, by kind
+    assert sum(d[k] for k in KINDS) == s["processed"] and d["lost"] == 0
+    assert d["keyframe"] + d["lone"] == s["keyframes"] and d["lone"] == s["lone_created"] == 1  # the first frame
+    assert d["attached"] == s["attached_fragments"] == 0 and d["rejoined"] == s["breaks_rejoined"]
     assert set(s["timings"]) >= {"io", "keypoints", "matching", "posegraph", "fusion"}
     assert s["mesh_triangles"] > 0 and (tmp_path / "full" / "mesh.ply").is_file()
     assert (tmp_path / "full" / "keyframe_graph.png").is_file()
@@ -127,8 +132,10 @@ def test_odometry_baseline_and_injected_wrong_edge(seq, tmp_path):
     """The baseline tracks well; one wrong relative pose in its chain raises the ATE a lot
     (so the ATE checks above can fail)."""
     cfg = slam_preset("colon", mode="odometry", fusion={"enabled": False}, **CFG)
-    run_slam(seq, tmp_path / "odo", cfg, progress=False)
+    s = run_slam(seq, tmp_path / "odo", cfg, progress=False)
     clean = _evaluate(tmp_path / "odo", seq)["ate_sim3"]["rmse_m"]
+    d = s["frame_decisions"]
+    assert d["extended"] == s["processed"] - s["lost_frames"] and d["lost"] == s["lost_frames"]
 
     class Broken(OdometrySlam):
         def __init__(self, *a, **k):
@@ -161,9 +168,9 @@ def test_blas_threads_are_capped_during_a_run_and_restored(seq, tmp_path):
     seen: list[list[int]] = []
 
     class Watching(OdometrySlam):
-        def add(self, feat, depth, rgb=None):
+        def add(self, frame):
             seen.append(blas_threads())
-            return super().add(feat, depth, rgb)
+            return super().add(frame)
 
     cfg = slam_preset("colon", mode="odometry", fusion={"enabled": False}, **CFG)
     run_slam(seq, tmp_path / "b1", cfg.with_(frames={"max_frames": 4}), progress=False, slam_factory=Watching)

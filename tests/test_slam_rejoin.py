@@ -11,6 +11,7 @@ from c3f_slam.config import FragmentConfig
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
+from c3f_slam.pipeline.frame_step import FrameDecision, FrameInput
 from c3f_slam.pipeline.rejoin import _tail_index
 from c3f_slam.pipeline.slam import FragmentSlam
 from tests.fake_places import PlaceWorld
@@ -22,23 +23,30 @@ WALK = list(range(21)) + [24, 23] + [22] * 8
 
 
 def _run(world: PlaceWorld, places: list[int], **rejoin) -> FragmentSlam:
+    return _run_with_decisions(world, places, **rejoin)[0]
+
+
+def _run_with_decisions(world: PlaceWorld, places: list[int], **rejoin) -> tuple[FragmentSlam, list[FrameDecision]]:
     cfg = slam_preset("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
                                    rejoin=rejoin)
     slam = FragmentSlam(cfg.for_frame_size(128, 128), np.eye(3))
     world.use(slam)
-    for i, place in enumerate(places):
-        slam.add(world.frame(i, place), np.full((8, 8), 0.03))
+    decisions = [slam.add(FrameInput(world.frame(i, place), np.full((8, 8), 0.03))) for i, place in enumerate(places)]
     slam.finish()
-    return slam
+    return slam, decisions
 
 
 def test_frames_after_a_break_rejoin_the_map_at_the_right_place():
     world = PlaceWorld(30, reach=2)
-    slam = _run(world, WALK)
-    _, _, poses, reg = slam.trajectory()
+    slam, d = _run_with_decisions(world, WALK)
+    _, _, poses, reg = slam.map.trajectory()
     assert reg.all(), f"unregistered frames: {np.flatnonzero(~reg).tolist()}"
     stats = slam.stats()
     assert stats["tracking_breaks"] == 1 and stats["breaks_rejoined"] == 1 and stats["rejoin_edges"] == 1
+    # frame 21 (place 24) breaks tracking: a lone keyframe opened for too few correspondences;
+    # frame 23 (place 22, within reach of place 20 before the break) re-joins the map
+    assert (d[21].kind, d[21].reason) == ("lone", "correspondences")
+    assert [k for k, x in enumerate(d) if x.rejoined] == [23]
     # every pose where the world says, relative to the first frame (world = first keyframe)
     T0 = world.poses[WALK[0]]
     for i, place in enumerate(WALK):
@@ -50,7 +58,7 @@ def test_without_rejoin_the_frames_after_the_break_are_lost():
     """The same stream with re-joining off: the frames after the break form a lone component
     (so the test above can fail)."""
     slam = _run(PlaceWorld(30, reach=2), WALK, enabled=False)
-    _, _, _, reg = slam.trajectory()
+    _, _, _, reg = slam.map.trajectory()
     assert reg[:21].all() and not reg[21:].any()
     assert slam.stats()["breaks_rejoined"] == 0
 
@@ -73,7 +81,7 @@ STAY = list(range(21)) + [24] + [23] * 12
 def test_a_relaxed_match_just_after_the_break_rejoins():
     world = PlaceWorld(30, reach=2, relaxed_reach=3)
     slam = _run(world, STAY, relaxed_max_step=0.01)
-    _, _, poses, reg = slam.trajectory()
+    _, _, poses, reg = slam.map.trajectory()
     assert reg[:21].all() and reg[22:].all()
     stats = slam.stats()
     assert stats["breaks_rejoined"] == 1 and stats["breaks_rejoined_relaxed"] == 1
@@ -91,7 +99,7 @@ def test_relaxed_rejoin_needs_a_plausible_motion(over):
     """The same stream: without the relaxed matcher, or with a motion bound the link breaks,
     the frames after the break stay a lone component (so the test above can fail)."""
     slam = _run(PlaceWorld(30, reach=2, relaxed_reach=3), STAY, **{"relaxed_max_step": 0.01, **over})
-    _, _, _, reg = slam.trajectory()
+    _, _, _, reg = slam.map.trajectory()
     assert reg[:21].all() and not reg[22:].any()
     assert slam.stats()["breaks_rejoined_relaxed"] == 0
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from c3f_slam import geometry as g
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.retrieval import (
     AppearanceIndex,
     CandidateConfig,
@@ -209,23 +210,23 @@ def test_optimisation_schedule_small_then_geometric():
     slam = keyframe_per_frame_slam(world, optimization={"small_map": 10, "growth": 0.5, "max_nodes": None,
                                                           "final_nodes": None})
     fired: list[int] = []
-    inner = slam.schedule.optimize
+    inner = slam.map.schedule.optimize
 
     def spy(node, n_keyframes):
-        fired.append(len(slam.keyframes))
+        fired.append(len(slam.map.keyframes))
         return inner(node, n_keyframes)
 
-    slam.schedule.optimize = spy
+    slam.map.schedule.optimize = spy
     for k in range(60):
-        slam.add(world.frame(k, k), np.zeros((4, 4)))
+        slam.add(FrameInput(world.frame(k, k), np.zeros((4, 4))))
     # keyframe 2 (the 3rd) is the first with a loop (to 0); every loop keyframe optimises while
     # the map is small (< 10), then only once the keyframes added since the last optimisation
     # are 50 % of the component to optimise: 9 -> 18 -> 36 (geometric)
     assert fired == [3, 4, 5, 6, 7, 8, 9, 18, 36]
-    n_before = slam.schedule.counts.optimizations
+    n_before = slam.map.schedule.counts.optimizations
     slam.finish()
-    assert slam.schedule.counts.optimizations == n_before + 1  # always at the end
-    _, _, P, reg = slam.trajectory()
+    assert slam.map.schedule.counts.optimizations == n_before + 1  # always at the end
+    _, _, P, reg = slam.map.trajectory()
     assert reg.all()
     np.testing.assert_allclose(P[:, :3, 3], np.array(world.poses)[:, :3, 3], atol=1e-6)
 
@@ -234,9 +235,10 @@ def test_every_keyframe_switch_and_paper_rules():
     world = PlaceWorld(30, reach=2)
     slam = keyframe_per_frame_slam(world, optimization={"growth": None}, candidates={"max_candidates": None})
     for k in range(30):
-        slam.add(world.frame(k, k), np.zeros((4, 4)))
-    assert slam.schedule.counts.optimizations == 28  # every keyframe with a loop (keyframes 2..29)
-    assert slam.counts.candidates_matched == sum(max(k - 1, 0) for k in range(30))  # all earlier but the link pair
+        slam.add(FrameInput(world.frame(k, k), np.zeros((4, 4))))
+    assert slam.map.schedule.counts.optimizations == 28  # every keyframe with a loop (keyframes 2..29)
+    # all earlier keyframes but the link pair
+    assert slam.placer.counts.candidates_matched == sum(max(k - 1, 0) for k in range(30))
 
 
 def test_bounded_candidates_windows_and_relocalisation():
@@ -247,67 +249,32 @@ def test_bounded_candidates_windows_and_relocalisation():
     slam = keyframe_per_frame_slam(world, candidates={"max_candidates": 6, "recent": 2, "spatial": 2},
                                    optimization={"small_map": 10, "growth": 0.1, "max_nodes": 12, "final_nodes": 30})
     sizes: list[int] = []
-    inner = slam.graph.optimize
+    inner = slam.map.graph.optimize
 
     def spy(*a, **k):
         res = inner(*a, **k)
         sizes.append(len(res.optimized_nodes))
         return res
 
-    slam.graph.optimize = spy
+    slam.map.graph.optimize = spy
     for k in range(70):
-        before = slam.counts.candidates_matched
-        slam.add(world.frame(k, k), np.zeros((4, 4)))
-        assert slam.counts.candidates_matched - before <= 6
-    assert max(sizes) <= 12 and slam.schedule.counts.windowed > 0
+        before = slam.placer.counts.candidates_matched
+        slam.add(FrameInput(world.frame(k, k), np.zeros((4, 4))))
+        assert slam.placer.counts.candidates_matched - before <= 6
+    assert max(sizes) <= 12 and slam.map.schedule.counts.windowed > 0
     # tracking lost; the camera is back at place 20 (50 places ago)
     slam.skip(70, 70 / 30.0)
-    reloc = slam.counts.relocalised
-    slam.add(world.frame(71, 20), np.zeros((4, 4)))
-    assert slam.counts.relocalised == reloc + 1
-    new = len(slam.keyframes) - 1
-    assert any({e.i, e.j} == {20, new} for e in slam.graph.edges)
-    assert slam.in_main(new)
+    reloc = slam.placer.counts.relocalised
+    slam.add(FrameInput(world.frame(71, 20), np.zeros((4, 4))))
+    assert slam.placer.counts.relocalised == reloc + 1
+    new = len(slam.map.keyframes) - 1
+    assert any({e.i, e.j} == {20, new} for e in slam.map.graph.edges)
+    assert slam.map.in_main(new)
     sizes.clear()
     slam.finish()
     assert len(sizes) > 1 and max(sizes) <= 12  # a sweep of windows (71 keyframes > 30)
-    idx, _, P, reg = slam.trajectory()
+    idx, _, P, reg = slam.map.trajectory()
     assert np.array_equal(reg, idx != 70)  # all but the skipped frame
-    truth = np.array([world.poses[world.place[i]] for i in slam.log.index if i != 70])
+    truth = np.array([world.poses[world.place[i]] for i in slam.map.log.index if i != 70])
     np.testing.assert_allclose(P[reg][:, :3, 3], truth[:, :3, 3], atol=1e-5)
     assert slam.stats()["keyframe_candidates_per_fragment"] <= 6
-
-
-# ---------------------------------------------------------------------- fusion bookkeeping
-
-
-def test_fusion_looks_at_a_bounded_number_of_fragments_per_frame():
-    from c3f_slam.fusion import FragmentFusion
-
-    class Volume:  # stands in for the TSDF volume
-        def __init__(self) -> None:
-            self.n = 0
-
-        def integrate(self, rgb, depth, K, T) -> None:
-            self.n += 1
-
-    looked: list[int] = []
-
-    def pose_of(frame: int) -> np.ndarray:
-        looked.append(frame)
-        return np.eye(4)  # every frame at the origin
-
-    vol = Volume()
-    ff = FragmentFusion(vol, lambda fr: (None, np.zeros((2, 2))), np.eye(3), eps_f_na=0, eps_cf_d=0.01, max_checks=3)
-    for f in range(10):
-        ff.add_frame(f, f)  # 10 fragments of one frame each
-    for cur in range(10, 20):  # the camera stays at them: nothing settles, <= 3 looked at per frame
-        looked.clear()
-        assert ff.step(cur, np.eye(4), pose_of) == []
-        assert len(looked) <= 3
-    far = g.make_pose(np.eye(3), [1.0, 0.0, 0.0])
-    done: list[int] = []
-    for cur in range(20, 24):  # the camera left: all settle within ceil(10 / 3) frames, odd ones wait
-        done += ff.step(cur, far, pose_of, eligible=lambda k: k % 2 == 0)
-    assert sorted(done) == [0, 2, 4, 6, 8] and vol.n == 5
-    assert sorted(ff.step(24, far, pose_of) + ff.step(25, far, pose_of)) == [1, 3, 5, 7, 9]

@@ -8,6 +8,7 @@ import pytest
 
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.pipeline import SlamConfig
+from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
 from c3f_slam.pipeline.slam import FragmentSlam
 from tests.fake_places import PlaceWorld
@@ -35,7 +36,7 @@ def _ping_pong(n_places: int, n_frames: int) -> list[int]:
 
 
 def _check_trajectory(slam: FragmentSlam, world: PlaceWorld, skipped: set[int] = frozenset()) -> None:
-    idx, _, P, reg = slam.trajectory()
+    idx, _, P, reg = slam.map.trajectory()
     assert np.array_equal(reg, [i not in skipped for i in idx])
     truth = np.array([world.poses[world.place[i]] for i in idx if i not in skipped])
     np.testing.assert_allclose(P[reg][:, :3, 3], truth[:, :3, 3], atol=1e-6)
@@ -47,18 +48,25 @@ def test_revisits_add_no_keyframes_and_no_edges():
     slam, plain = _slam(world, True), _slam(world, False)
     places = _ping_pong(10, 60)
     edges_after_first_return = None
+    decisions = []
     for k, p in enumerate(places):
-        slam.add(world.frame(k, p), DEPTH)
-        plain.add(world.frame(k, p), DEPTH)
+        decisions.append(slam.add(FrameInput(world.frame(k, p), DEPTH)))
+        plain.add(FrameInput(world.frame(k, p), DEPTH))
         if k == 11:
-            edges_after_first_return = slam.graph.n_edges
+            edges_after_first_return = slam.map.graph.n_edges
+    # every frame moves to another place: each opens a fragment, the first pass on new
+    # keyframes (the first one lone), every later one attached to its place's keyframe
+    assert [(d.index, d.fragment) for d in decisions] == [(k, k) for k in range(60)]
+    assert [d.kind for d in decisions] == ["lone"] + ["keyframe"] * 9 + ["attached"] * 50
+    assert decisions[0].reason == "first" and {d.reason for d in decisions[1:]} == {"correspondences"}
+    assert all(d.opened and not d.rejoined for d in decisions)
     # the first pass makes the 10 keyframes; after it every fragment hangs off one of them
-    assert len(slam.keyframes) == slam.graph.n_nodes == 10
-    assert slam.counts.attached == slam.counts.fragments - 10 == 50
+    assert len(slam.map.keyframes) == slam.map.graph.n_nodes == 10
+    assert slam.map.counts.attached == slam.map.counts.fragments - 10 == 50
     # the first return closes one loop (the last new keyframe's link to its revisited
     # neighbour); from then on nothing is added
-    assert slam.graph.n_edges == edges_after_first_return
-    assert len(plain.keyframes) == 60 and plain.graph.n_edges > 3 * slam.graph.n_edges
+    assert slam.map.graph.n_edges == edges_after_first_return
+    assert len(plain.map.keyframes) == 60 and plain.map.graph.n_edges > 3 * slam.map.graph.n_edges
     slam.finish()
     plain.finish()
     _check_trajectory(slam, world)
@@ -67,8 +75,8 @@ def test_revisits_add_no_keyframes_and_no_edges():
     assert s["attached_fragments"] == 50 and s["fragments"] == 60 and s["keyframes"] == 10
     assert s["lone_fragments"] == 0 and plain.stats()["attached_fragments"] == 0
     # every frame is stored with the node it hangs off: the keyframe of its place
-    nodes = np.asarray(slam.log.node)
-    kf_place = [world.place[i] for i in slam.keyframes.frame_indices]
+    nodes = np.asarray(slam.map.log.node)
+    kf_place = [world.place[i] for i in slam.map.keyframes.frame_indices]
     assert [kf_place[n] for n in nodes] == places
 
 
@@ -79,7 +87,7 @@ def test_attach_needs_the_fragment_rules_overlap():
     turned = world.poses[1] @ np.array([[0, 0, 1, 0], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], float)
     slam = _slam(world, True)
     for k, p in enumerate([0, 1, 2]):
-        slam.add(world.frame(k, p), DEPTH)
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
     # a frame at place 1, matched with the right relative pose but turned 90 deg
     feat = world.frame(3, 1)
     inner = world.match
@@ -92,13 +100,13 @@ def test_attach_needs_the_fragment_rules_overlap():
         return m, n
 
     slam.match = match
-    slam.add(feat, DEPTH)
-    assert len(slam.keyframes) == 4 and slam.counts.attached == 0
+    slam.add(FrameInput(feat, DEPTH))
+    assert len(slam.map.keyframes) == 4 and slam.map.counts.attached == 0
     # and the same frame looking the right way hangs off keyframe 1
     slam.match = inner
     slam.skip(4, 4 / 30.0)
-    slam.add(world.frame(5, 1), DEPTH)
-    assert len(slam.keyframes) == 4 and slam.counts.attached == 1 and slam.frag_node[-1] == 1
+    slam.add(FrameInput(world.frame(5, 1), DEPTH))
+    assert len(slam.map.keyframes) == 4 and slam.map.counts.attached == 1 and slam.map.frag_node[-1] == 1
 
 
 def test_attached_revisit_merges_a_lone_component():
@@ -116,16 +124,16 @@ def test_attached_revisit_merges_a_lone_component():
 
     slam.match = match
     for k, p in enumerate([0, 1, 2, 3]):
-        slam.add(world.frame(k, p), DEPTH)
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
     slam.skip(4, 4 / 30.0)
     for k, p in zip(range(5, 9), [4, 5, 6, 7]):
-        slam.add(world.frame(k, p), DEPTH)
-    assert slam.graph.find(0) != slam.graph.find(7)  # two components
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
+    assert slam.map.graph.find(0) != slam.map.graph.find(7)  # two components
     hide["on"] = False
     for k, p in zip(range(9, 12), [6, 5, 4]):
-        slam.add(world.frame(k, p), DEPTH)
-    assert len(slam.keyframes) == 8 and slam.counts.attached == 3
-    assert slam.graph.find(0) == slam.graph.find(7)
+        slam.add(FrameInput(world.frame(k, p), DEPTH))
+    assert len(slam.map.keyframes) == 8 and slam.map.counts.attached == 3
+    assert slam.map.graph.find(0) == slam.map.graph.find(7)
     slam.finish()
     # one map; the second component was moved rigidly into the first one's frame
     _check_trajectory(slam, world, skipped={4})
@@ -168,15 +176,15 @@ def test_a_wrong_keyframe_match_does_not_attach_against_the_odometry(check):
 
     slam.match = match
     for k in range(7):
-        slam.add(world.frame(k, k), DEPTH)
+        slam.add(FrameInput(world.frame(k, k), DEPTH))
     slam.finish()
     if check:
-        assert len(slam.keyframes) == 7 and slam.counts.attached == 0
-        assert slam.graph.n_pruned() >= 1
+        assert len(slam.map.keyframes) == 7 and slam.map.counts.attached == 0
+        assert slam.map.graph.n_pruned() >= 1
         _check_trajectory(slam, world)
     else:
-        assert len(slam.keyframes) == 6 and slam.counts.attached == 1 and slam.frag_node[-1] == 0
-        _, _, P, _ = slam.trajectory()
+        assert len(slam.map.keyframes) == 6 and slam.map.counts.attached == 1 and slam.map.frag_node[-1] == 0
+        _, _, P, _ = slam.map.trajectory()
         np.testing.assert_allclose(P[-1], world.poses[0], atol=1e-9)  # the wrong pose
 
 
@@ -200,15 +208,15 @@ def test_no_attach_to_the_keyframe_the_overlap_test_just_failed():
     hang off that very keyframe."""
     world = PlaceWorld(3, reach=2, seed=5, graded=True)
     slam = _slam(world, True)
-    slam.add(world.frame(0, 0), DEPTH)
-    slam.add(world.frame(1, 0), DEPTH)  # appended to the keyframe's fragment
-    slam.add(world.frame(2, 0), DEPTH * 2.0 / 3.0)
-    assert slam.counts.reasons["overlap"] == 1
-    assert len(slam.keyframes) == 2 and slam.counts.attached == 0
+    slam.add(FrameInput(world.frame(0, 0), DEPTH))
+    slam.add(FrameInput(world.frame(1, 0), DEPTH))  # appended to the keyframe's fragment
+    slam.add(FrameInput(world.frame(2, 0), DEPTH * 2.0 / 3.0))
+    assert slam.placer.counts.reasons["overlap"] == 1
+    assert len(slam.map.keyframes) == 2 and slam.map.counts.attached == 0
     # the same frame after a gap (no overlap test against the active keyframe) does hang off it
     slam.skip(3, 3 / 30.0)
-    slam.add(world.frame(4, 0), DEPTH * 2.0 / 3.0)
-    assert len(slam.keyframes) == 2 and slam.counts.attached == 1 and slam.counts.relocalised == 1
+    slam.add(FrameInput(world.frame(4, 0), DEPTH * 2.0 / 3.0))
+    assert len(slam.map.keyframes) == 2 and slam.map.counts.attached == 1 and slam.placer.counts.relocalised == 1
 
 
 # ---------------------------------------------------------------------- end to end

@@ -80,9 +80,9 @@ def test_during_a_run_out_still_holds_the_previous_run(tiny_sequence, mesh_run, 
     seen: list[bool] = []
     add = FragmentSlam.add
 
-    def watching_add(self, feat, depth, rgb=None):
+    def watching_add(self, frame):
         seen.append(_files(mesh_run) == before and len(_siblings(mesh_run)) == 1)
-        return add(self, feat, depth, rgb)
+        return add(self, frame)
 
     monkeypatch.setattr(FragmentSlam, "add", watching_add)
     assert main(["run", str(tiny_sequence), "--out", str(mesh_run), "--overwrite", *RUN]) == 0
@@ -94,10 +94,10 @@ def test_a_failed_or_interrupted_run_is_marked_not_mixed(tiny_sequence, mesh_run
     """The folder then holds the partial run only (status error, frames done), and evaluate refuses it."""
     add = FragmentSlam.add
 
-    def failing_add(self, feat, depth, rgb=None):
-        if feat.index >= 3:
+    def failing_add(self, frame):
+        if frame.index >= 3:
             raise exc
-        return add(self, feat, depth, rgb)
+        return add(self, frame)
 
     monkeypatch.setattr(FragmentSlam, "add", failing_add)
     args = ["run", str(tiny_sequence), "--out", str(mesh_run), "--overwrite", *RUN]

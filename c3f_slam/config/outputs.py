@@ -1,4 +1,4 @@
-"""Settings of the outputs: TSDF fusion (its volume and when a fragment settles) and the
+"""Settings of the outputs: TSDF fusion (its volume) and the
 unseen-wall estimate. Lengths in metres; each group checks its own fields. The values of the
 ``room`` preset: :mod:`c3f_slam.config.presets`."""
 
@@ -33,11 +33,9 @@ class TSDFConfig:
 
 @dataclass(frozen=True)
 class FusionConfig:
-    """TSDF fusion of settled fragments (:class:`c3f_slam.fusion.FragmentFusion`)."""
+    """TSDF fusion of the map with its final poses (:class:`c3f_slam.fusion.FragmentFusion`)."""
 
     enabled: bool = True  #: fuse a mesh (and so estimate the unseen wall)
-    eps_f_na: int = 30  #: frames a fragment must be left behind before it is fused ...
-    eps_cf_d: float = 0.05  #: ... and metres the camera must have moved away from it
     tsdf: TSDFConfig = field(default_factory=TSDFConfig)  #: the volume
 
 

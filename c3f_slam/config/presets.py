@@ -5,9 +5,9 @@
 - ``room``: centimetre scale, for RGB-D indoor scenes (a room, a desk) as in Open3D's
   reconstruction system and BundleFusion: the match filter takes BundleFusion's values (2 cm
   residual, 0.032 m^2 area), the pose graph distrusts edges from 7 cm (Open3D's 1.4 x 5 cm voxels),
-  TSDF voxels are 1 cm with 4 cm truncation up to 4 m, fragments settle once the camera is 1 m
-  away, keyframe candidates lie within 1 m instead of 2 cm, reuse and fallback motions are
-  scaled alike, dense refinement uses 8, 4, 2 cm voxels, and there is no unseen-wall estimate
+  TSDF voxels are 1 cm with 4 cm truncation up to 4 m, keyframe candidates lie within 1 m
+  instead of 2 cm, reuse and fallback motions are scaled alike, dense refinement uses 8, 4, 2 cm
+  voxels, and there is no unseen-wall estimate
   (the wall model is a tube's).
 
 :data:`PAPER_RULES` restores the paper's literal rules at any map size: every new keyframe
@@ -40,7 +40,7 @@ ROOM = SlamConfig(
     fallback=FallbackConfig(max_step=0.1),
     refine=RefineConfig(voxels=(0.08, 0.04, 0.02), max_correction=0.1),
     posegraph=PoseGraphConfig(max_correspondence_distance=0.07),
-    fusion=FusionConfig(eps_cf_d=1.0, tsdf=TSDFConfig(voxel_size=0.01, trunc=0.04, depth_min=0.1, depth_max=4.0,
+    fusion=FusionConfig(tsdf=TSDFConfig(voxel_size=0.01, trunc=0.04, depth_min=0.1, depth_max=4.0,
                                                       block_resolution=16, block_count=10_000)),
     coverage=CoverageConfig(enabled=False),
 )

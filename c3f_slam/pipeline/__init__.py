@@ -2,8 +2,12 @@
 
 - :mod:`.sources`: the run's inputs (:class:`RunInputs`), checked and opened once;
 - :mod:`.frontend`: keypoints, descriptor / depth provider seams, pairwise matching;
-- :mod:`.backend`: the :class:`SlamBackend` protocol the run loop drives, frame log, timings;
-- :mod:`.slam`: the full back-end (fragments + global keyframe graph), built from
+- :mod:`.backend`: the :class:`SlamBackend` and ``SlamMap`` protocols the run loop drives and
+  reads, and the frame log;
+- :mod:`.frame_step`: a frame's inputs to a back-end (``FrameInput``) and its decision (``FrameDecision``);
+- :mod:`.timings`: seconds per stage;
+- :mod:`.slam`: the full back-end (fragments + global keyframe graph): the tracker, holding its
+  map (:mod:`.fragment_map`) and the placement of new fragments (:mod:`.placement`), built from
   :mod:`.fragments` (the new-fragment rule, intra-fragment graphs), :mod:`.retrieval`
   (keyframe candidates), :mod:`.keyframe_edges` (edge cap, placing a keyframe),
   :mod:`.reuse` (revisits), :mod:`.rejoin` (tracking breaks), :mod:`.schedule` (global

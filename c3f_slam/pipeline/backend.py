@@ -1,17 +1,17 @@
-"""What the run loop needs from a SLAM back-end (:class:`SlamBackend`), and the parts both
-back-ends share: the frame log (:class:`FrameLog`) and per-stage timings (:class:`Timings`).
+"""What the run loop needs from a SLAM back-end (:class:`SlamBackend`) and its map
+(:class:`SlamMap`), and the frame log both maps keep (:class:`FrameLog`).
 
 Two back-ends implement the protocol: :class:`c3f_slam.pipeline.slam.FragmentSlam` (the
-full system) and :class:`c3f_slam.pipeline.odometry.OdometrySlam` (the baseline). Poses are
-camera-to-world 4x4 matrices in metres; a frame is addressed by its log row (one row per
-streamed frame, processed or skipped, in stream order).
+full system, holding a :class:`~c3f_slam.pipeline.fragment_map.FragmentMap`) and
+:class:`c3f_slam.pipeline.odometry.OdometrySlam` (the baseline, holding an
+:class:`~c3f_slam.pipeline.odometry.OdometryMap`). Poses are camera-to-world 4x4 matrices in
+metres; a frame is addressed by its log row (one row per streamed frame, processed or
+skipped, in stream order).
 """
 
 from __future__ import annotations
 
-import time
 from array import array
-from collections import defaultdict
 from pathlib import Path
 from typing import Protocol
 
@@ -20,32 +20,8 @@ import numpy as np
 from c3f_slam.config import SlamConfig
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.components import MapComponent
-from c3f_slam.pipeline.frontend import FrameFeatures
-
-
-class Timings:
-    """Seconds per stage (io, depth, keypoints incl. descriptors, matching, the dense fallback,
-    the dense refinement of keyframe edges, posegraph, fusion)."""
-
-    STAGES = ("io", "depth", "keypoints", "matching", "fallback", "refine", "posegraph", "fusion")
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = defaultdict(float)
-
-    def add(self, stage: str, t0: float) -> float:
-        """Add the time since ``t0`` (``time.perf_counter()``) to ``stage``; returns now."""
-        now = time.perf_counter()
-        self.seconds[stage] += now - t0
-        return now
-
-    def as_dict(self, n_frames: int) -> dict:
-        out = {}
-        for s in self.STAGES:
-            sec = self.seconds.get(s, 0.0)
-            out[s] = {"seconds": sec, "ms_per_frame": 1000.0 * sec / max(n_frames, 1)}
-        total = sum(self.seconds.values())
-        out["total"] = {"seconds": total, "frames_per_second": n_frames / total if total > 0 else None}
-        return out
+from c3f_slam.pipeline.frame_step import FrameDecision, FrameInput
+from c3f_slam.pipeline.timings import Timings
 
 
 class FrameLog:
@@ -78,6 +54,10 @@ class FrameLog:
         self.node[row0:row0 + n] = array("q", [node]) * n
         self.rel[16 * row0:16 * (row0 + n)] = array("d", np.ascontiguousarray(poses, np.float64).tobytes())
 
+    def fragments(self) -> np.ndarray:
+        """Fragment id per row (-1: not placed), int64, a copy (a view would pin the array)."""
+        return np.frombuffer(self.fragment, dtype=np.int64).copy() if len(self) else np.zeros(0, np.int64)
+
     def node_pose(self, row: int) -> np.ndarray:
         """Node-from-frame pose of a settled row."""
         return np.array(self.rel[16 * row:16 * row + 16], dtype=np.float64).reshape(4, 4)
@@ -86,23 +66,11 @@ class FrameLog:
         return len(self.index)
 
 
-class SlamBackend(Protocol):
-    """A back-end the run loop drives (:mod:`c3f_slam.pipeline.run`).
+class SlamMap(Protocol):
+    """The read side of a back-end's map (``backend.map``): what the run loop, fusion and the
+    output writers read. Poses camera-to-world, metres; frames addressed by log row."""
 
-    Constructed as ``factory(cfg, K, metric, timings, keyframe_cache=folder or None)``
-    (:data:`BackendFactory`); ``K`` the 3x3 intrinsics, ``metric`` the descriptors' distance
-    (``l2``), ``keyframe_cache`` a folder it may use for stored features.
-    """
-
-    mode: str  #: "full" or "odometry" (SlamConfig.mode)
     log: FrameLog
-
-    def skip(self, index: int, stamp: float) -> None:
-        """A streamed frame that was not processed (black / saturated / featureless)."""
-
-    def add(self, feat: FrameFeatures, depth: np.ndarray, rgb: np.ndarray | None = None) -> tuple[int, bool]:
-        """Process one frame (``rgb``: its image, for back-ends that align images); (fragment id
-        for fusion, -1 = not placed; opened a new fragment)."""
 
     def pose_of_log(self, row: int) -> np.ndarray | None:
         """Camera-to-world pose of log row ``row`` now (None when unregistered)."""
@@ -116,27 +84,46 @@ class SlamBackend(Protocol):
     def main_fragments(self) -> set[int]:
         """The registered fragments."""
 
-    def finish(self) -> None:
-        """End of the stream: close what is open, final optimisation."""
-
     def components(self) -> list[MapComponent]:
-        """After :meth:`finish`: every connected component with its frames, the main map
-        first, then by frames (:mod:`c3f_slam.pipeline.components`)."""
-
-    def close(self) -> None:
-        """Free files and folders (always called, also after errors)."""
+        """After the back-end's ``finish``: every connected component with its frames, the main
+        map first, then by frames (:mod:`c3f_slam.pipeline.components`)."""
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(frame indices, timestamps, poses (N, 4, 4) NaN when unregistered, registered mask)."""
-
-    def stats(self) -> dict:
-        """Counters for summary.json."""
 
     def keyframe_graph(self) -> KeyframeGraph | None:
         """The global keyframe graph for keyframe_graph.json (None: the back-end has none)."""
 
     def n_keyframes(self) -> int:
         """Keyframes so far (progress display)."""
+
+
+class SlamBackend(Protocol):
+    """A back-end the run loop drives (:mod:`c3f_slam.pipeline.run`): a tracker that holds its
+    map (``map``, :class:`SlamMap`).
+
+    Constructed as ``factory(cfg, K, metric, timings, keyframe_cache=folder or None)``
+    (:data:`BackendFactory`); ``K`` the 3x3 intrinsics, ``metric`` the descriptors' distance
+    (``l2``), ``keyframe_cache`` a folder it may use for stored features.
+    """
+
+    mode: str  #: "full" or "odometry" (SlamConfig.mode)
+    map: SlamMap
+
+    def skip(self, index: int, stamp: float) -> None:
+        """A streamed frame that was not processed (black / saturated / featureless)."""
+
+    def add(self, frame: FrameInput) -> FrameDecision:
+        """Process one frame; what was done with it (its fragment id for fusion, -1 = not placed)."""
+
+    def finish(self) -> None:
+        """End of the stream: close what is open, final optimisation."""
+
+    def close(self) -> None:
+        """Free files and folders (always called, also after errors); the map stays readable."""
+
+    def stats(self) -> dict:
+        """Counters for summary.json."""
 
 
 class BackendFactory(Protocol):

@@ -34,6 +34,7 @@ from c3f_slam.coverage import (
 from c3f_slam.coverage.render import draw_coverage_map, unseen_mesh
 from c3f_slam.fusion import write_mesh
 from c3f_slam.outputs import RunOutputs, write_json
+from c3f_slam.pipeline.backend import SlamMap
 from c3f_slam.pipeline.frontend import ModelDepth
 from c3f_slam.pipeline.sources import RunSources
 
@@ -82,13 +83,13 @@ def write_coverage(outputs: RunOutputs, mesh: TriangleMesh | None, poses: np.nda
     return {"unseen_share": report["unseen_share"], "coverage": {"status": "ok", "files": files}}
 
 
-def run_coverage(outputs: RunOutputs, mesh: TriangleMesh | None, backend, sources: RunSources,
+def run_coverage(outputs: RunOutputs, mesh: TriangleMesh | None, slam_map: SlamMap, sources: RunSources,
                  cfg: SlamConfig) -> dict:
-    """:func:`write_coverage` for a finished run (its back-end's registered trajectory); an
-    unexpected error is returned as ``coverage.status`` ``error`` instead of failing the run."""
+    """:func:`write_coverage` for a finished run (the registered trajectory of its back-end's
+    map); an unexpected error is returned as ``coverage.status`` ``error`` instead of failing the run."""
     t0 = time.perf_counter()
     try:
-        _, _, poses, registered = backend.trajectory()
+        _, _, poses, registered = slam_map.trajectory()
         poses = np.where(np.asarray(registered, bool)[:, None, None], poses, np.nan)
         out = write_coverage(outputs, mesh, poses, fusion_camera(sources), cfg)
     except Exception as exc:  # the run's own outputs stay valid

@@ -1,23 +1,26 @@
-"""The map a :class:`~c3f_slam.pipeline.slam.FragmentSlam` builds, and what can be read from it.
+"""The map a :class:`~c3f_slam.pipeline.slam.FragmentSlam` builds and holds (``slam.map``).
 
 State: the frame log (per streamed frame its fragment, local index and, once the fragment is
 closed, the node it hangs off and its node-from-frame pose), the global keyframe graph
-(camera-to-world node poses, metres), the stored keyframes and their appearance index, which
-node each fragment hangs off, and the active fragment. Queries: which fragments are registered
-(their node in the main component), each frame's world pose, the trajectory, the keyframe
-graph, the components (:meth:`FragmentMap.components`) and the counters for summary.json.
-:class:`FragmentSlam` adds the per-frame tracking.
+(camera-to-world node poses, metres) with its optimisation schedule, the stored keyframes and
+their appearance index, which node each fragment hangs off, and the active fragment. Every
+change goes through a method here (a frame appended or skipped, a fragment started or closed,
+a keyframe stored and linked, a fragment attached to an earlier keyframe, a break joined);
+the tracker (:class:`FragmentSlam`) decides which, the map keeps its state consistent.
 
-The main component is, while the stream runs, the one with the most keyframes (O(1) to keep,
-:class:`~c3f_slam.posegraph.PoseGraph`); at the end (:meth:`FragmentMap.choose_main`) the one
-with the most registered frames.
+Queries: which fragments are registered (their node in the main component), each frame's
+world pose, the trajectory, the keyframe graph, the components (:meth:`FragmentMap.components`)
+and the counters for summary.json. The main component is, while the stream runs, the one
+with the most keyframes (O(1) to keep, :class:`~c3f_slam.posegraph.PoseGraph`); at the end
+(:meth:`FragmentMap.choose_main`) the one with the most registered frames.
 """
 
 from __future__ import annotations
 
 from array import array
 from collections import defaultdict
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,47 +30,156 @@ from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.fragments import Fragment
+from c3f_slam.pipeline.frame_step import FrameInput
+from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch
+from c3f_slam.pipeline.keyframe_edges import KeyframeEdge, link_across_break, link_new_keyframe, link_revisit
 from c3f_slam.pipeline.keyframe_store import KeyframeStore
 from c3f_slam.pipeline.retrieval import KeyframeRetrieval
 from c3f_slam.pipeline.schedule import OptimizationSchedule
 from c3f_slam.posegraph import PoseGraph
+from c3f_slam.posegraph.components import Components
 
 
 @dataclass
-class FragmentCounts:
-    """What the back-end did, for summary.json (see :meth:`FragmentMap.stats`)."""
+class MapCounts:
+    """What was added to the map, for summary.json (see :meth:`FragmentMap.stats`)."""
 
     fragments: int = 0  #: fragments opened (also the next fragment id)
     attached: int = 0  #: fragments hung off an earlier keyframe (reuse)
-    lone_created: int = 0  #: keyframes created without any edge
-    relocalised: int = 0  #: keyframes / fragments placed without an odometry link
     intra_edges: int = 0  #: edges of closed fragments' graphs
     intra_pruned: int = 0  #: of them pruned
-    candidates_matched: int = 0  #: keyframe pairs matched (sum over new keyframes)
-    edges_capped: int = 0  #: accepted keyframe matches discarded by the loop-edge cap
-    candidate_sources: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    reasons: dict[str, int] = field(default_factory=lambda: defaultdict(int))  #: new-fragment reasons
 
 
 class FragmentMap:
-    """Fragments, keyframes and the global graph, with the queries the run loop and the
-    output writer use (the read side of :class:`~c3f_slam.pipeline.backend.SlamBackend`)."""
+    """Fragments, keyframes and the global graph: the changes the tracker makes and the queries
+    the run loop and the output writers use (the back-end's read side,
+    :class:`~c3f_slam.pipeline.backend.SlamMap`)."""
 
     def __init__(self, cfg: SlamConfig, keyframe_cache: str | Path | None = None) -> None:
         """``keyframe_cache``: folder for the stored keyframes' features (emptied now, removed
         by :meth:`close`); None keeps them in RAM. Same results."""
+        self.cfg = cfg
         self.log = FrameLog()
-        self.counts = FragmentCounts()
+        self.counts = MapCounts()
         self.frag_node = array("q")  # fragment id -> the global node it hangs off
         self.node_fragment = array("q")  # global node (keyframe) id -> the fragment that made it
         self.keyframes = KeyframeStore(keyframe_cache)
         self.graph = PoseGraph()
         self.retrieval = KeyframeRetrieval(cfg.candidates)
         self.schedule = OptimizationSchedule(cfg.optimization, cfg.posegraph, self.graph)
+        #: with the dense fallback: components over the edges of sparse matches only (pruning is
+        #: not reflected), so that matches across a fallback edge re-place the side after it
+        self.sparse = Components() if cfg.fallback.dense else None
         self.active: Fragment | None = None
+        self._active_row = -1  # log row of the active fragment's first frame
         self._last_row = -1  # log row of the last placed frame
         self._main_node = -1  # once chosen (choose_main): a node of the main component
 
+    # ------------------------------------------------------------------ frames and fragments
+    def skip(self, index: int, stamp: float) -> None:
+        """A streamed frame that is not placed (log row without a fragment)."""
+        self.log.append(index, stamp)
+
+    def extend(self, feat: FrameFeatures, link: PairMatch, extra: list[tuple[int, PairMatch]]) -> int:
+        """Append ``feat`` to the active fragment (``link``: T_prev,cur; ``extra``: matches to
+        its other frames by local index); returns the fragment id."""
+        act = self.active
+        assert act is not None
+        local = act.add_frame(feat, link, extra)
+        self.log.append(feat.index, feat.timestamp, act.id, local)
+        self._last_row = len(self.log) - 1
+        return act.id
+
+    def close_active(self) -> None:
+        """Close the active fragment (intra-fragment optimisation) and move its frames' poses
+        into the frame log; the fragment's features and graph are freed."""
+        frag = self.active
+        if frag is None or frag.rel_poses is not None:
+            return
+        frag.close(self.cfg.posegraph)
+        self.counts.intra_edges += frag.n_edges
+        self.counts.intra_pruned += frag.pruned
+        assert frag.rel_poses is not None
+        poses = frag.rel_poses if frag.base is None else frag.base @ frag.rel_poses
+        self.log.settle(self._active_row, frag.node, poses)
+
+    def start_fragment(self, index: int, stamp: float) -> int:
+        """Log the first frame of a new fragment (after :meth:`close_active`); returns its id.
+        :meth:`add_keyframe` or :meth:`attach` places it."""
+        fid = self.counts.fragments
+        self.counts.fragments += 1
+        self._active_row = self._last_row = len(self.log)
+        self.log.append(index, stamp, fid, 0)
+        return fid
+
+    # ------------------------------------------------------------------ the global graph
+    def store_keyframe(self, kf: FrameFeatures, g: np.ndarray) -> None:
+        """Keep a new keyframe's compact features ``kf`` and global descriptor ``g``."""
+        self.keyframes.append(kf)
+        self.retrieval.add(g)
+
+    def add_keyframe(self, fid: int, frame: FrameInput, reason: str) -> int:
+        """Fragment ``fid`` on the keyframe just stored: a new node (identity pose until
+        :meth:`link_keyframe`), the active fragment from now on. Returns the node."""
+        node = self.graph.add_node(np.eye(4))
+        assert node == len(self.keyframes) - 1
+        self.node_fragment.append(fid)
+        self.frag_node.append(node)
+        self.active = Fragment(fid, frame.features, frame.depth, reason, node=node)
+        if self.sparse is not None:
+            self.sparse.add_node()
+        return node
+
+    def link_keyframe(self, node: int, edges: list[KeyframeEdge], dense_information: Callable[[PairMatch], np.ndarray],
+                      information: dict[int, np.ndarray]) -> int:
+        """Place keyframe ``node`` and add its ``edges`` (:func:`link_new_keyframe`); returns the
+        number of components merged."""
+        return link_new_keyframe(self.graph, node, edges, dense_information, self.sparse, information)
+
+    def attach(self, fid: int, frame: FrameInput, reason: str, keep: list[KeyframeEdge]) -> int:
+        """Fragment ``fid`` hung off the keyframe of ``keep[0]`` (the host, a revisit): no new
+        node, the host's match as its base and the other edges of ``keep`` (host-k loop edges;
+        :func:`~c3f_slam.pipeline.reuse.revisit_edges`). Returns the number of components merged."""
+        host, m_host = keep[0].k, keep[0].match
+        merged = link_revisit(self.graph, keep, self.sparse)
+        self.counts.attached += 1
+        self.frag_node.append(host)
+        self.active = Fragment(fid, frame.features, frame.depth, reason, node=host, base=m_host.T_ij)
+        return merged
+
+    def join_break(self, tail_node: int, T_ij: np.ndarray, points_j: np.ndarray) -> None:
+        """A rejoin edge from ``tail_node`` to the active fragment's node (:func:`link_across_break`),
+        which merges their components, then the schedule's turn."""
+        act = self.active
+        assert act is not None
+        link_across_break(self.graph, tail_node, act.node, T_ij, points_j, self.sparse)
+        self.after_keyframe(act.node, True)
+
+    def after_keyframe(self, node: int, trigger: bool) -> None:
+        """Keyframe ``node`` was added or a fragment hung off it; ``trigger``: a loop edge or a
+        merge (the optimisation schedule's rules)."""
+        self.schedule.after_keyframe(node, trigger, len(self.keyframes))
+
+    def finish(self) -> None:
+        """Make the component with the most frames the main one (:meth:`choose_main`) and
+        optimise it one last time, and each other component that will be written
+        (:mod:`.components`: ``components.min_frames``, the largest ``components.max_written``)
+        on its own. Call it after :meth:`close_active`."""
+        main = self.choose_main()
+        if main >= 0:
+            self.schedule.finish(len(self.keyframes), main)
+        rule = self.cfg.components
+        others = [node for node, rows in self._frame_groups()[1:] if rule.writes(len(rows), 1) is None]
+        for node in others[:rule.max_written]:
+            self.schedule.finish(len(self.keyframes), node)
+        self.choose_main()  # pruning may have split the main component
+
+    def close(self) -> None:
+        """Free the keyframe store's file and cache folder (if any); the trajectory, graph and
+        stats stay available, matching new keyframes does not."""
+        self.keyframes.close()
+
+    # ------------------------------------------------------------------ queries
     def _node_in_main(self, node: int) -> bool:
         """``node`` lies in the main component (the graph's, until :meth:`choose_main`); O(1)."""
         if self._main_node < 0:
@@ -84,22 +196,8 @@ class FragmentMap:
         return self._node_in_main(self.frag_node[fid])
 
     def _frame_groups(self) -> list[tuple[int, np.ndarray]]:
-        """Per component of the graph with a placed frame: (its oldest node, the log rows of
-        its frames in stream order), by frames (most first; ties: the oldest node first)."""
-        fragment = self._log_fragments()
-        rows = np.flatnonzero(fragment >= 0)
-        if not len(rows):
-            return []
-        oldest = np.array([self.graph.component_oldest(k) for k in range(self.graph.n_nodes)], np.int64)
-        row_comp = oldest[np.asarray(self.frag_node, np.int64)[fragment[rows]]]
-        order = np.argsort(row_comp, kind="stable")  # by component, stream order within
-        labels, starts = np.unique(row_comp[order], return_index=True)
-        groups = [(int(c), rows[part]) for c, part in zip(labels.tolist(), np.split(order, starts[1:]))]
-        return sorted(groups, key=lambda g: (-len(g[1]), g[0]))
-
-    def _log_fragments(self) -> np.ndarray:
-        """Fragment id per log row (-1: not placed), a copy (a view would pin the log's array)."""
-        return np.frombuffer(self.log.fragment, dtype=np.int64).copy() if len(self.log) else np.zeros(0, np.int64)
+        """:func:`frame_groups` of this map."""
+        return frame_groups(self.log.fragments(), self.frag_node, self.graph)
 
     def choose_main(self) -> int:
         """Make the component with the most registered frames the main one (ties: the one
@@ -113,7 +211,7 @@ class FragmentMap:
         the component's world frame), by frames (after :meth:`finish`, which chose it, the
         main one first). Call it after :meth:`finish` (every fragment closed); O(frames)."""
         out = []
-        fragment = self._log_fragments()
+        fragment = self.log.fragments()
         for node, rows in self._frame_groups():
             poses = np.stack([self.graph.pose(self.log.node[r]) @ self.log.node_pose(r) for r in rows.tolist()])
             members = self.graph.component_nodes(node)
@@ -137,11 +235,6 @@ class FragmentMap:
     def current_pose(self) -> np.ndarray | None:
         """World pose of the last placed frame (None when lone or none)."""
         return self.pose_of_log(self._last_row) if self._last_row >= 0 else None
-
-    def close(self) -> None:
-        """Free the keyframe store's file and cache folder (if any); the trajectory, graph and
-        stats stay available, matching new keyframes does not."""
-        self.keyframes.close()
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(frame indices, timestamps, poses (N, 4, 4) NaN when unregistered, registered mask)."""
@@ -172,7 +265,7 @@ class FragmentMap:
             lone={k for k in range(pg.n_nodes) if not self._node_in_main(k)}, fragments=self.node_fragment.tolist())
 
     def stats(self) -> dict:
-        """Counters for summary.json."""
+        """The map's counters for summary.json."""
         c, opt = self.counts, self.schedule.counts
         kinds: dict[str, int] = defaultdict(int, self.graph.kind_counts())
         act = self.active if self.active is not None and self.active.rel_poses is None else None
@@ -181,8 +274,6 @@ class FragmentMap:
             "keyframes": len(self.keyframes),
             "attached_fragments": c.attached,
             "lone_fragments": c.fragments - len(self.main_fragments()),
-            "lone_created": c.lone_created,
-            "relocalised_keyframes": c.relocalised,
             "global_edges": self.graph.n_edges,
             "odometry_edges": kinds["odometry"],
             "keyframe_edges": kinds["keyframe"],
@@ -196,10 +287,21 @@ class FragmentMap:
             "global_optimizations": opt.optimizations,
             "windowed_optimizations": opt.windowed,
             "max_optimized_nodes": opt.max_nodes,
-            "keyframe_candidates_per_fragment": c.candidates_matched / c.fragments if c.fragments else 0.0,
-            "keyframe_matches_capped": c.edges_capped,
-            "keyframe_matches_by_source": dict(c.candidate_sources),
-            "new_fragment_reasons": dict(c.reasons),
             "keyframe_memory_bytes": self.keyframe_memory_bytes(),
             "keyframe_disk_bytes": self.keyframes.disk_bytes,
         }
+
+
+def frame_groups(fragment: np.ndarray, frag_node: array, graph: PoseGraph) -> list[tuple[int, np.ndarray]]:
+    """Per component of ``graph`` with a placed frame: (its oldest node, the log rows of its
+    frames in stream order), by frames (most first; ties: the oldest node first).
+    ``fragment``: fragment id per log row (-1: not placed); ``frag_node``: node per fragment."""
+    rows = np.flatnonzero(fragment >= 0)
+    if not len(rows):
+        return []
+    oldest = np.array([graph.component_oldest(k) for k in range(graph.n_nodes)], np.int64)
+    row_comp = oldest[np.asarray(frag_node, np.int64)[fragment[rows]]]
+    order = np.argsort(row_comp, kind="stable")  # by component, stream order within
+    labels, starts = np.unique(row_comp[order], return_index=True)
+    groups = [(int(c), rows[part]) for c, part in zip(labels.tolist(), np.split(order, starts[1:]))]
+    return sorted(groups, key=lambda g: (-len(g[1]), g[0]))

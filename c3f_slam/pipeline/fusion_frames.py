@@ -1,7 +1,7 @@
 """Where fusion gets a processed frame's RGB and depth back (frames are never kept in memory).
 
-:class:`c3f_slam.fusion.FragmentFusion` re-reads the frames of a fragment when it settles and
-again for the final mesh, by log row. Two sources:
+:class:`c3f_slam.fusion.FragmentFusion` re-reads the frames of the fragments it fuses at the
+end of the run (the main map, each written component), by log row. Two sources:
 
 - :class:`SequenceFrames` (RGB-D mode): re-read ``rgb/`` and ``depth/`` files of the sequence,
   in the frame's pixel grid with the sequence's intrinsics.
@@ -13,9 +13,9 @@ again for the final mesh, by log row. Two sources:
   resolution the depth was predicted at, so nothing is lost, and memory stays flat however
   long the video. Disk use: about 0.2 MB per processed frame at 224x224 (100 kB of depth and
   a PNG; a 54,000-frame video: about 10 GB while it runs); :meth:`PredictedFrames.close`
-  removes the folder at the end of the run, whatever happens. Re-running the net instead would cost up to three
-  predictions per frame (online, settled fragment, final mesh) and random access into the
-  video.
+  removes the folder at the end of the run, whatever happens. Re-running the net instead would
+  cost a second prediction per frame (one for tracking, one for the mesh) and random access into
+  the video.
 """
 
 from __future__ import annotations

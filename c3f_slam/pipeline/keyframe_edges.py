@@ -14,7 +14,7 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from c3f_slam.geometry import invert_pose
+from c3f_slam.geometry import invert_pose, transform_points
 from c3f_slam.pipeline.frontend import PairMatch
 from c3f_slam.posegraph import EdgeKind, PoseGraph
 from c3f_slam.posegraph.components import Components
@@ -153,6 +153,23 @@ def link_new_keyframe(graph: PoseGraph, node: int, edges: list[KeyframeEdge],
         graph.add_edge(k, node, m.T_ij, **weight, uncertain=kind != EdgeKind.ODOMETRY, kind=kind)
         if sparse is not None:
             sparse.union(k, node)
+    return merged
+
+
+def link_revisit(graph: PoseGraph, keep: list[KeyframeEdge], sparse: Components | None = None) -> int:
+    """Place a frame that hangs off host keyframe ``keep[0].k`` (a revisit: no node of its own,
+    :mod:`.reuse`) and add the other edges of ``keep`` as uncertain host-k ``loop`` edges:
+    T_host,k = T_host,new T_k,new^-1, with the match's points moved into frame k. ``sparse``:
+    the components over sparse-match edges, kept up to date. Returns the number of components
+    merged."""
+    host, m_host = keep[0].k, keep[0].match
+    _, merged = place_new_frame(graph, keep, sparse)
+    for k, m, _ in keep[1:]:
+        if sparse is not None:
+            sparse.union(host, k)
+        T_hk = m_host.T_ij @ invert_pose(m.T_ij)
+        pts_k = transform_points(m.T_ij, m.points_j)  # the match's points in frame k
+        graph.add_edge(host, k, T_hk, points_j=pts_k, uncertain=True, kind=EdgeKind.LOOP)
     return merged
 
 

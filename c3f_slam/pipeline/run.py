@@ -6,11 +6,12 @@ the progress bar, the frames fusion re-reads, the back-end) takes one frame at a
 (:meth:`SlamRun.step`): :class:`c3f_slam.stream.FrameStream` reads it, flagged frames
 (black / saturated) are skipped and counted, the depth provider gives its depth (files, or
 DepthNet ONNX), the frontend keeps only keypoints, descriptors (SIFT or ContraFeat ONNX) and
-3D points, the back-end (:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame,
-and fusion integrates settled fragments, re-reading their frames through
-:mod:`c3f_slam.pipeline.fusion_frames` (the sequence's files, or the on-disk cache of
-predicted depth, removed at the end). At the end, the components of the map that could not
-be joined to the main map are written beside it (:mod:`c3f_slam.pipeline.components`).
+3D points, the back-end (:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame
+(its :class:`~c3f_slam.pipeline.frame_step.FrameDecision` is counted), and fusion records the
+frame under its fragment. At the end the main map is fused with its final poses, re-reading
+its frames through :mod:`c3f_slam.pipeline.fusion_frames` (the sequence's files, or the
+on-disk cache of predicted depth, removed at the end), and the components of the map that
+could not be joined to it are written beside it (:mod:`c3f_slam.pipeline.components`).
 The global stage keeps its keyframes' features in ``OUT/.keyframe_cache`` (removed at the
 end, also on errors; ``keyframes.cache=False`` keeps them in RAM). Whatever happens, the
 outputs so far (trajectory.txt, summary.json with the error, keyframe graph) are written
@@ -33,7 +34,7 @@ from c3f_slam.config import SlamConfig
 from c3f_slam.errors import InputError
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
 from c3f_slam.outputs import RunFolder, RunOutputs
-from c3f_slam.pipeline.backend import BackendFactory, SlamBackend, Timings
+from c3f_slam.pipeline.backend import BackendFactory, SlamBackend
 from c3f_slam.pipeline.components import (
     ComponentEntry,
     MapComponent,
@@ -42,12 +43,14 @@ from c3f_slam.pipeline.components import (
     write_components,
 )
 from c3f_slam.pipeline.coverage_stage import run_coverage
+from c3f_slam.pipeline.frame_step import DecisionCounts, FrameInput
 from c3f_slam.pipeline.frontend import Frontend
 from c3f_slam.pipeline.fusion_frames import FusionFrames, fusion_frames
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
 from c3f_slam.pipeline.odometry import OdometrySlam
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.pipeline.sources import RunInputs, RunSources, open_sources
+from c3f_slam.pipeline.timings import Timings
 from c3f_slam.stream import UNREADABLE, FrameStream, StreamFrame
 
 SKIP_REASONS = ("black", "saturated", "featureless", "unreadable")
@@ -55,15 +58,17 @@ SKIP_REASONS = ("black", "saturated", "featureless", "unreadable")
 
 @dataclass
 class FrameCounts:
-    """Frames streamed, processed, and skipped by reason (summary.json)."""
+    """Frames streamed, processed, skipped by reason, and the back-end's decisions on the
+    processed ones by kind (summary.json; ``frame_decisions``)."""
 
     frames: int = 0
     processed: int = 0
     skipped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(SKIP_REASONS, 0))
+    decisions: DecisionCounts = field(default_factory=DecisionCounts)
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "processed": self.processed,
-                **{f"skipped_{k}": v for k, v in self.skipped.items()}}
+                **{f"skipped_{k}": v for k, v in self.skipped.items()}, "frame_decisions": self.decisions.as_dict()}
 
 
 def _progress(total: int | None, enabled: bool):
@@ -103,10 +108,9 @@ class SlamRun:
         self.backend = backend = factory(cfg, K, sources.describer.metric, self.timings, keyframe_cache=cache)
         self.frontend = Frontend(K, sources.describer, cfg.frontend)
         if cfg.fusion.enabled:
-            self.frames = fusion_frames(sources.depth, sources.stream.sequence, lambda row: backend.log.index[row],
+            self.frames = fusion_frames(sources.depth, sources.stream.sequence, lambda row: backend.map.log.index[row],
                                         outputs.root)
-            f = cfg.fusion
-            self.fusion = FragmentFusion(TSDFVolume(f.tsdf), self.frames.load, self.frames.K, f.eps_f_na, f.eps_cf_d)
+            self.fusion = FragmentFusion(TSDFVolume(cfg.fusion.tsdf), self.frames.load, self.frames.K)
         self.bar = _progress(len(sources.stream), progress)
 
     def __enter__(self) -> SlamRun:
@@ -117,11 +121,8 @@ class SlamRun:
 
     def run(self) -> TriangleMesh | None:
         """Every frame of the stream, then the end of the run; returns the mesh (None without fusion)."""
-        t0 = time.perf_counter()
-        for frame in self.sources.stream:
-            self.timings.add("io", t0)
+        for frame in self.timings.timed("io", self.sources.stream):
             self.step(frame)
-            t0 = time.perf_counter()
         return self.finish()
 
     def step(self, frame: StreamFrame) -> None:
@@ -134,22 +135,21 @@ class SlamRun:
             if frame.status == UNREADABLE:
                 self._check_bad_frames(frame)
             return
-        t0 = time.perf_counter()
-        depth = self.sources.depth.depth(frame)
-        t0 = self.timings.add("depth", t0)
-        feat = self.frontend.describe(frame, self.frontend.keypoints(frame.rgb), depth)
-        self.timings.add("keypoints", t0)
+        with self.timings.stage("depth"):
+            depth = self.sources.depth.depth(frame)
+        with self.timings.stage("keypoints"):
+            feat = self.frontend.describe(frame, self.frontend.keypoints(frame.rgb), depth)
         if int(np.isfinite(feat.points).all(axis=1).sum()) < self.cfg.match_filter.min_matches:
             self._skip(frame, "featureless")
             return
         self.counts.processed += 1
-        fid, _ = self.backend.add(feat, depth, frame.rgb)
-        t0 = time.perf_counter()
-        if self.fusion is not None and fid >= 0:
-            self._fuse(fid, frame)
-        self.timings.add("fusion", t0)
+        decision = self.backend.add(FrameInput(feat, depth, frame.rgb))
+        self.counts.decisions.add(decision)
+        if self.fusion is not None and decision.fragment >= 0:
+            with self.timings.stage("fusion"):
+                self._fuse(decision.fragment, frame)
         if self.bar is not None:
-            self.bar.set_postfix(kf=self.backend.n_keyframes(), refresh=False)
+            self.bar.set_postfix(kf=self.backend.map.n_keyframes(), refresh=False)
 
     def _check_bad_frames(self, frame: StreamFrame) -> None:
         """InputError once more frames were unreadable than ``--max-bad-frames`` allows."""
@@ -162,28 +162,24 @@ class SlamRun:
         self.backend.skip(frame.index, frame.timestamp)
 
     def _fuse(self, fid: int, frame: StreamFrame) -> None:
-        """Record the frame for fusion and integrate whatever has settled."""
+        """Record the frame (log row) under its fragment for the fusion at the end."""
         assert self.fusion is not None and self.frames is not None
-        row = len(self.backend.log) - 1
+        row = len(self.backend.map.log) - 1
         self.frames.record(row, frame)
         self.fusion.add_frame(fid, row)
-        T = self.backend.current_pose()
-        if T is not None:
-            self.fusion.step(row, T, self.backend.pose_of_log, eligible=self.backend.in_main)
 
     def finish(self) -> TriangleMesh | None:
         """End of the stream: the back-end's final optimisation, the components beside the
         main map written (:mod:`.components`), and the mesh of the main map."""
         self.backend.finish()
-        self.components = plan_components(self.backend.components(), self.cfg.components, self.outputs)
-        t0 = time.perf_counter()
-        fuse = self._fuse_component if self.fusion is not None else None
-        write_components(self.components, np.asarray(self.backend.log.stamp), fuse)
-        if self.fusion is None:
-            return None
-        mesh = self.fusion.finalize(self.backend.pose_of_log, self.backend.main_fragments())
-        self.timings.add("fusion", t0)
-        return mesh
+        slam_map = self.backend.map
+        self.components = plan_components(slam_map.components(), self.cfg.components, self.outputs)
+        with self.timings.stage("fusion"):
+            fuse = self._fuse_component if self.fusion is not None else None
+            write_components(self.components, np.asarray(slam_map.log.stamp), fuse)
+            if self.fusion is None:
+                return None
+            return self.fusion.finalize(slam_map.pose_of_log, slam_map.main_fragments())
 
     def _fuse_component(self, comp: MapComponent) -> TriangleMesh:
         """The mesh of one component (its frames re-fused with their final poses)."""
@@ -242,17 +238,11 @@ def run_slam(
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
         with SlamRun(cfg, sources, outputs, timings, factory, progress) as run:
             mesh = run.run()
-        if mesh is not None:
-            if len(mesh.triangles):
-                write_mesh(mesh, outputs.mesh)
-            summary["mesh_triangles"] = int(len(mesh.triangles))
-        summary.update(run_coverage(outputs, mesh, run.backend, sources, cfg))
+        summary.update(_write_main_mesh(outputs, mesh))
+        summary.update(run_coverage(outputs, mesh, run.backend.map, sources, cfg))
         summary["status"] = "ok"
     except BaseException as exc:  # write what we have, then pass the error on
-        summary["status"] = "error"
-        summary["error"] = f"{type(exc).__name__}: {exc}" if not isinstance(exc, InputError) else str(exc)
-        if not isinstance(exc, (InputError, KeyboardInterrupt)):
-            summary["traceback"] = traceback.format_exc(limit=8)
+        _record_error(summary, exc)
         write_run_outputs(outputs, run, summary, t_start)
         with contextlib.suppress(OSError):  # keep the original error visible
             folder.publish()
@@ -265,6 +255,23 @@ def run_slam(
     if failed:
         raise InputError(summary["error"])
     return summary
+
+
+def _write_main_mesh(outputs: RunOutputs, mesh: TriangleMesh | None) -> dict:
+    """Write the main map's mesh (unless empty); summary.json's ``mesh_triangles`` (nothing without fusion)."""
+    if mesh is None:
+        return {}
+    if len(mesh.triangles):
+        write_mesh(mesh, outputs.mesh)
+    return {"mesh_triangles": int(len(mesh.triangles))}
+
+
+def _record_error(summary: dict, exc: BaseException) -> None:
+    """Mark the summary with the error being handled (a traceback unless bad input or an interrupt)."""
+    summary["status"] = "error"
+    summary["error"] = f"{type(exc).__name__}: {exc}" if not isinstance(exc, InputError) else str(exc)
+    if not isinstance(exc, (InputError, KeyboardInterrupt)):
+        summary["traceback"] = traceback.format_exc(limit=8)
 
 
 def _truncated(summary: dict, stream: FrameStream) -> bool:
@@ -297,16 +304,16 @@ def write_run_outputs(outputs: RunOutputs, run: SlamRun | None, summary: dict, t
     summary["timings"] = run.timings.as_dict(counts.frames) if run is not None else Timings().as_dict(0)
     try:
         if run is not None and run.backend is not None:
-            backend = run.backend
-            _, stamps, poses, reg = backend.trajectory()
+            backend, slam_map = run.backend, run.backend.map
+            _, stamps, poses, reg = slam_map.trajectory()
             n = outputs.write_trajectory(stamps, poses, reg)
             summary["registered_frames"] = n
             summary["registered_share"] = n / counts.frames if counts.frames else 0.0
             summary["registered_share_of_usable"] = n / counts.processed if counts.processed else 0.0
             summary.update(backend.stats())
             if run.components is not None:
-                summary["components"] = component_summary(run.components, np.asarray(backend.log.index), outputs)
-            graph = backend.keyframe_graph()
+                summary["components"] = component_summary(run.components, np.asarray(slam_map.log.index), outputs)
+            graph = slam_map.keyframe_graph()
             if graph is not None:
                 outputs.write_graph(graph)
     except Exception as exc:  # pragma: no cover - keep the original error visible
