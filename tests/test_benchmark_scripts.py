@@ -1,6 +1,7 @@
 """Every benchmark script at least parses its command line (imports and module-level code
 run): benchmarks run outside CI, so a broken script would otherwise go unnoticed. Scripts run
-from the repository root as modules (``python -m benchmarks.NAME``), as benchmarks/README.md says."""
+from the repository root as modules (``python -m benchmarks.protocols.NAME``, ``python -m
+benchmarks.studies.NAME``), as benchmarks/README.md says."""
 
 from __future__ import annotations
 
@@ -16,11 +17,12 @@ from benchmarks.common.report import END, Report
 pytestmark = pytest.mark.e2e  # every test here runs the project's commands end to end
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = sorted(p for p in (ROOT / "benchmarks").glob("*.py") if p.stem != "__init__")
+FOLDERS = ("", "protocols", "studies")  #: benchmarks/ and its script folders
+SCRIPTS = sorted(p for folder in FOLDERS for p in (ROOT / "benchmarks" / folder).glob("*.py") if p.stem != "__init__")
 
 
 def _module(script: Path) -> list[str]:
-    return [sys.executable, "-m", f"benchmarks.{script.stem}"]
+    return [sys.executable, "-m", ".".join(script.relative_to(ROOT).with_suffix("").parts)]
 
 
 def test_there_are_benchmarks():
@@ -52,8 +54,9 @@ def test_tracking_breaks_reports_a_black_frame(tmp_path):
                        cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     report = tmp_path / "breaks.md"
-    r = subprocess.run([*_module(ROOT / "benchmarks" / "slam_tracking_breaks.py"), str(seq), "--run", str(run),
-                        "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    r = subprocess.run([*_module(ROOT / "benchmarks" / "studies" / "slam_tracking_breaks.py"), str(seq), "--run",
+                        str(run), "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                       check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     text = report.read_text()
     assert "Broken pairs (no accepted match): 2;" in text, text
@@ -67,7 +70,7 @@ def test_depth_motion_measures_a_known_scale(tmp_path):
     """benchmarks/depth_motion.py on a "network" that predicts a quarter of the true depth:
     scale 0.25, depth changes that follow the true ones, translations a quarter of the true
     ones in the right direction; the true-depth control recovers the motion."""
-    from benchmarks import depth_motion
+    from benchmarks.studies import depth_motion
     from c3f_slam.io import Sequence
     from datamodules.synthetic.fixture import make_tiny_sequence
 
@@ -98,7 +101,7 @@ def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp
         ckpts.append(tmp_path / f"m{k}.ckpt")
         torch.save({"state_dict": ContraFeat(**SMALL_MODEL).state_dict(), "global_step": 0}, ckpts[-1])
     out = tmp_path / "img" / "matches.png"
-    r = subprocess.run([*_module(ROOT / "benchmarks" / "contrafeat_match_image.py"), "--data",
+    r = subprocess.run([*_module(ROOT / "benchmarks" / "studies" / "contrafeat_match_image.py"), "--data",
                         str(plane_dataset), "--seq", "plane0", "--gap", "1", "--size", "48", "--pair", "0",
                         "--checkpoint", str(ckpts[0]), "--checkpoint", str(ckpts[1]), "--out", str(out)],
                        cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
@@ -113,8 +116,8 @@ def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp
     table and the wrong-match split; the kpf threshold changes only the +kpf columns."""
     import torch
 
-    from benchmarks import contrafeat_eval
     from benchmarks.common.contrafeat import SMALL_MODEL
+    from benchmarks.studies import contrafeat_eval
     from c3f_models.contrafeat_module import ContraFeat
 
     torch.manual_seed(0)
@@ -141,7 +144,7 @@ def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp
 
 
 def _import_benchmark(name: str):
-    return importlib.import_module(f"benchmarks.{name}")
+    return importlib.import_module(f"benchmarks.studies.{name}")
 
 
 def test_ttt_schedule_keeps_the_papers_fractions():
@@ -209,7 +212,7 @@ def test_fallback_pairs_compares_plain_guided_and_dense(tmp_path):
     and the errors are against the true motion."""
     import numpy as np
 
-    from benchmarks.slam_fallback_pairs import pair_rows, summary_line
+    from benchmarks.studies.slam_fallback_pairs import pair_rows, summary_line
     from c3f_slam.io import Sequence
     from datamodules.synthetic.fixture import make_tiny_sequence
 

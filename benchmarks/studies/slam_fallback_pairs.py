@@ -22,7 +22,7 @@ import numpy as np
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
-from benchmarks.slam_tracking import PAPER_FRAMES
+from benchmarks.protocols.slam_tracking import PAPER_FRAMES
 from c3f_slam.config import FallbackConfig
 from c3f_slam.geometry import motion_magnitudes, relative_pose
 from c3f_slam.io import Sequence

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from benchmarks.common import RESULTS, ROOT
 from benchmarks.common.report import Report
-from benchmarks.zoo import tune_and_export
+from benchmarks.protocols.zoo import tune_and_export
 from c3f_models.zoo.recipes import HELD_OUT
 from c3f_models.zoo.train import simulate
 

@@ -110,7 +110,7 @@ def slam_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
 
 
 def coverage_section(a: argparse.Namespace) -> dict:
-    from benchmarks.coverage_accuracy import CASES, run_case
+    from benchmarks.protocols.coverage_accuracy import CASES, run_case
 
     ns = argparse.Namespace(preset="seq1", seed=7, frames=300, size=128, depth_model=a.depth, work=a.work / "coverage")
     return {c.name: run_case(c, ns) for c in CASES}
