@@ -292,9 +292,7 @@ def main() -> None:
     L.seed_everything(args.seed, workers=True)
     res = run(args)
     report = Report(__file__, "ContraFeat keypoint matching: recall / precision (paper table 2)")
-    text = report.render(["## Setup", "", *setup_lines(args, res), "", *result_lines(args, res)])
-    report.write(args.out, text)
-    print(text)
+    print(report.publish(args.out, ["## Setup", "", *setup_lines(args, res), "", *result_lines(args, res)], args))
 
 
 if __name__ == "__main__":

@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> None:
             "frames the run registered only (the estimate cannot know frames it did not register: the difference "
             "between the two truths is what tracking losses cost).", "", *summary_lines(results), "", *lines, "",
             "Per segment:", "", *seg]
-    rep.write(a.report, rep.render(body))
+    rep.publish(a.report, body, a)
     print(f"wrote {a.report}")
 
 

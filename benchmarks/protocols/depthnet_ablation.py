@@ -246,9 +246,8 @@ def main() -> None:
     measured, keys = run_variants(a, variants, extra, train, test, warmup)
     results.update(measured)
     report = Report(__file__, "DepthNet ablation: full objective vs Monodepth2 baseline")
-    text = report.render(report_body(a, variants, extra, motion, results, keys, warmup))
-    report.write(a.out, text)
-    print(text)
+    print(report.publish(a.out, report_body(a, variants, extra, motion, results, keys, warmup), a,
+                         data={"motion": motion, "results": results}))
 
 
 if __name__ == "__main__":

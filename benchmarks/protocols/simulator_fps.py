@@ -18,7 +18,7 @@ import platform
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -164,9 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     rates = _rates(run, args.frames)
     stages = _stage_breakdown(params, min(40, args.frames))
     report = Report(__file__, "Simulator throughput", argv)
-    text = report.render(_report_lines(args, params, run, rates, stages, (load_before[0], load_after[0])))
-    report.write(Path(args.out), text)
-    print(text)
+    lines = _report_lines(args, params, run, rates, stages, (load_before[0], load_after[0]))
+    data = {**asdict(rates), "total_s": run.total, "size_mb": run.size_mb, "stage_ms": stages,
+            "load_before_after": [load_before[0], load_after[0]]}  # the table's numbers without their units
+    print(report.publish(Path(args.out), lines, args, data=data))
     return 0
 
 

@@ -199,9 +199,7 @@ def main() -> None:
     stage_rows: list[str] = []
     motion = [run_preset(preset, args, rows, stage_rows) for preset in args.presets]
     report = Report(__file__, "SLAM ATE: full system vs frame-to-frame odometry")
-    text = report.render(report_body(args, motion, rows, stage_rows))
-    report.write(args.report, text)
-    print(text)
+    print(report.publish(args.report, report_body(args, motion, rows, stage_rows), args))
 
 
 if __name__ == "__main__":

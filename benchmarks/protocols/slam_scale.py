@@ -232,9 +232,7 @@ def main() -> None:
         except Exception as exc:  # noqa: BLE001 -- report, do not lose the table
             ev = {"error": str(exc)}
     report = Report(__file__, "SLAM scaling over a long RGB-D stream")
-    text = report.render(report_body(args, cfg, probe, wall, s, ev, error))
-    report.write(args.report, text)
-    print(text)
+    print(report.publish(args.report, report_body(args, cfg, probe, wall, s, ev, error), args))
 
 
 if __name__ == "__main__":

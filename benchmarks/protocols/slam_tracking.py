@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> None:
             "- registered % of usable: frames in the main map over frames not skipped as black/saturated/"
             "featureless; breaks / re-joined: consecutive-frame tracking breaks and those bridged "
             "(this code only).", "", *lines]
-    rep.write(a.report, rep.render(body))
+    rep.publish(a.report, body, a)
     print(f"wrote {a.report}")
 
 

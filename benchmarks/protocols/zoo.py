@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS, ROOT
-from benchmarks.common.report import Report
+from benchmarks.common.report import Report, json_beside
 from c3f_models.zoo.recipes import HELD_OUT, QUICK_HELD_OUT, TRAIN, shortened
 from c3f_models.zoo.train import REPO, simulate
 
@@ -358,11 +358,9 @@ def main(argv: list[str] | None = None) -> None:
                "slam": lambda: slam_section(a, seqs), "coverage": lambda: coverage_section(a),
                "ttt": lambda: ttt_section(a, seqs), "ablation": lambda: ablation_section(a, seqs)}
     results = {name: _cached(a.work, name, a.redo, compute[name]) for name in SECTIONS if name in a.only}
-    json_path = a.report.with_suffix(".json")
+    json_path = json_beside(a.report)
     old = json.loads(json_path.read_text()) if json_path.is_file() else {}
-    merged = {**old.get("sections", {}), **results}
-    json_path.write_text(json.dumps({"depth_model": a.depth, "features_model": a.features,
-                                     "heldout": [s.name for s in heldout], "sections": merged}, indent=2) + "\n")
+    merged = {**old.get("data", old).get("sections", {}), **results}  # (a file of before Report.publish: no "data")
     body = [f"Models: `{a.depth}`, `{a.features}`. Held-out sequences: " + ", ".join(s.name for s in heldout)
             + f" ({heldout[0].frames} frames at {heldout[0].step_mm:.2f} mm per frame, 128 px; seq5's appearance is in "
             "no training sequence). "
@@ -372,7 +370,8 @@ def main(argv: list[str] | None = None) -> None:
             body += [f"## {TITLES[name]}", "", *RENDER[name](merged[name]),
                      "", f"({merged[name].get('wall_s', 'n/a')} s)", ""]
     rep = Report(__file__, "The zoo models on held-out simulator sequences")
-    rep.write(a.report, rep.render(body))
+    rep.publish(a.report, body, a, data={"depth_model": a.depth, "features_model": a.features,
+                                         "heldout": [s.name for s in heldout], "sections": merged})
     print(f"wrote {a.report} and {json_path}")
 
 
