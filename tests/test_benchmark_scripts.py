@@ -1,10 +1,13 @@
 """Every benchmark script at least parses its command line (imports and module-level code
 run): benchmarks run outside CI, so a broken script would otherwise go unnoticed. Scripts run
 from the repository root as modules (``python -m benchmarks.protocols.NAME``, ``python -m
-benchmarks.studies.NAME``), as benchmarks/README.md says."""
+benchmarks.studies.NAME``), as benchmarks/README.md says. Every protocol publishes its report as
+Markdown and JSON (``Report.publish``) and runs with no path given."""
 
 from __future__ import annotations
 
+import argparse
+import ast
 import importlib
 import subprocess
 import sys
@@ -12,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.common import RESULTS, WORK
 from benchmarks.common.report import END, Report
 
 pytestmark = pytest.mark.e2e  # every test here runs the project's commands end to end
@@ -19,6 +23,10 @@ pytestmark = pytest.mark.e2e  # every test here runs the project's commands end 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = ("", "protocols", "studies")  #: benchmarks/ and its script folders
 SCRIPTS = sorted(p for folder in FOLDERS for p in (ROOT / "benchmarks" / folder).glob("*.py") if p.stem != "__init__")
+PROTOCOLS = [p for p in SCRIPTS if p.parent.name == "protocols"]
+#: the arguments a protocol may require: named inputs, never scratch data (trajectory_identity: the
+#: source tree of the code compared with)
+REQUIRED_INPUTS = {"trajectory_identity": {"before"}}
 
 
 def _module(script: Path) -> list[str]:
@@ -35,6 +43,54 @@ def test_help(script: Path):
                        check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "usage:" in r.stdout
+
+
+class _Parsed(Exception):
+    """Raised in place of parsing: the protocol's parser is built, nothing has run."""
+
+
+def _parser_of(module, monkeypatch) -> argparse.ArgumentParser:
+    """The option parser that the protocol ``module``'s main() builds (stopped at parse_args)."""
+    built: list[argparse.ArgumentParser] = []
+
+    def parse_args(self, args=None, namespace=None):
+        built.append(self)
+        raise _Parsed
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_args)
+    monkeypatch.setattr(sys, "argv", [module.__name__])
+    with pytest.raises(_Parsed):
+        module.main()
+    return built[0]
+
+
+def _inside_repository(value) -> bool:
+    return not isinstance(value, (str, Path)) or not Path(value).is_absolute() or Path(value).is_relative_to(ROOT)
+
+
+def test_protocols_and_studies():
+    assert {p.stem for p in PROTOCOLS} >= {"slam_ate", "slam_tracking", "coverage_accuracy", "zoo", "simulator_fps"}
+    assert (ROOT / "benchmarks" / "studies" / "depthnet_gradients.py").is_file()
+
+
+@pytest.mark.parametrize("script", PROTOCOLS, ids=[s.stem for s in PROTOCOLS])
+def test_protocol_publishes_json_and_needs_no_path(script: Path, monkeypatch):
+    """A protocol writes its report through Report.publish (Markdown and the JSON beside it, never
+    the Markdown alone), and runs with no argument: it requires none (its data are regenerated or
+    named), its work folder defaults to runs/bench/NAME and no default path leaves the repository
+    (no scratch folder)."""
+    calls = {node.func.attr for node in ast.walk(ast.parse(script.read_text()))
+             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)}
+    assert "publish" in calls and not calls & {"write", "render"}, "write the report with Report.publish"
+    parser = _parser_of(importlib.import_module(f"benchmarks.protocols.{script.stem}"), monkeypatch)
+    actions = {a.dest: a for a in parser._actions if a.dest != "help"}
+    required = {dest for dest, a in actions.items() if a.required} - REQUIRED_INPUTS.get(script.stem, set())
+    assert not required, f"required arguments: {sorted(required)}"
+    if "work" in actions:
+        assert actions["work"].default == WORK / script.stem
+    assert all(_inside_repository(a.default) for a in actions.values()), {d: a.default for d, a in actions.items()}
+    reports = [Path(a.default) for a in actions.values() if str(a.default).endswith(".md")]
+    assert all(r.parent == RESULTS for r in reports), reports  # the recorded results, not a scratch copy
 
 
 def test_tracking_breaks_reports_a_black_frame(tmp_path):

@@ -7,9 +7,11 @@ for both (torch.set_num_threads / intra_op_num_threads). Runs alternate between 
 back-ends, so machine noise hits both alike; the table gives medians and the ratio
 eager / onnxruntime (> 1 means onnxruntime is faster).
 
-    python -m benchmarks.onnx_latency --threads 2 --repeats 20
+    python -m benchmarks.protocols.onnx_latency --threads 2 --repeats 20
 
-Writes benchmarks/results/onnx_latency.md (numbers + the command line).
+Inputs: none (random weights, the configs' networks).
+
+Writes benchmarks/results/onnx_latency.md (numbers + the command line) and its .json.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """Frames per second of the colonoscopy simulator, generation including writing.
 
-    python -m benchmarks.simulator_fps [--preset seq1] [--frames 300] [--size 256] [--seed 7]
+    python -m benchmarks.protocols.simulator_fps [--preset seq1] [--frames 300] [--size 256] [--seed 7]
 
 Runs the real pipeline (``generate_sequence``: colon + path + texture, ray casting, shading,
 PNG encoding of RGB and depth, mesh.ply, params.json, poses.txt) into a temporary folder and
 reports: the set-up time, the steady rate (frames 10..N, writing included), the overall rate,
 and a per-stage breakdown measured on extra frames (median per frame). Writes the numbers
-and the exact command line to ``benchmarks/results/simulator_fps.md`` and prints them.
+and the exact command line to ``benchmarks/results/simulator_fps.md`` (and ``.json``) and prints them.
 This is a measurement, not a test: the machine's load is recorded next to the numbers.
 """
 
