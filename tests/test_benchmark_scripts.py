@@ -21,7 +21,7 @@ from benchmarks.common.report import END, Report
 pytestmark = pytest.mark.e2e  # every test here runs the project's commands end to end
 
 ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = ("", "protocols", "studies")  #: benchmarks/ and its script folders
+FOLDERS = ("protocols", "studies")  #: the script folders of benchmarks/
 SCRIPTS = sorted(p for folder in FOLDERS for p in (ROOT / "benchmarks" / folder).glob("*.py") if p.stem != "__init__")
 PROTOCOLS = [p for p in SCRIPTS if p.parent.name == "protocols"]
 #: the arguments a protocol may require: named inputs, never scratch data (trajectory_identity: the
