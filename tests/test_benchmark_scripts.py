@@ -94,7 +94,7 @@ def test_protocol_publishes_json_and_needs_no_path(script: Path, monkeypatch):
 
 
 def test_tracking_breaks_reports_a_black_frame(tmp_path):
-    """benchmarks/slam_tracking_breaks.py on a tiny sequence with one black frame: the two
+    """benchmarks/studies/slam_tracking_breaks.py on a tiny sequence with one black frame: the two
     pairs around it are the only broken ones, the report says why and, given the run, that the
     black frame is not registered while the frame after it is in the main map."""
     import cv2
@@ -123,7 +123,7 @@ def test_tracking_breaks_reports_a_black_frame(tmp_path):
 
 
 def test_depth_motion_measures_a_known_scale(tmp_path):
-    """benchmarks/depth_motion.py on a "network" that predicts a quarter of the true depth:
+    """benchmarks/studies/depth_motion.py on a "network" that predicts a quarter of the true depth:
     scale 0.25, depth changes that follow the true ones, translations a quarter of the true
     ones in the right direction; the true-depth control recovers the motion."""
     from benchmarks.studies import depth_motion
@@ -143,7 +143,7 @@ def test_depth_motion_measures_a_known_scale(tmp_path):
 
 
 def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp_path):
-    """benchmarks/contrafeat_match_image.py on a plane sequence with two (untrained) checkpoints:
+    """benchmarks/studies/contrafeat_match_image.py on a plane sequence with two (untrained) checkpoints:
     one 2x-scaled side-by-side row per checkpoint, and a line of counts for each."""
     import cv2
     import torch
@@ -168,7 +168,7 @@ def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp
 
 
 def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp_path):
-    """benchmarks/contrafeat_eval.py: one section per (checkpoint, kpf residual) with the paper's
+    """benchmarks/studies/contrafeat_eval.py: one section per (checkpoint, kpf residual) with the paper's
     table and the wrong-match split; the kpf threshold changes only the +kpf columns."""
     import torch
 
@@ -212,7 +212,7 @@ def test_ttt_schedule_keeps_the_papers_fractions():
 
 @pytest.mark.slow
 def test_ttt_benchmark_end_to_end(tmp_path, monkeypatch):
-    """benchmarks/depthnet_ttt.py on a tiny sequence: both tables, with the seven metrics twice."""
+    """benchmarks/studies/depthnet_ttt.py on a tiny sequence: both tables, with the seven metrics twice."""
     from c3f_models.cli import main as cli
     from datamodules.synthetic.fixture import make_tiny_sequence
 
@@ -290,7 +290,7 @@ def test_publish_writes_the_same_numbers_as_json_beside_the_markdown(tmp_path):
 
 
 def test_fallback_pairs_compares_plain_guided_and_dense(tmp_path):
-    """benchmarks/slam_fallback_pairs.py's pair table on a tiny 128 px sequence (every pair tried):
+    """benchmarks/studies/slam_fallback_pairs.py's pair table on a tiny 128 px sequence (every pair tried):
     plain matching links every pair of the slow insertion, guided matching from the last
     motion finds matches too, the dense odometry's verdict is one of the fallback's outcomes,
     and the errors are against the true motion."""

@@ -11,7 +11,7 @@ unseen one), Abs Rel before and after, and the photometric objective at the trut
   triplets of each sequence: whether the objective's minimum is near the truth, and which of
   depth and pose is off.
 
-    python -m benchmarks.zoo_ttt_variants --work /tmp/ttt_variants
+    python -m benchmarks.studies.zoo_ttt_variants --work /tmp/ttt_variants
 """
 
 from __future__ import annotations
