@@ -1,9 +1,13 @@
 """Every benchmark script at least parses its command line (imports and module-level code
 run): benchmarks run outside CI, so a broken script would otherwise go unnoticed. Scripts run
-from the repository root as modules (``python -m benchmarks.NAME``), as benchmarks/README.md says."""
+from the repository root as modules (``python -m benchmarks.protocols.NAME``, ``python -m
+benchmarks.studies.NAME``), as benchmarks/README.md says. Every protocol publishes its report as
+Markdown and JSON (``Report.publish``) and runs with no path given."""
 
 from __future__ import annotations
 
+import argparse
+import ast
 import importlib
 import subprocess
 import sys
@@ -11,16 +15,22 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.common import RESULTS, WORK
 from benchmarks.common.report import END, Report
 
 pytestmark = pytest.mark.e2e  # every test here runs the project's commands end to end
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = sorted(p for p in (ROOT / "benchmarks").glob("*.py") if p.stem != "__init__")
+FOLDERS = ("protocols", "studies")  #: the script folders of benchmarks/
+SCRIPTS = sorted(p for folder in FOLDERS for p in (ROOT / "benchmarks" / folder).glob("*.py") if p.stem != "__init__")
+PROTOCOLS = [p for p in SCRIPTS if p.parent.name == "protocols"]
+#: the arguments a protocol may require: named inputs, never scratch data (trajectory_identity: the
+#: source tree of the code compared with)
+REQUIRED_INPUTS = {"trajectory_identity": {"before"}}
 
 
 def _module(script: Path) -> list[str]:
-    return [sys.executable, "-m", f"benchmarks.{script.stem}"]
+    return [sys.executable, "-m", ".".join(script.relative_to(ROOT).with_suffix("").parts)]
 
 
 def test_there_are_benchmarks():
@@ -35,8 +45,56 @@ def test_help(script: Path):
     assert "usage:" in r.stdout
 
 
+class _Parsed(Exception):
+    """Raised in place of parsing: the protocol's parser is built, nothing has run."""
+
+
+def _parser_of(module, monkeypatch) -> argparse.ArgumentParser:
+    """The option parser that the protocol ``module``'s main() builds (stopped at parse_args)."""
+    built: list[argparse.ArgumentParser] = []
+
+    def parse_args(self, args=None, namespace=None):
+        built.append(self)
+        raise _Parsed
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_args)
+    monkeypatch.setattr(sys, "argv", [module.__name__])
+    with pytest.raises(_Parsed):
+        module.main()
+    return built[0]
+
+
+def _inside_repository(value) -> bool:
+    return not isinstance(value, (str, Path)) or not Path(value).is_absolute() or Path(value).is_relative_to(ROOT)
+
+
+def test_protocols_and_studies():
+    assert {p.stem for p in PROTOCOLS} >= {"slam_ate", "slam_tracking", "coverage_accuracy", "zoo", "simulator_fps"}
+    assert (ROOT / "benchmarks" / "studies" / "depthnet_gradients.py").is_file()
+
+
+@pytest.mark.parametrize("script", PROTOCOLS, ids=[s.stem for s in PROTOCOLS])
+def test_protocol_publishes_json_and_needs_no_path(script: Path, monkeypatch):
+    """A protocol writes its report through Report.publish (Markdown and the JSON beside it, never
+    the Markdown alone), and runs with no argument: it requires none (its data are regenerated or
+    named), its work folder defaults to runs/bench/NAME and no default path leaves the repository
+    (no scratch folder)."""
+    calls = {node.func.attr for node in ast.walk(ast.parse(script.read_text()))
+             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)}
+    assert "publish" in calls and not calls & {"write", "render"}, "write the report with Report.publish"
+    parser = _parser_of(importlib.import_module(f"benchmarks.protocols.{script.stem}"), monkeypatch)
+    actions = {a.dest: a for a in parser._actions if a.dest != "help"}
+    required = {dest for dest, a in actions.items() if a.required} - REQUIRED_INPUTS.get(script.stem, set())
+    assert not required, f"required arguments: {sorted(required)}"
+    if "work" in actions:
+        assert actions["work"].default == WORK / script.stem
+    assert all(_inside_repository(a.default) for a in actions.values()), {d: a.default for d, a in actions.items()}
+    reports = [Path(a.default) for a in actions.values() if str(a.default).endswith(".md")]
+    assert all(r.parent == RESULTS for r in reports), reports  # the recorded results, not a scratch copy
+
+
 def test_tracking_breaks_reports_a_black_frame(tmp_path):
-    """benchmarks/slam_tracking_breaks.py on a tiny sequence with one black frame: the two
+    """benchmarks/studies/slam_tracking_breaks.py on a tiny sequence with one black frame: the two
     pairs around it are the only broken ones, the report says why and, given the run, that the
     black frame is not registered while the frame after it is in the main map."""
     import cv2
@@ -52,8 +110,9 @@ def test_tracking_breaks_reports_a_black_frame(tmp_path):
                        cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     report = tmp_path / "breaks.md"
-    r = subprocess.run([*_module(ROOT / "benchmarks" / "slam_tracking_breaks.py"), str(seq), "--run", str(run),
-                        "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    r = subprocess.run([*_module(ROOT / "benchmarks" / "studies" / "slam_tracking_breaks.py"), str(seq), "--run",
+                        str(run), "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                       check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     text = report.read_text()
     assert "Broken pairs (no accepted match): 2;" in text, text
@@ -64,10 +123,10 @@ def test_tracking_breaks_reports_a_black_frame(tmp_path):
 
 
 def test_depth_motion_measures_a_known_scale(tmp_path):
-    """benchmarks/depth_motion.py on a "network" that predicts a quarter of the true depth:
+    """benchmarks/studies/depth_motion.py on a "network" that predicts a quarter of the true depth:
     scale 0.25, depth changes that follow the true ones, translations a quarter of the true
     ones in the right direction; the true-depth control recovers the motion."""
-    from benchmarks import depth_motion
+    from benchmarks.studies import depth_motion
     from c3f_slam.io import Sequence
     from datamodules.synthetic.fixture import make_tiny_sequence
 
@@ -84,7 +143,7 @@ def test_depth_motion_measures_a_known_scale(tmp_path):
 
 
 def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp_path):
-    """benchmarks/contrafeat_match_image.py on a plane sequence with two (untrained) checkpoints:
+    """benchmarks/studies/contrafeat_match_image.py on a plane sequence with two (untrained) checkpoints:
     one 2x-scaled side-by-side row per checkpoint, and a line of counts for each."""
     import cv2
     import torch
@@ -98,7 +157,7 @@ def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp
         ckpts.append(tmp_path / f"m{k}.ckpt")
         torch.save({"state_dict": ContraFeat(**SMALL_MODEL).state_dict(), "global_step": 0}, ckpts[-1])
     out = tmp_path / "img" / "matches.png"
-    r = subprocess.run([*_module(ROOT / "benchmarks" / "contrafeat_match_image.py"), "--data",
+    r = subprocess.run([*_module(ROOT / "benchmarks" / "studies" / "contrafeat_match_image.py"), "--data",
                         str(plane_dataset), "--seq", "plane0", "--gap", "1", "--size", "48", "--pair", "0",
                         "--checkpoint", str(ckpts[0]), "--checkpoint", str(ckpts[1]), "--out", str(out)],
                        cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
@@ -109,12 +168,12 @@ def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp
 
 
 def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp_path):
-    """benchmarks/contrafeat_eval.py: one section per (checkpoint, kpf residual) with the paper's
+    """benchmarks/studies/contrafeat_eval.py: one section per (checkpoint, kpf residual) with the paper's
     table and the wrong-match split; the kpf threshold changes only the +kpf columns."""
     import torch
 
-    from benchmarks import contrafeat_eval
     from benchmarks.common.contrafeat import SMALL_MODEL
+    from benchmarks.studies import contrafeat_eval
     from c3f_models.contrafeat_module import ContraFeat
 
     torch.manual_seed(0)
@@ -141,7 +200,7 @@ def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp
 
 
 def _import_benchmark(name: str):
-    return importlib.import_module(f"benchmarks.{name}")
+    return importlib.import_module(f"benchmarks.studies.{name}")
 
 
 def test_ttt_schedule_keeps_the_papers_fractions():
@@ -153,7 +212,7 @@ def test_ttt_schedule_keeps_the_papers_fractions():
 
 @pytest.mark.slow
 def test_ttt_benchmark_end_to_end(tmp_path, monkeypatch):
-    """benchmarks/depthnet_ttt.py on a tiny sequence: both tables, with the seven metrics twice."""
+    """benchmarks/studies/depthnet_ttt.py on a tiny sequence: both tables, with the seven metrics twice."""
     from c3f_models.cli import main as cli
     from datamodules.synthetic.fixture import make_tiny_sequence
 
@@ -181,16 +240,18 @@ def test_ttt_benchmark_end_to_end(tmp_path, monkeypatch):
 def test_report_rewrites_only_its_generated_section(tmp_path):
     """benchmarks.common.report: the command line as typed from the repository root, the date,
     and a generated section that a rerun replaces while findings written by hand stay."""
-    report = Report(str(ROOT / "benchmarks" / "slam_ate.py"), "Title", ["--presets", "seq1", "--set", "a b"])
-    assert report.command == "python -m benchmarks.slam_ate --presets seq1 --set 'a b'"
+    report = Report(str(ROOT / "benchmarks" / "protocols" / "slam_ate.py"), "Title", ["--presets", "seq1", "--set",
+                                                                                       "a b"])
+    assert report.command == "python -m benchmarks.protocols.slam_ate --presets seq1 --set 'a b'"
     first = report.render(["| table | 1 |"])
-    assert first.startswith("# Title\n\nCommand: `python -m benchmarks.slam_ate --presets seq1 --set 'a b'`\n\nDate: ")
+    assert first.startswith("# Title\n\nCommand: `python -m benchmarks.protocols.slam_ate --presets seq1 --set 'a b'`"
+                            "\n\nDate: ")
     out = tmp_path / "r.md"
     report.write(out, first)
     out.write_text("Findings above, by hand.\n\n" + out.read_text() + "\nFindings below.\n")
     report.write(out, report.render(["| table | 2 |"]))
     text = out.read_text()
-    assert text.startswith("Findings above, by hand.\n\n<!-- generated by python -m benchmarks.slam_ate")
+    assert text.startswith("Findings above, by hand.\n\n<!-- generated by python -m benchmarks.protocols.slam_ate")
     assert "| table | 2 |" in text and "| table | 1 |" not in text and text.endswith(f"{END}\n\nFindings below.\n")
 
     plain = tmp_path / "plain.md"  # a file without a generated section gets one appended
@@ -202,14 +263,40 @@ def test_report_rewrites_only_its_generated_section(tmp_path):
         report.write(plain, first)
 
 
+def test_publish_writes_the_same_numbers_as_json_beside_the_markdown(tmp_path):
+    """Report.publish: the Markdown report and, beside it, its title, command, date, settings
+    (paths in the repository relative to it), every table (numbers as numbers, the heading above
+    it) and the protocol's own data."""
+    import argparse
+    import json
+
+    report = Report(str(ROOT / "benchmarks" / "protocols" / "zoo.py"), "Zoo", ["--only", "depth"])
+    body = ["Set-up.", "", "| case | ATE cm | share % | note |", "|---|---|---|---|",
+            "| seq1 | 0.36 | **100** | a \\| b |", "| seq3 | - | 1e-3 | `x` |", "", "## Per stage", "",
+            "| stage | ms |\n|---|---|\n| io | 2 |"]  # a table inside one line, as some reports build them
+    settings = argparse.Namespace(work=ROOT / "runs" / "bench" / "zoo", report=tmp_path / "zoo.md", sizes=(64, 128))
+    text = report.publish(tmp_path / "r" / "zoo.md", body, settings, data={"sections": {"depth": {"abs_rel": 0.1}}})
+    assert (tmp_path / "r" / "zoo.md").read_text().count("| seq1 | 0.36 | **100** |") == 1 and "| io | 2 |" in text
+    record = json.loads((tmp_path / "r" / "zoo.json").read_text())
+    assert record["module"] == "benchmarks.protocols.zoo" and record["title"] == "Zoo"
+    assert record["command"] == "python -m benchmarks.protocols.zoo --only depth" and f"Date: {record['date']}" in text
+    assert record["settings"] == {"work": "runs/bench/zoo", "report": str(tmp_path / "zoo.md"), "sizes": [64, 128]}
+    assert record["tables"] == [
+        {"section": None, "columns": ["case", "ATE cm", "share %", "note"],
+         "rows": [["seq1", 0.36, 100, "a | b"], ["seq3", "-", 0.001, "`x`"]]},
+        {"section": "Per stage", "columns": ["stage", "ms"], "rows": [["io", 2]]}]
+    assert record["data"] == {"sections": {"depth": {"abs_rel": 0.1}}}
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["zoo.json", "zoo.md"]  # nothing half-written
+
+
 def test_fallback_pairs_compares_plain_guided_and_dense(tmp_path):
-    """benchmarks/slam_fallback_pairs.py's pair table on a tiny 128 px sequence (every pair tried):
+    """benchmarks/studies/slam_fallback_pairs.py's pair table on a tiny 128 px sequence (every pair tried):
     plain matching links every pair of the slow insertion, guided matching from the last
     motion finds matches too, the dense odometry's verdict is one of the fallback's outcomes,
     and the errors are against the true motion."""
     import numpy as np
 
-    from benchmarks.slam_fallback_pairs import pair_rows, summary_line
+    from benchmarks.studies.slam_fallback_pairs import pair_rows, summary_line
     from c3f_slam.io import Sequence
     from datamodules.synthetic.fixture import make_tiny_sequence
 
@@ -224,11 +311,11 @@ def test_fallback_pairs_compares_plain_guided_and_dense(tmp_path):
 
 
 def test_trajectory_identity_sets_and_comparison(tmp_path):
-    """benchmarks/trajectory_identity.py: its sets are the benchmarks' sequences, run as each
+    """benchmarks/protocols/trajectory_identity.py: its sets are the benchmarks' sequences, run as each
     benchmark runs them (tracking without a mesh, coverage with one); two runs that write the
     same trajectory are identical, a different one is not, and a run of the same code key is
     reused instead of run again."""
-    from benchmarks import trajectory_identity as ti
+    from benchmarks.protocols import trajectory_identity as ti
 
     sets = {s: ti.targets([s]) for s in ("coverage", "tracking128", "tracking256", "smoke")}
     assert [len(v) for v in sets.values()] == [7, 12, 12, 1]
@@ -265,7 +352,7 @@ def test_trajectory_identity_mesh_fingerprint_ignores_triangle_order(tmp_path):
     import numpy as np
     import open3d as o3d
 
-    from benchmarks.trajectory_identity import mesh_fingerprint
+    from benchmarks.protocols.trajectory_identity import mesh_fingerprint
 
     rng = np.random.default_rng(0)
     v, t = rng.random((30, 3)), rng.permutation(30)[:27].reshape(9, 3)

@@ -1,7 +1,9 @@
 """What the benchmark scripts share: simulator data (:mod:`.simulate`), report files
-(:mod:`.report`) and the ContraFeat evaluation of the matching benchmarks (:mod:`.contrafeat`)."""
+(:mod:`.report`: Markdown, and JSON beside a protocol's) and the ContraFeat evaluation of the
+matching benchmarks (:mod:`.contrafeat`)."""
 
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository root
 RESULTS = ROOT / "benchmarks" / "results"  # recorded reports, indexed in results/README.md
+WORK = ROOT / "runs" / "bench"  # the protocols' sequences and runs (git-ignored), WORK/NAME for each (--work)

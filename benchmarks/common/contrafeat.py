@@ -1,5 +1,5 @@
 """ContraFeat matching benchmarks (paper table 2): the small CPU model, loading the checkpoints
-``benchmarks.contrafeat_pr`` saves, testing a model per held-out sequence and the report tables.
+``benchmarks.protocols.contrafeat_pr`` saves, testing a model per held-out sequence and the report tables.
 
 Recall and precision are fractions in [0, 1] in the metrics and percentages in the tables;
 ``pixel_radius`` and the near-miss radius are pixels.
@@ -30,7 +30,7 @@ GROUND_TRUTH = SMALL_MODEL["ground_truth"]
 
 
 def load_weights(model: ContraFeat, ckpt: Path, option: str = "--checkpoint") -> int:
-    """Load a checkpoint ``benchmarks.contrafeat_pr`` saved into ``model``; returns its step count.
+    """Load a checkpoint ``benchmarks.protocols.contrafeat_pr`` saved into ``model``; returns its step count.
 
     Exits with one line naming ``option`` and the file when it is missing, holds no
     ``state_dict`` or does not fit the model.

@@ -130,7 +130,7 @@ class ModelDepth:
     self-supervised DepthNet knows depth only up to a scale, and the runtime's thresholds are
     in metres. None (default) takes the factor the exporter measured on the training data
     (``DepthModel.metric_scale``), else 1; ``scale_source`` says which ("option", "model
-    metadata", "none"). ``benchmarks/depth_motion.py`` measures the factor on any sequence
+    metadata", "none"). ``benchmarks/studies/depth_motion.py`` measures the factor on any sequence
     with true depth.
     The prediction of the most recent frame is memoised (by frame index), so that the run
     loop can also store its network-grid depth for fusion without running the net twice.

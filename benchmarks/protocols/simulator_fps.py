@@ -1,12 +1,12 @@
 """Frames per second of the colonoscopy simulator, generation including writing.
 
-    python -m benchmarks.simulator_fps [--preset seq1] [--frames 300] [--size 256] [--seed 7]
+    python -m benchmarks.protocols.simulator_fps [--preset seq1] [--frames 300] [--size 256] [--seed 7]
 
 Runs the real pipeline (``generate_sequence``: colon + path + texture, ray casting, shading,
 PNG encoding of RGB and depth, mesh.ply, params.json, poses.txt) into a temporary folder and
 reports: the set-up time, the steady rate (frames 10..N, writing included), the overall rate,
 and a per-stage breakdown measured on extra frames (median per frame). Writes the numbers
-and the exact command line to ``benchmarks/results/simulator_fps.md`` and prints them.
+and the exact command line to ``benchmarks/results/simulator_fps.md`` (and ``.json``) and prints them.
 This is a measurement, not a test: the machine's load is recorded next to the numbers.
 """
 
@@ -18,7 +18,7 @@ import platform
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -164,9 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     rates = _rates(run, args.frames)
     stages = _stage_breakdown(params, min(40, args.frames))
     report = Report(__file__, "Simulator throughput", argv)
-    text = report.render(_report_lines(args, params, run, rates, stages, (load_before[0], load_after[0])))
-    report.write(Path(args.out), text)
-    print(text)
+    lines = _report_lines(args, params, run, rates, stages, (load_before[0], load_after[0]))
+    data = {**asdict(rates), "total_s": run.total, "size_mb": run.size_mb, "stage_ms": stages,
+            "load_before_after": [load_before[0], load_after[0]]}  # the table's numbers without their units
+    print(report.publish(Path(args.out), lines, args, data=data))
     return 0
 
 

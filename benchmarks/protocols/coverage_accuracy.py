@@ -8,7 +8,7 @@ truth (the true mesh seen from the true poses of every frame, folds occluding), 
 per segment. Goal: overall within +-2 percentage points, per segment within +-5.
 ``--depth-model`` runs the same on predicted depth instead.
 
-    python -m benchmarks.coverage_accuracy --work /tmp/coverage_accuracy --jobs 2
+    python -m benchmarks.protocols.coverage_accuracy --jobs 2
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import RESULTS, ROOT
+from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 
@@ -110,7 +110,7 @@ def summary_lines(results: list[tuple[Case, dict]]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--work", type=Path, required=True, help="folder for sequences and runs")
+    ap.add_argument("--work", type=Path, default=WORK / "coverage_accuracy", help="folder for sequences and runs")
     ap.add_argument("--cases", nargs="+", choices=[c.name for c in CASES], default=[c.name for c in CASES])
     ap.add_argument("--preset", default=PRESET)
     ap.add_argument("--seed", type=int, default=SEED)
@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> None:
             "frames the run registered only (the estimate cannot know frames it did not register: the difference "
             "between the two truths is what tracking losses cost).", "", *summary_lines(results), "", *lines, "",
             "Per segment:", "", *seg]
-    rep.write(a.report, rep.render(body))
+    rep.publish(a.report, body, a)
     print(f"wrote {a.report}")
 
 

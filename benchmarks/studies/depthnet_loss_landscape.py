@@ -15,7 +15,7 @@ signal towards structure on this data. Terms are averaged over all triplets of t
 sequences (finest scale, each LossConfig switch as in configs/depthnet/small.yaml unless
 changed with --no-outlier). Outside CI.
 
-    python -m benchmarks.depthnet_loss_landscape --data runs/bench/depth_slow --seqs test0 test1
+    python -m benchmarks.studies.depthnet_loss_landscape --data runs/bench/depth_slow --seqs test0 test1
 """
 
 from __future__ import annotations

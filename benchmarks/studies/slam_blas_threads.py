@@ -8,7 +8,7 @@ setting) alternately, ``--repeats`` times each, and reports the median per-stage
 their ratio, plus a micro-benchmark of one descriptor matching. Run it on an idle machine and
 again with ``--busy N`` (N busy-looping processes started beside it) to see both regimes.
 
-    python -m benchmarks.slam_blas_threads /work/slam_ate4500/seq1_s1 --max-frames 300 --busy 2
+    python -m benchmarks.studies.slam_blas_threads /work/slam_ate4500/seq1_s1 --max-frames 300 --busy 2
 """
 
 from __future__ import annotations

@@ -7,9 +7,11 @@ for both (torch.set_num_threads / intra_op_num_threads). Runs alternate between 
 back-ends, so machine noise hits both alike; the table gives medians and the ratio
 eager / onnxruntime (> 1 means onnxruntime is faster).
 
-    python -m benchmarks.onnx_latency --threads 2 --repeats 20
+    python -m benchmarks.protocols.onnx_latency --threads 2 --repeats 20
 
-Writes benchmarks/results/onnx_latency.md (numbers + the command line).
+Inputs: none (random weights, the configs' networks).
+
+Writes benchmarks/results/onnx_latency.md (numbers + the command line) and its .json.
 """
 
 from __future__ import annotations
@@ -100,15 +102,14 @@ def main() -> None:
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     report = Report(__file__, "Per-frame latency: PyTorch eager vs onnxruntime (CPU)")
-    text = report.render([
+    text = report.publish(a.out, [
         f"Setup: batch 1, {a.size}x{a.size}, {a.threads} threads for both back-ends, random weights, "
         f"median of {a.repeats} alternating runs after {a.warmup} warm-up runs. torch {torch.__version__}, "
         f"onnxruntime {ort.__version__}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"load average at the end {load:.2f}.\n\n"
         "| net | eager ms | onnxruntime ms | eager / onnxruntime | max abs diff |\n|---|---|---|---|---|\n"
         + "".join(f"| {label} | {e:.1f} | {r:.1f} | {ratio:.2f} | {d:.1e} |\n" for label, e, r, ratio, d in rows)
-    ])
-    report.write(a.out, text)
+    ], a)
     print(text)
 
 

@@ -3,9 +3,9 @@
 Each row shows frame i (left) and frame j (right) with the mutual-nearest-neighbour CDF
 matches at SIFT keypoints: green = correct (ground truth within ``pixel_radius``), yellow = near
 miss (wrong, but within 3 x ``pixel_radius`` of the true position), red = other wrong.
-The checkpoints are those ``benchmarks.contrafeat_pr`` saves (small configuration).
+The checkpoints are those ``benchmarks.protocols.contrafeat_pr`` saves (small configuration).
 
-    python -m benchmarks.contrafeat_match_image --data DIR/test --seq test_seq3 --gap 8 \
+    python -m benchmarks.studies.contrafeat_match_image --data DIR/test --seq test_seq3 --gap 8 \
         --checkpoint A.ckpt --checkpoint B.ckpt --out matches.png
 """
 

@@ -21,7 +21,7 @@ uncommitted changes there (a tree with such changes always runs again); ``--afte
 ``--before`` thus runs the reference once, for later comparisons. Exit status 1 when a
 trajectory differs or a run failed.
 
-    python -m benchmarks.trajectory_identity --before /tmp/before --after . --work /tmp/identity \\
+    python -m benchmarks.protocols.trajectory_identity --before /tmp/before --after . --work /tmp/identity \\
         --set coverage tracking128 --jobs 1
 """
 
@@ -41,10 +41,10 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
-from benchmarks import coverage_accuracy, slam_tracking
-from benchmarks.common import RESULTS
+from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from benchmarks.protocols import coverage_accuracy, slam_tracking
 
 TRACKING_FRAMES = 600  #: frames per sequence of the runs recorded in slam_tracking.md
 SIDES = ("before", "after")
@@ -199,8 +199,8 @@ def table(results: list[dict]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--before", type=Path, required=True, help="source tree of the reference code")
-    ap.add_argument("--after", type=Path, required=True, help="source tree of the changed code")
-    ap.add_argument("--work", type=Path, required=True, help="folder for sequences and runs")
+    ap.add_argument("--after", type=Path, default=ROOT, help="source tree of the changed code (default: this one)")
+    ap.add_argument("--work", type=Path, default=WORK / "trajectory_identity", help="folder for sequences and runs")
     ap.add_argument("--set", nargs="+", dest="sets", default=["coverage", "tracking128"],
                     choices=["smoke", "coverage", "tracking128", "tracking256"])
     ap.add_argument("--names", nargs="+", help="only these sequences of the sets")
@@ -225,10 +225,8 @@ def main(argv: list[str] | None = None) -> int:
             "the same triangles (positions and colours, bit for bit, in a canonical order) where the benchmark "
             "writes a mesh (-: no mesh).", "",
             *table(results)]
-    rep.write(a.report, rep.render(body))
-    a.report.with_suffix(".json").write_text(json.dumps(
-        {"before": commits["before"], "after": commits["after"], "sets": a.sets, "wall_seconds": wall,
-         "identical": same, "sequences": results}, indent=1) + "\n")
+    rep.publish(a.report, body, a, data={"before": commits["before"], "after": commits["after"], "sets": a.sets,
+                                         "wall_seconds": wall, "identical": same, "sequences": results})
     print(f"{same} of {len(results)} identical; wrote {a.report}")
     return 0 if same == len(results) else 1
 

@@ -2,7 +2,7 @@
 
 Paper-length colon (1.25 m). For each preset: generate the sequence, run each method,
 evaluate (ATE Sim(3)/SE(3) in cm, registered share, frames/s per stage) and write the table
-to benchmarks/results/slam_ate.md. Methods (``--methods``):
+to benchmarks/results/slam_ate.md (and .json). Methods (``--methods``):
 
 - ``full`` / ``odometry``: the hierarchical system / frame-to-frame odometry, SIFT, RGB-D
   (ground-truth depth from the sequence's files);
@@ -14,7 +14,12 @@ The paper's sequences are 150 s at 30 frames/s (4,500 frames over 1.25 m, ~0.3 m
 ``--frames 4500`` keeps that rate (fewer frames cross the same colon faster; the set-up line
 reports the ground-truth motion per frame).
 
-    python -m benchmarks.slam_ate --presets seq1 seq3 --frames 4500 --size 128 --out /tmp/slam_ate
+    python -m benchmarks.protocols.slam_ate --presets seq1 seq3 --frames 4500 --size 128
+
+Inputs: the sequences are generated from their preset and seed under ``--work`` (default
+``runs/bench/slam_ate``); the methods on predicted depth or ContraFeat descriptors take the
+models by name (``--depth-model zoo:c3f-depth-r18w32``, ``--feature-model
+zoo:c3f-features-r18w32``) or an ONNX export's path. Nothing is trained here.
 
 The simulator's events (close-ups, fast-motion bursts, fold approaches, quick rolls) break
 tracking by design; ``--set KEY=VALUE`` passes generator overrides, e.g. ``--set
@@ -31,7 +36,7 @@ import hashlib
 import time
 from pathlib import Path
 
-from benchmarks.common import RESULTS
+from benchmarks.common import RESULTS, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_slam.config import preset as slam_preset
@@ -104,14 +109,15 @@ def parse_args() -> argparse.Namespace:
                     help="new-fragment threshold (paper 100 at full resolution; 128 px frames give 20-60)")
     ap.add_argument("--mesh", action="store_true", help="also fuse the mesh in the full run")
     ap.add_argument("--methods", nargs="+", default=["full", "odometry"], choices=list(METHODS))
-    ap.add_argument("--depth-model", help="DepthNet ONNX export (methods *-predicted, c3fusion)")
+    ap.add_argument("--depth-model", help="DepthNet ONNX export or zoo:NAME (methods *-predicted, c3fusion)")
     ap.add_argument("--depth-scale", type=float,
                     help="factor on the --depth-model depth (run --depth-scale; default: the model's recorded "
                          "metric_scale, else 1)")
-    ap.add_argument("--feature-model", help="ContraFeat ONNX export (methods full-contrafeat, c3fusion)")
+    ap.add_argument("--feature-model", help="ContraFeat ONNX export or zoo:NAME (methods full-contrafeat, c3fusion)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="simulator override for the generated sequences (repeatable), e.g. path.closeups=0")
-    ap.add_argument("--out", type=Path, default=Path("/tmp/slam_ate"))
+    ap.add_argument("--work", "--out", type=Path, default=WORK / "slam_ate",
+                    help="folder for the sequences and runs (--out: its former name)")
     ap.add_argument("--report", type=Path, default=RESULTS / "slam_ate.md")
     args = ap.parse_args()
     for m in args.methods:
@@ -126,7 +132,7 @@ def parse_args() -> argparse.Namespace:
 def run_preset(preset: str, args: argparse.Namespace, rows: list[str], stage_rows: list[str]) -> str:
     """Generate the preset's sequence and run every method on it, appending the table rows;
     returns the sequence's motion for the set-up line."""
-    seq = sequence_dir(args.out, preset, args.seed, args.overrides)
+    seq = sequence_dir(args.work, preset, args.seed, args.overrides)
     t = time.perf_counter()
     ensure_sequence(SimSequence(preset, args.seed, args.frames, args.size, tuple(args.overrides)), seq,
                     require_frames=True)
@@ -137,7 +143,7 @@ def run_preset(preset: str, args: argparse.Namespace, rows: list[str], stage_row
     done: dict[str, tuple[dict, dict]] = {}
     outs: dict[str, Path] = {}
     for mode in args.methods:
-        outs[mode] = args.out / f"{seq.name}_{mode}"
+        outs[mode] = args.work / f"{seq.name}_{mode}"
         r = run_one(seq, outs[mode], mode, args.min_correspondences,
                     args.mesh and mode == "full", args.depth_model, args.feature_model, args.depth_scale)
         if "error" in r:
@@ -199,9 +205,7 @@ def main() -> None:
     stage_rows: list[str] = []
     motion = [run_preset(preset, args, rows, stage_rows) for preset in args.presets]
     report = Report(__file__, "SLAM ATE: full system vs frame-to-frame odometry")
-    text = report.render(report_body(args, motion, rows, stage_rows))
-    report.write(args.report, text)
-    print(text)
+    print(report.publish(args.report, report_body(args, motion, rows, stage_rows), args))
 
 
 if __name__ == "__main__":

@@ -6,11 +6,14 @@ keeps revisiting the same colon stretch (every new keyframe has real matches amo
 earlier ones, the worst case for the all-keyframe matching). Every ``--every`` frames the
 script records the resident memory (VmRSS), the time per frame of the last interval (total
 and per stage), the number of keyframes, the keyframe pairs matched per new keyframe and the
-global optimisations; the table goes to benchmarks/results/slam_scale.md. ``--paper-rules``
+global optimisations; the table goes to benchmarks/results/slam_scale.md (and .json). ``--paper-rules``
 restores the literal rules (match all keyframes, optimise the whole component after every
 loop) for comparison on short runs.
 
-    python -m benchmarks.slam_scale --frames 20000 --base-frames 120 --size 64 --every 1000
+    python -m benchmarks.protocols.slam_scale --frames 20000 --base-frames 120 --size 64 --every 1000
+
+Inputs: the base sequence is the simulator's seeded fixture, made under ``--work`` (default
+``runs/bench/slam_scale``); no model.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from benchmarks.common import RESULTS
+from benchmarks.common import RESULTS, WORK
 from benchmarks.common.report import Report
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.io import Sequence, write_tum
@@ -142,7 +145,8 @@ def parse_args() -> argparse.Namespace:
                          "the run's keyframe cache file")
     ap.add_argument("--reuse-keyframes", action=argparse.BooleanOptionalAction, default=None,
                     help="SlamConfig.keyframes.reuse (revisits hang off mapped keyframes); default: the config's")
-    ap.add_argument("--out", type=Path, default=Path("/tmp/slam_scale"))
+    ap.add_argument("--work", "--out", type=Path, default=WORK / "slam_scale",
+                    help="folder for the sequences and the run (--out: its former name)")
     ap.add_argument("--report", type=Path, default=RESULTS / "slam_scale.md")
     return ap.parse_args()
 
@@ -212,29 +216,27 @@ def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], w
 
 def main() -> None:
     args = parse_args()
-    base = args.out / f"base_{args.base_frames}_{args.size}"
+    base = args.work / f"base_{args.base_frames}_{args.size}"
     if not (base / "camera.json").is_file():
         make_tiny_sequence(base, frames=args.base_frames, size=args.size, seed=5)
-    long_seq = ping_pong(base, args.out / f"long_{args.frames}_{args.size}", args.frames)
+    long_seq = ping_pong(base, args.work / f"long_{args.frames}_{args.size}", args.frames)
     cfg = slam_config(args)
     probe = probe_class(args.every)
     t = time.perf_counter()
     error = ""
     try:
-        s = run_slam(long_seq, args.out / "run", cfg, progress=False, slam_factory=probe, overwrite=True)
+        s = run_slam(long_seq, args.work / "run", cfg, progress=False, slam_factory=probe, overwrite=True)
     except Exception as exc:  # noqa: BLE001 -- a failed run is a result: report it
         error, s = str(exc), {}
     wall = time.perf_counter() - t
     ev = {}
     if s:
         try:
-            ev = evaluate_run(args.out / "run", long_seq)
+            ev = evaluate_run(args.work / "run", long_seq)
         except Exception as exc:  # noqa: BLE001 -- report, do not lose the table
             ev = {"error": str(exc)}
     report = Report(__file__, "SLAM scaling over a long RGB-D stream")
-    text = report.render(report_body(args, cfg, probe, wall, s, ev, error))
-    report.write(args.report, text)
-    print(text)
+    print(report.publish(args.report, report_body(args, cfg, probe, wall, s, ev, error), args))
 
 
 if __name__ == "__main__":

@@ -1,12 +1,12 @@
 """Evaluate saved ContraFeat checkpoints on held-out sequences (paper table 2), without training.
 
-For each checkpoint (saved by ``benchmarks.contrafeat_pr``, small configuration) and each
+For each checkpoint (saved by ``benchmarks.protocols.contrafeat_pr``, small configuration) and each
 keypoint-filter residual threshold: recall / precision of SIFT, SIFT+kpf, CDF and CDF+kpf,
 averaged over the sequences, and where the precision goes (near misses vs gross errors, see
 :mod:`c3f_slam.matching.match_accuracy`). The residual sweep shows what the kpf's threshold trades:
 the pairwise tolerance follows it (2 x residual, as in ``MatchFilterConfig()``, the colon's).
 
-    python -m benchmarks.contrafeat_eval --data DIR/test --checkpoint A.ckpt --checkpoint B.ckpt \
+    python -m benchmarks.studies.contrafeat_eval --data DIR/test --checkpoint A.ckpt --checkpoint B.ckpt \
         --max-residual-mm 1.0 0.5 --out benchmarks/results/contrafeat_eval.md
 """
 

@@ -13,7 +13,7 @@ Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and r
 - ``slam``: ``c3f_slam run`` at default settings on every held-out sequence with zoo depth and
   zoo ContraFeat, and with zoo depth and SIFT; ``evaluate --gt``: frames in the main map, ATE
   after a Sim(3) alignment (cm and % of the path) and the alignment's scale.
-- ``coverage``: the seven cases of ``benchmarks.coverage_accuracy`` on zoo depth (SIFT): the
+- ``coverage``: the seven cases of ``benchmarks.protocols.coverage_accuracy`` on zoo depth (SIFT): the
   run's unseen-wall estimate against the truth.
 - ``ttt``: test-time training from the zoo weights (the paper's objective,
   ``configs/depthnet/ttt.yaml``, no ground truth) on a held-out sequence of a trained
@@ -23,7 +23,11 @@ Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and r
   with the Monodepth2 baseline (no supervised term, no augmentation in either), for each seed;
   the held-out Sq Rel of each (mean over the seeds).
 
-    python -m benchmarks.zoo --work /tmp/zoo_bench
+    python -m benchmarks.protocols.zoo
+
+Inputs: the models by name from the zoo (``--depth``, ``--features``; trained by ``python -m
+c3f_models.zoo``, not here); the held-out and training sequences generated from the recipes'
+presets and seeds; sequences and runs under ``--work`` (default ``runs/bench/zoo``).
 """
 
 from __future__ import annotations
@@ -37,8 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import RESULTS, ROOT
-from benchmarks.common.report import Report
+from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.report import Report, json_beside
 from c3f_models.zoo.recipes import HELD_OUT, QUICK_HELD_OUT, TRAIN, shortened
 from c3f_models.zoo.train import REPO, simulate
 
@@ -110,7 +114,7 @@ def slam_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
 
 
 def coverage_section(a: argparse.Namespace) -> dict:
-    from benchmarks.coverage_accuracy import CASES, run_case
+    from benchmarks.protocols.coverage_accuracy import CASES, run_case
 
     ns = argparse.Namespace(preset="seq1", seed=7, frames=300, size=128, depth_model=a.depth, work=a.work / "coverage")
     return {c.name: run_case(c, ns) for c in CASES}
@@ -336,7 +340,7 @@ TITLES = {"depth": "Depth (held-out)", "matches": "Matches (held-out pairs)", "s
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--work", type=Path, required=True, help="folder for sequences, runs and section results")
+    ap.add_argument("--work", type=Path, default=WORK / "zoo", help="folder for sequences, runs and section results")
     ap.add_argument("--depth", default="zoo:c3f-depth-r18w32", help="depth model (zoo:NAME)")
     ap.add_argument("--features", default="zoo:c3f-features-r18w32", help="descriptor model (zoo:NAME)")
     ap.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS))
@@ -358,11 +362,9 @@ def main(argv: list[str] | None = None) -> None:
                "slam": lambda: slam_section(a, seqs), "coverage": lambda: coverage_section(a),
                "ttt": lambda: ttt_section(a, seqs), "ablation": lambda: ablation_section(a, seqs)}
     results = {name: _cached(a.work, name, a.redo, compute[name]) for name in SECTIONS if name in a.only}
-    json_path = a.report.with_suffix(".json")
+    json_path = json_beside(a.report)
     old = json.loads(json_path.read_text()) if json_path.is_file() else {}
-    merged = {**old.get("sections", {}), **results}
-    json_path.write_text(json.dumps({"depth_model": a.depth, "features_model": a.features,
-                                     "heldout": [s.name for s in heldout], "sections": merged}, indent=2) + "\n")
+    merged = {**old.get("data", old).get("sections", {}), **results}  # (a file of before Report.publish: no "data")
     body = [f"Models: `{a.depth}`, `{a.features}`. Held-out sequences: " + ", ".join(s.name for s in heldout)
             + f" ({heldout[0].frames} frames at {heldout[0].step_mm:.2f} mm per frame, 128 px; seq5's appearance is in "
             "no training sequence). "
@@ -372,7 +374,8 @@ def main(argv: list[str] | None = None) -> None:
             body += [f"## {TITLES[name]}", "", *RENDER[name](merged[name]),
                      "", f"({merged[name].get('wall_s', 'n/a')} s)", ""]
     rep = Report(__file__, "The zoo models on held-out simulator sequences")
-    rep.write(a.report, rep.render(body))
+    rep.publish(a.report, body, a, data={"depth_model": a.depth, "features_model": a.features,
+                                         "heldout": [s.name for s in heldout], "sections": merged})
     print(f"wrote {a.report} and {json_path}")
 
 

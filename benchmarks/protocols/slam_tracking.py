@@ -16,8 +16,8 @@ frames; their ramps keep the simulator's rate limits (``path.max_turn_rate`` 120
 timing, ramps fixed in frames, close-ups turning up to ~38 deg per frame).
 ``--depth-model`` adds a run on predicted depth.
 
-    python -m benchmarks.slam_tracking --presets seq1 seq3 seq2 --seeds 1 2 --paces 1 3 \\
-        --frames 1500 --sizes 128 --work /tmp/slam_tracking --baseline /tmp/before
+    python -m benchmarks.protocols.slam_tracking --presets seq1 seq3 seq2 --seeds 1 2 --paces 1 3 \\
+        --frames 1500 --sizes 128 --baseline /tmp/before
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import RESULTS, ROOT
+from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_slam.io import Sequence, read_tum
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--paces", nargs="+", type=float, default=list(PACES), help="multiples of the paper's pace")
     ap.add_argument("--frames", type=int, default=1500)
     ap.add_argument("--sizes", nargs="+", type=int, default=[128])
-    ap.add_argument("--work", type=Path, required=True, help="folder for sequences and runs")
+    ap.add_argument("--work", type=Path, default=WORK / "slam_tracking", help="folder for sequences and runs")
     ap.add_argument("--baseline", type=Path, help="checkout of the code to compare with (run from its folder)")
     ap.add_argument("--baseline-tuned", action="store_true",
                     help="also run the baseline with --min-correspondences 15 (README's former advice)")
@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> None:
             "- registered % of usable: frames in the main map over frames not skipped as black/saturated/"
             "featureless; breaks / re-joined: consecutive-frame tracking breaks and those bridged "
             "(this code only).", "", *lines]
-    rep.write(a.report, rep.render(body))
+    rep.publish(a.report, body, a)
     print(f"wrote {a.report}")
 
 

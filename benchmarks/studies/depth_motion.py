@@ -21,7 +21,7 @@ there: the true depth agrees within 5 %), and for each such surface point it com
   next to the true median |d_true|. A scale that jumps by more than the true depth change
   swamps the motion.
 
-    python -m benchmarks.depth_motion SEQ --depth-model runs/exported/full_warm800/depthnet.onnx \
+    python -m benchmarks.studies.depth_motion SEQ --depth-model runs/exported/full_warm800/depthnet.onnx \
         [--depth-model OTHER.onnx ...] --gaps 1 10 30 --pairs 60 --report benchmarks/results/depth_motion.md
 """
 

@@ -14,16 +14,19 @@ scaling), next to the score of a constant depth. Sq Rel and RMSE are printed in 
 the paper's table is.
 Training throughput is images/s over the whole fit (data loading included).
 
-    python -m benchmarks.depthnet_ablation --data runs/bench/depth_slow --steps 500
-    python -m benchmarks.depthnet_ablation --data runs/bench/depth_slow --steps 150 \
+    python -m benchmarks.protocols.depthnet_ablation --steps 500
+    python -m benchmarks.protocols.depthnet_ablation --steps 150 \
         --variants full-no-dc,full-no-outlier --out runs/switches.md
-    python -m benchmarks.depthnet_ablation --data runs/bench/depth_slow --steps 400 \
-        --init runs/bench/baseline/tb/version_0/checkpoints/last.ckpt --out runs/warm.md
+    python -m benchmarks.protocols.depthnet_ablation --steps 400 \
+        --init runs/bench/depthnet_ablation/baseline/tb/version_0/checkpoints/last.ckpt --out runs/warm.md
 
-Sequences missing from --data are generated (--frames, --coverage: keep the per-frame motion
-near the paper's; the table's set-up line reports it).
+Inputs: sequences missing from --data (default ``runs/bench/depthnet_ablation/data``) are
+generated from presets and seeds (--frames, --coverage: keep the per-frame motion near the
+paper's; the table's set-up line reports it); each variant's run goes beside that folder
+(``runs/bench/depthnet_ablation/VARIANT``). Every network is trained here, from scratch unless
+``--init`` names the checkpoint of an earlier run.
 
-Writes benchmarks/results/depthnet_ablation.md (numbers + the command line).
+Writes benchmarks/results/depthnet_ablation.md (numbers + the command line) and its .json.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ import json
 import time
 from pathlib import Path
 
-from benchmarks.common import RESULTS, ROOT
+from benchmarks.common import RESULTS, WORK
 from benchmarks.common.depth_metrics import HEADER, METRICS, logged_test_metrics, metric_cells
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
@@ -136,7 +139,8 @@ def constant_depth_metrics(data: Path, test: list[str], size: int) -> dict:
 def parse_args() -> tuple[argparse.Namespace, list[str], dict[str, str]]:
     """The options, the variants to run and the ``--model`` overrides (checked before any work)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", type=Path, default=ROOT / "runs/bench/depth_data")
+    ap.add_argument("--data", type=Path, default=WORK / "depthnet_ablation" / "data",
+                    help="folder of the sequences (made when missing); the runs go beside it")
     ap.add_argument("--train-seqs", type=int, default=4)
     ap.add_argument("--test-seqs", type=int, default=2)
     ap.add_argument("--frames", type=int, default=300)
@@ -246,9 +250,8 @@ def main() -> None:
     measured, keys = run_variants(a, variants, extra, train, test, warmup)
     results.update(measured)
     report = Report(__file__, "DepthNet ablation: full objective vs Monodepth2 baseline")
-    text = report.render(report_body(a, variants, extra, motion, results, keys, warmup))
-    report.write(a.out, text)
-    print(text)
+    print(report.publish(a.out, report_body(a, variants, extra, motion, results, keys, warmup), a,
+                         data={"motion": motion, "results": results}))
 
 
 if __name__ == "__main__":

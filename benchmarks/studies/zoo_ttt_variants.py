@@ -11,7 +11,7 @@ unseen one), Abs Rel before and after, and the photometric objective at the trut
   triplets of each sequence: whether the objective's minimum is near the truth, and which of
   depth and pose is off.
 
-    python -m benchmarks.zoo_ttt_variants --work /tmp/ttt_variants
+    python -m benchmarks.studies.zoo_ttt_variants --work /tmp/ttt_variants
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pathlib import Path
 
 from benchmarks.common import RESULTS, ROOT
 from benchmarks.common.report import Report
-from benchmarks.zoo import tune_and_export
+from benchmarks.protocols.zoo import tune_and_export
 from c3f_models.zoo.recipes import HELD_OUT
 from c3f_models.zoo.train import simulate
 

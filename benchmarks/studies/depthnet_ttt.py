@@ -15,7 +15,7 @@ truth used in training), then both networks are
 The paper's schedule is 200 epochs, lr halved at 80/120/170; ``--epochs E`` shortens it for a
 CPU and scales the milestones with it (the report says which were used).
 
-    python -m benchmarks.depthnet_ttt --base-config runs/full/tb/version_0/config.yaml \\
+    python -m benchmarks.studies.depthnet_ttt --base-config runs/full/tb/version_0/config.yaml \\
         --base-ckpt runs/full/tb/version_0/checkpoints/last.ckpt --sequence data/test0 --epochs 10 \\
         --work /tmp/ttt --out benchmarks/results/depthnet_ttt.md
 """

@@ -12,7 +12,7 @@ and the refinement's attempts / acceptances; "on, min_gain 0" also accepts refin
 not raise the fitness over the sparse pose. ``--variant NAME:VOXELS`` adds a run with other
 voxel sizes (metres, coarse to fine, comma-separated), e.g. ``fine:0.04,0.02,0.01``.
 
-    python -m benchmarks.slam_dense_refine --out /tmp/room_bench
+    python -m benchmarks.studies.slam_dense_refine --out /tmp/room_bench
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ For each sequence (simulator, ground-truth depth) every ``--step``-th consecutiv
 against the true relative pose, beside the true motion itself: an aligner whose error is
 about the motion has learned nothing from the images.
 
-    python -m benchmarks.slam_fallback_pairs --work /tmp/fallback_pairs --presets seq1 seq3 \\
+    python -m benchmarks.studies.slam_fallback_pairs --work /tmp/fallback_pairs --presets seq1 seq3 \\
         --frames 600 --size 128 --pace 3
 """
 
@@ -22,7 +22,7 @@ import numpy as np
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
-from benchmarks.slam_tracking import PAPER_FRAMES
+from benchmarks.protocols.slam_tracking import PAPER_FRAMES
 from c3f_slam.config import FallbackConfig
 from c3f_slam.geometry import motion_magnitudes, relative_pose
 from c3f_slam.io import Sequence

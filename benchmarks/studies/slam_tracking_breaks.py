@@ -16,8 +16,8 @@ runtime's pair matching (:func:`c3f_slam.pipeline.frontend.explain_match`, defau
   in that run -- the main map, another component, or not registered -- so the report says which
   breaks remain in the final map.
 
-    python -m benchmarks.slam_tracking_breaks /work/slam_ate4500/seq1_s1 --report /tmp/breaks.md
-    python -m benchmarks.slam_tracking_breaks SEQ --run OUT --report /tmp/breaks.md
+    python -m benchmarks.studies.slam_tracking_breaks /work/slam_ate4500/seq1_s1 --report /tmp/breaks.md
+    python -m benchmarks.studies.slam_tracking_breaks SEQ --run OUT --report /tmp/breaks.md
 
 Writes a Markdown report (the command line, a summary by event and the broken pairs).
 """

@@ -7,7 +7,7 @@ reported, with the ratio |grad L_dc| / |grad L_ph|. Multiply that ratio by lambd
 the paper) to compare the two terms' pulls in the training loss. Run at the random
 initialisation (seeded) and, with --ckpt, at a trained checkpoint's weights.
 
-    python -m benchmarks.depthnet_gradients --data runs/bench/depth_slow --seqs train0 train1 \
+    python -m benchmarks.studies.depthnet_gradients --data runs/bench/depth_slow --seqs train0 train1 \
         --ckpt runs/bench/baseline400.ckpt
 """
 

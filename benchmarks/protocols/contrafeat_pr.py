@@ -4,10 +4,14 @@ ContraFeat (CDF) descriptors, each without and with the keypoint filter (kpf).
 Outside CI. It (1) renders simulator sequences (``python -m datamodules.synthetic generate``),
 (2) trains ContraFeat (small CPU configuration, 128x128) on the training sequences for a fixed
 number of steps or a wall-clock budget, whichever comes first, (3) evaluates on held-out
-sequences (other presets and seeds) and (4) writes ``benchmarks/results/contrafeat_pr.md``.
+sequences (other presets and seeds) and (4) writes ``benchmarks/results/contrafeat_pr.md`` (and ``.json``).
 
-    python -m benchmarks.contrafeat_pr                        # the default run (about 25 min, 2 cores)
-    python -m benchmarks.contrafeat_pr --data DIR --size 48   # on existing sequences DIR/{train,test}/*
+    python -m benchmarks.protocols.contrafeat_pr                       # the default run (about 25 min, 2 cores)
+    python -m benchmarks.protocols.contrafeat_pr --data DIR --size 48  # on existing sequences DIR/{train,test}/*
+
+Inputs: the sequences are rendered from presets and seeds under ``--work`` (default
+``runs/bench/contrafeat_pr``, which also gets the logs and the trained ``contrafeat_small.ckpt``);
+the model is trained here, from scratch unless ``--pretrained`` / ``--init-weights`` name a start.
 
 Precision = correct / found, recall = recovered ground-truth matches / ground-truth matches, both
 summed over all evaluated pairs of a sequence (micro-average); a found match is correct when it
@@ -26,7 +30,7 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback
 
-from benchmarks.common import RESULTS
+from benchmarks.common import RESULTS, WORK
 from benchmarks.common.contrafeat import (
     GROUND_TRUTH,
     LABELS,
@@ -72,7 +76,7 @@ class LossTrace(Callback):
 
 def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--work", type=Path, default=Path("/tmp/c3f_contrafeat_pr"), help="sequences and logs")
+    ap.add_argument("--work", type=Path, default=WORK / "contrafeat_pr", help="sequences, logs and the checkpoint")
     ap.add_argument("--data", type=Path, default=None, help="existing DIR/{train,test}/<seq> (skips rendering)")
     ap.add_argument("--train-presets", nargs="+", default=[f"seq{k}" for k in range(1, 9)],
                     help="presets of the training sequences (rendered with seeds 100 + 17 k, never a test seed)")
@@ -292,9 +296,7 @@ def main() -> None:
     L.seed_everything(args.seed, workers=True)
     res = run(args)
     report = Report(__file__, "ContraFeat keypoint matching: recall / precision (paper table 2)")
-    text = report.render(["## Setup", "", *setup_lines(args, res), "", *result_lines(args, res)])
-    report.write(args.out, text)
-    print(text)
+    print(report.publish(args.out, ["## Setup", "", *setup_lines(args, res), "", *result_lines(args, res)], args))
 
 
 if __name__ == "__main__":
