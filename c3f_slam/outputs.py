@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -240,6 +241,16 @@ class RunFolder:
                                  "pass --overwrite to replace it, or choose another --out")
         self.staging = staging_dir(t, "partial")
         return self.staging
+
+    def holds_complete_run(self) -> bool:
+        """``target`` holds a complete earlier run (summary.json status ``ok``)."""
+        return self.target.is_dir() and run_status(self.target) == "ok"
+
+    def discard(self) -> None:
+        """Delete the built run; ``target`` stays as it was."""
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.staging = None
 
     def publish(self) -> None:
         """Move the built run into ``target`` (the earlier contents are deleted once it is there)."""

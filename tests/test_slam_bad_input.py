@@ -65,6 +65,15 @@ def run_garbage_depth_model(x: Inputs, tmp: Path) -> Case:
                 ("--depth-model", "garbage.onnx", "not a readable ONNX model"), {"status": "error", "frames": 0})
 
 
+def run_garbage_depth_model_over_complete_run(x: Inputs, tmp: Path) -> Case:
+    """Bad input with --overwrite over a complete run: the complete run stays as it was."""
+    model, out = tmp / "garbage.onnx", tmp / "out"
+    model.write_bytes(b"not an onnx model\x00" * 64)
+    shutil.copytree(x.run, out)
+    return Case(slam_main, ["run", str(x.seq), "--depth-model", str(model), "--out", str(out), "--overwrite", *RUN],
+                out, ("--depth-model", "garbage.onnx", "not a readable ONNX model"))
+
+
 def run_truncated_video(x: Inputs, tmp: Path) -> Case:
     """A video cut at half its bytes: the frames before the cut are run, and the run says so."""
     video, out = tmp / "clip.avi", tmp / "out"
@@ -96,6 +105,7 @@ def convert_project_layout_as_c3vd(x: Inputs, tmp: Path) -> Case:
 CASES = {
     "evaluate: NaN in the ground truth's poses.txt": evaluate_nan_poses,
     "run: --depth-model a garbage .onnx": run_garbage_depth_model,
+    "run --overwrite: a garbage --depth-model over a complete run": run_garbage_depth_model_over_complete_run,
     "run: video cut at half its bytes, --depth-model": run_truncated_video,
     "convert: missing source folder": convert_missing_folder,
     "convert: c3vd given a folder in the project's layout": convert_project_layout_as_c3vd,

@@ -244,8 +244,8 @@ def run_slam(
     except BaseException as exc:  # write what we have, then pass the error on
         _record_error(summary, exc)
         write_run_outputs(outputs, run, summary, t_start)
-        with contextlib.suppress(OSError):  # keep the original error visible
-            folder.publish()
+        with contextlib.suppress(OSError):  # keep the original error visible; bad input never
+            _keep_or_publish(folder, exc)   # replaces a complete earlier run (--overwrite)
         raise
     write_run_outputs(outputs, run, summary, t_start)
     failed = _truncated(summary, sources.stream) or _no_frame_registered(summary, sequence)
@@ -272,6 +272,15 @@ def _record_error(summary: dict, exc: BaseException) -> None:
     summary["error"] = f"{type(exc).__name__}: {exc}" if not isinstance(exc, InputError) else str(exc)
     if not isinstance(exc, (InputError, KeyboardInterrupt)):
         summary["traceback"] = traceback.format_exc(limit=8)
+
+
+def _keep_or_publish(folder: RunFolder, exc: BaseException) -> None:
+    """After an error: publish the partial run, unless the error is bad input (InputError) and
+    the folder holds a complete earlier run, which is then kept as it was."""
+    if isinstance(exc, InputError) and folder.holds_complete_run():
+        folder.discard()
+    else:
+        folder.publish()
 
 
 def _truncated(summary: dict, stream: FrameStream) -> bool:
