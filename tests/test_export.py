@@ -187,8 +187,9 @@ def test_checkpoint_of_another_model_class_is_refused_by_the_cli(depth_export, t
 @pytest.mark.e2e
 def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
     """Both graphs: the dense map, and the keypoint graph equal to that map sampled at the same
-    keypoints by the runtime's rule (recorded in its parity entry)."""
+    keypoints by the runtime's rule (recorded in its parity entry), which the runtime then prefers."""
     from c3f_slam.matching import sample_descriptor_map
+    from c3f_slam.models import DescriptorModel
     from export.graphs import parity_keypoints
 
     torch.manual_seed(0)
@@ -223,6 +224,8 @@ def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
     want = np.stack([sample_descriptor_map(m, p) for m, p in zip(maps, points.numpy())])
     assert sampled.shape == (2, 100, 16)
     np.testing.assert_allclose(sampled, want, rtol=0, atol=1e-5)
+    runtime = DescriptorModel(path, prefer_keypoints=True)
+    assert runtime.onnx.path == kp_path and runtime.keypoint_file == "used"
 
 
 @pytest.mark.e2e

@@ -79,8 +79,9 @@ def make_providers(inputs: RunInputs, camera: PinholeCamera | None = None) -> tu
         raise ValueError("model providers need the frames' camera")
     desc: DescriptorProvider = SiftDescriptors()
     depth: DepthProvider = FileDepth()
-    if descriptors == "contrafeat":
-        desc = ContraFeatDescriptors(DescriptorModel(inputs.feature_model, inputs.threads, "--feature-model"), camera)
+    if descriptors == "contrafeat":  # the export's keypoint file when it sits beside the dense one
+        desc = ContraFeatDescriptors(DescriptorModel(inputs.feature_model, inputs.threads, "--feature-model",
+                                                     prefer_keypoints=True), camera)
     if depth_source == "model":
         depth = ModelDepth(DepthModel(inputs.depth_model, inputs.threads, "--depth-model"), camera,
                            inputs.depth_scale)
@@ -103,7 +104,9 @@ class RunSources:
         return self.stream.camera
 
     def summary(self) -> dict:
-        """What summary.json records about the inputs."""
+        """What summary.json records about the inputs: the choices, the camera, the depth scale
+        and per model the file run (``models``; for descriptors also the file given, how it
+        samples and whether the export's keypoint file is used, or why not)."""
         out: dict = {"descriptors": self.descriptors, "depth_source": self.depth_source,
                      "camera": self.camera.to_dict()}
         if isinstance(self.depth, ModelDepth):
@@ -112,6 +115,10 @@ class RunSources:
             name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe()}
             for name, p in (("descriptors", self.describer), ("depth", self.depth)) if hasattr(p, "model")
         }
+        if isinstance(self.describer, ContraFeatDescriptors):
+            model = self.describer.model
+            out["models"]["descriptors"].update(given=str(model.given), descriptor_sampling=model.sampling,
+                                                keypoint_file=model.keypoint_file)
         return out
 
 
