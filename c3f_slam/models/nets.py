@@ -16,6 +16,7 @@ Conventions: metres; pixel centres at integer coordinates; camera x right, y dow
 from __future__ import annotations
 
 import weakref
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ from c3f_slam.errors import InputError
 from c3f_slam.matching.descriptors import sample_descriptor_map
 from c3f_slam.models.grid import UPSAMPLING, NetworkView
 from c3f_slam.models.metadata import ModelMetadata
-from c3f_slam.models.session import OnnxModel
+from c3f_slam.models.session import DEFAULT_PROVIDERS, OnnxModel
 from c3f_slam.models.variants import keypoint_file_beside
 from c3f_slam.preprocess import prepare_network_input
 from c3f_slam.zoo import is_zoo_name
@@ -37,7 +38,8 @@ OPTIONS = {"depth": "--depth-model", "descriptors": "--feature-model", "pose": "
 class FrameModel:
     """Common part: the ONNX session, the metadata and the frame -> network-input step.
 
-    ``option``: the option named in error messages (default :data:`OPTIONS` of the kind).
+    ``option``: the option named in error messages (default :data:`OPTIONS` of the kind);
+    ``providers``: onnxruntime execution providers (:class:`OnnxModel`; default CPU only).
 
     The last prepared input is shared by all models (one entry, class level): when a depth
     and a descriptor model with the same pre-processing see the same frame array, the crop,
@@ -49,8 +51,10 @@ class FrameModel:
     kind = ""
     _last_input: tuple | None = None  # (weakref to the frame, camera, preprocessing, input)
 
-    def __init__(self, path: str | Path, threads: int = 2, option: str | None = None) -> None:
-        self.onnx = OnnxModel(path, expect_kind=self.kind, threads=threads, option=option or OPTIONS[self.kind])
+    def __init__(self, path: str | Path, threads: int = 2, option: str | None = None,
+                 providers: Sequence[str] = DEFAULT_PROVIDERS) -> None:
+        self.onnx = OnnxModel(path, expect_kind=self.kind, threads=threads, option=option or OPTIONS[self.kind],
+                              providers=providers)
 
     @property
     def metadata(self) -> ModelMetadata:
@@ -97,11 +101,12 @@ class DepthModel(FrameModel):
     kind = "depth"
 
     def __init__(
-        self, path: str | Path, threads: int = 2, option: str | None = None, upsample: str = "linear"
+        self, path: str | Path, threads: int = 2, option: str | None = None, upsample: str = "linear",
+        providers: Sequence[str] = DEFAULT_PROVIDERS,
     ) -> None:
         if upsample not in UPSAMPLING:
             raise InputError(f"depth upsampling must be one of {tuple(UPSAMPLING)}, got {upsample!r}")
-        super().__init__(path, threads, option)
+        super().__init__(path, threads, option, providers)
         self.upsample = upsample
 
     @property
@@ -153,14 +158,15 @@ class DescriptorModel(FrameModel):
     kind = "descriptors"
 
     def __init__(self, path: str | Path, threads: int = 2, option: str | None = None,
-                 prefer_keypoints: bool = False) -> None:
-        super().__init__(path, threads, option)
+                 prefer_keypoints: bool = False, providers: Sequence[str] = DEFAULT_PROVIDERS) -> None:
+        super().__init__(path, threads, option, providers)
         self.given = self.onnx.path
         self.keypoint_file = "given" if self.sampling == "keypoints" else "not looked for"
         if prefer_keypoints and self.sampling == "dense" and is_zoo_name(path):
             self.keypoint_file = "not looked for: a zoo entry's files are the ones its card lists"
         elif prefer_keypoints and self.sampling == "dense":
-            found, self.keypoint_file = keypoint_file_beside(self.onnx.path, self.metadata, threads, self.onnx.option)
+            found, self.keypoint_file = keypoint_file_beside(self.onnx.path, self.metadata, threads, self.onnx.option,
+                                                             providers)
             if found is not None:
                 self.onnx = found
 

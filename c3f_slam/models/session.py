@@ -19,7 +19,7 @@ Graph contract per kind (names fixed by the exporter; images NCHW float32 RGB in
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +41,36 @@ KEYPOINT_GRAPH_IO: tuple[tuple[str, ...], str] = (("image", "keypoints"), "descr
 KEYPOINTS = "keypoints"
 
 
+#: onnxruntime's CPU execution provider: the default, and what every session falls back to
+CPU = "CPUExecutionProvider"
+DEFAULT_PROVIDERS: tuple[str, ...] = (CPU,)
+#: providers whose sessions run with IO binding (inputs copied to the device once, outputs back once)
+DEVICE_PROVIDERS = ("CUDAExecutionProvider", "TensorrtExecutionProvider")
+
+
+def check_providers(providers: str | Sequence[str], option: str = "--providers") -> tuple[str, ...]:
+    """The onnxruntime execution providers of ``providers`` (names, or one comma-separated
+    string), in order of preference; InputError naming ``option`` for an empty list, a name
+    given twice, a name onnxruntime does not know, or one this onnxruntime build lacks."""
+    import onnxruntime as ort
+
+    names = [n.strip() for n in providers.split(",")] if isinstance(providers, str) else [str(n) for n in providers]
+    if not names or not all(names):
+        raise InputError(f"{option}: give comma-separated onnxruntime provider names, e.g. "
+                         f"CUDAExecutionProvider,{CPU}")
+    twice = [n for k, n in enumerate(names) if n in names[:k]]
+    if twice:
+        raise InputError(f"{option}: {twice[0]} is given twice")
+    for name in names:
+        if name not in ort.get_all_providers():
+            raise InputError(f"{option}: {name!r} is not an onnxruntime execution provider (this build has: "
+                             f"{', '.join(ort.get_available_providers())}; all names: onnxruntime.get_all_providers())")
+        if name not in ort.get_available_providers():
+            raise InputError(f"{option}: {name} is not available in this onnxruntime build (available: "
+                             f"{', '.join(ort.get_available_providers())}); CUDA needs the onnxruntime-gpu package")
+    return tuple(names)
+
+
 def graph_io(meta: ModelMetadata) -> tuple[tuple[str, ...], str]:
     """(input names, output name) the graph of a file with metadata ``meta`` must have."""
     return KEYPOINT_GRAPH_IO if meta.sampling == "keypoints" else GRAPH_IO[meta.kind]
@@ -53,7 +83,7 @@ def _first_line(exc: BaseException) -> str:
 
 
 class OnnxModel:
-    """An exported C3Fusion net on onnxruntime (CPU).
+    """An exported C3Fusion net on onnxruntime (CPU by default).
 
     Args:
         path: the .onnx file, or ``zoo:NAME`` for the zoo entry's file of ``expect_kind`` (its
@@ -62,13 +92,18 @@ class OnnxModel:
         threads: onnxruntime intra-op threads.
         option: the command-line option that named the file (prefix of every error message;
             None: the file alone).
+        providers: onnxruntime execution providers in order of preference
+            (:func:`check_providers`; default CPU only). With CUDA (or TensorRT) the session runs
+            with IO binding; on CPU with ``session.run``.
 
     Attributes: ``metadata`` (:class:`ModelMetadata`), ``input_names``, ``output_names``,
-    ``path``, ``where`` (``"<option>: <path>"``, the prefix of its error messages).
+    ``path``, ``where`` (``"<option>: <path>"``, the prefix of its error messages),
+    ``providers`` (those the session uses, ``session.get_providers()``), ``io_binding``.
     """
 
     def __init__(
-        self, path: str | Path, expect_kind: str | None = None, threads: int = 2, option: str | None = "--model"
+        self, path: str | Path, expect_kind: str | None = None, threads: int = 2, option: str | None = "--model",
+        providers: Sequence[str] = DEFAULT_PROVIDERS,
     ) -> None:
         if is_zoo_name(path):
             found = zoo_entry(str(path), option or "model")
@@ -80,7 +115,9 @@ class OnnxModel:
             raise InputError(f"{self.where}: model file not found")
         if not self.path.is_file():
             raise InputError(f"{self.where}: is a folder, expected an .onnx file")
-        self.session = self._open(int(threads))
+        self.session = self._open(int(threads), check_providers(providers))
+        self.providers = tuple(self.session.get_providers())
+        self.io_binding = any(p in DEVICE_PROVIDERS for p in self.providers)
         try:
             props = dict(self.session.get_modelmeta().custom_metadata_map)
             self.metadata = ModelMetadata.from_props(props, source=str(path))
@@ -95,7 +132,7 @@ class OnnxModel:
         self._check_graph()
 
     # ------------------------------------------------------------------ loading
-    def _open(self, threads: int):
+    def _open(self, threads: int, providers: tuple[str, ...]):
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
@@ -103,7 +140,7 @@ class OnnxModel:
         opts.inter_op_num_threads = 1
         opts.log_severity_level = 3  # errors only; ours are raised as InputError
         try:
-            return ort.InferenceSession(str(self.path), sess_options=opts, providers=["CPUExecutionProvider"])
+            return ort.InferenceSession(str(self.path), sess_options=opts, providers=list(providers))
         except Exception as exc:  # onnxruntime raises its own types (InvalidProtobuf, Fail, ...)
             raise InputError(f"{self.where}: not a readable ONNX model ({_first_line(exc)})") from None
 
@@ -221,10 +258,22 @@ class OnnxModel:
         if len(images) < len(self.input_names):
             checked[KEYPOINTS] = self.check_keypoints(KEYPOINTS, feeds[KEYPOINTS], next(iter(shapes))[0])
         try:
-            values = self.session.run(list(self.output_names), checked)
+            values = self._run_bound(checked) if self.io_binding else self.session.run(list(self.output_names), checked)
         except Exception as exc:  # an ONNX Runtime failure on a validated input is the file's fault
             raise self._fail(f"inference failed ({_first_line(exc)})") from None
         return dict(zip(self.output_names, values))
+
+    def _run_bound(self, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        """One run with IO binding: the inputs copied to the session's device once, the outputs
+        kept there and copied back once (on a CPU-only session, bound on the CPU)."""
+        device = "cuda" if any(p in DEVICE_PROVIDERS for p in self.providers) else "cpu"
+        binding = self.session.io_binding()
+        for name, value in feeds.items():
+            binding.bind_cpu_input(name, value)
+        for name in self.output_names:
+            binding.bind_output(name, device)
+        self.session.run_with_iobinding(binding)
+        return binding.copy_outputs_to_cpu()
 
     def __repr__(self) -> str:
         return f"OnnxModel({str(self.path)!r}: {self.metadata.describe()})"

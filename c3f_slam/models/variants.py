@@ -12,11 +12,12 @@ dense file is used and :func:`keypoint_file_beside` says why.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 from c3f_slam.errors import InputError
 from c3f_slam.models.metadata import ModelMetadata
-from c3f_slam.models.session import OnnxModel
+from c3f_slam.models.session import DEFAULT_PROVIDERS, OnnxModel
 from c3f_slam.zoo import sha256_of
 
 #: the manifest an export writes beside its files
@@ -56,17 +57,17 @@ def _differences(kp: ModelMetadata, dense: ModelMetadata) -> str:
     return ""
 
 
-def keypoint_file_beside(dense: Path, metadata: ModelMetadata, threads: int = 2,
-                         option: str | None = None) -> tuple[OnnxModel | None, str]:
-    """The opened keypoint file of the export of the dense descriptors file ``dense`` (with
-    ``metadata``), or None and why not (one line)."""
+def keypoint_file_beside(dense: Path, metadata: ModelMetadata, threads: int = 2, option: str | None = None,
+                         providers: Sequence[str] = DEFAULT_PROVIDERS) -> tuple[OnnxModel | None, str]:
+    """The opened keypoint file (on ``providers``) of the export of the dense descriptors file
+    ``dense`` (with ``metadata``), or None and why not (one line)."""
     path, entry, why = _listed_keypoint_file(Path(dense))
     if path is None:
         return None, why
     if sha256_of(path) != entry.get("sha256"):
         return None, f"{path.name} does not match its SHA-256 in {MANIFEST}"
     try:
-        model = OnnxModel(path, expect_kind="descriptors", threads=threads, option=option)
+        model = OnnxModel(path, expect_kind="descriptors", threads=threads, option=option, providers=providers)
     except InputError as exc:
         return None, f"{path.name} cannot be used ({exc})"
     differs = _differences(model.metadata, metadata)
