@@ -32,7 +32,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 
 from c3f_models.config import OptimConfig
 from c3f_models.contrafeat.config import ContraFeatLossConfig, ContraFeatNetworkConfig, MatchEvaluationConfig
-from c3f_models.contrafeat.graphs import DescriptorGraph
+from c3f_models.contrafeat.graphs import DescriptorGraph, KeypointDescriptorGraph
 from c3f_models.contrafeat.loss import batch_info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
 from c3f_models.contrafeat.pairs import (
@@ -110,10 +110,18 @@ class ContraFeat(C3FModule):
 
     # ------------------------------------------------------------------ inference
     def export_graphs(self) -> list[GraphSpec]:
-        """The descriptor graph: image -> dense unit-length descriptors at the input resolution."""
-        return [GraphSpec("descriptors", DescriptorGraph(self.net), ("image",), "descriptors", "unit L2 norm",
-                          "dense descriptors, unit length per pixel", "contrafeat.onnx", OPSET,
-                          int(self.net.descriptor_dim))]
+        """The descriptor graphs: ``descriptors`` (image -> dense unit-length descriptors at the
+        input resolution, ``contrafeat.onnx``) and ``descriptors_kp`` (image and (B, N, 2)
+        keypoints in input pixels -> (B, N, C) unit descriptors there, ``contrafeat_kp.onnx``)."""
+        dim = int(self.net.descriptor_dim)
+        return [
+            GraphSpec("descriptors", DescriptorGraph(self.net), ("image",), "descriptors", "unit L2 norm",
+                      "dense descriptors, unit length per pixel", "contrafeat.onnx", OPSET, dim, sampling="dense"),
+            GraphSpec("descriptors", KeypointDescriptorGraph(self.net), ("image", "keypoints"), "descriptors",
+                      "unit L2 norm", "descriptors at the keypoints (bilinear, clamped at the border, "
+                      "re-normalised), unit length per keypoint", "contrafeat_kp.onnx", OPSET, dim,
+                      name="descriptors_kp", sampling="keypoints"),
+        ]
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) RGB in [0, 1] -> (B, C, H, W) unit descriptors."""

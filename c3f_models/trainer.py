@@ -97,7 +97,8 @@ class C3FTrainer(L.Trainer):
         """Export the checkpoint's nets to ONNX with metadata and an onnxruntime parity check.
 
         Writes ``output_dir/depthnet.onnx`` + ``posenet.onnx`` (DepthNet) or
-        ``contrafeat.onnx`` (ContraFeat), and ``export.json``; see :mod:`export`.
+        ``contrafeat.onnx`` + ``contrafeat_kp.onnx`` (ContraFeat: the dense map, the descriptors at
+        given keypoints), and ``export.json``; see :mod:`export`.
 
         Args:
             ckpt_path: the checkpoint to export (``last.ckpt`` of a ``fit`` run).
@@ -112,7 +113,8 @@ class C3FTrainer(L.Trainer):
                 ``fit``) works; the checkpoint is always read with the safe unpickler
                 (``weights_only=True``) and False is refused.
             graphs: only these graphs (``--graphs '[depth]'``: DepthNet without PoseNet, which
-                ``c3f_slam`` does not use); kinds ``depth``, ``pose``, ``descriptors``. Default all.
+                ``c3f_slam`` does not use); names ``depth``, ``pose``, ``descriptors`` (dense map),
+                ``descriptors_kp`` (at keypoints). Default all.
             storage: ``float32`` or ``float16`` (weights stored as float16, computation float32:
                 half the file size; exact for weights that are float16 values, as the zoo's are).
             metric_scale: record this depth scale to metres instead of measuring it on the

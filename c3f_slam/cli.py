@@ -3,7 +3,7 @@
     python -m c3f_slam run SEQUENCE_DIR --out OUT [--depth-source files] [--descriptors sift]
         [--preset colon|room] [--config FILE|OLD_OUT/summary.json] [--set part.field=value ...]
     python -m c3f_slam run SEQUENCE_DIR|VIDEO --depth-model depth.onnx --feature-model feat.onnx --out OUT
-        [--camera camera.json] [--threads N]
+        [--camera camera.json] [--threads N] [--providers CUDAExecutionProvider,CPUExecutionProvider]
     python -m c3f_slam run [--preset room] [--config FILE] [--set ...] --print-config
     python -m c3f_slam evaluate OUT --gt SEQUENCE_DIR
     python -m c3f_slam inspect MODEL.onnx
@@ -50,6 +50,10 @@ def _run_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints), or zoo:NAME")
     r.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video)")
     r.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model (default 2)")
+    r.add_argument("--providers", default="CPUExecutionProvider",
+                   help="onnxruntime execution providers of the models, comma-separated, preferred first, e.g. "
+                        "CUDAExecutionProvider,CPUExecutionProvider (CUDA needs the onnxruntime-gpu package); "
+                        "default CPUExecutionProvider")
     r.add_argument("--depth-scale", type=float,
                    help="multiply the --depth-model depth by this factor (self-supervised depth is known up to "
                         "a scale, the thresholds are in metres); default: the factor the exporter measured on the "
@@ -116,6 +120,7 @@ def _warn_replay_inputs(summary: dict, inputs) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from c3f_slam.config.loading import config_yaml
+    from c3f_slam.models.session import check_providers
     from c3f_slam.pipeline import RunInputs, run_slam
 
     cfg, replayed = _settings(args)
@@ -124,7 +129,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     _check(args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
     inputs = RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, args.camera,
-                       args.threads, args.depth_scale, args.max_bad_frames)
+                       args.threads, args.depth_scale, args.max_bad_frames, check_providers(args.providers))
     if replayed is not None:
         _warn_replay_inputs(replayed, inputs.resolved())
     s = run_slam(args.sequence, args.out, cfg, inputs, progress=not args.quiet, overwrite=args.overwrite)

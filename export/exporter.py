@@ -4,9 +4,11 @@
 :meth:`c3f_models.trainer.C3FTrainer.export`). It names no model class: the model says what it
 exports and loads its own checkpoint (:class:`export.graphs.Exportable`). It loads the
 checkpoint into the model the config describes, exports each graph, check parity on real frames, and write
-``OUTPUT_DIR/{depthnet,posenet,contrafeat}.onnx`` plus ``export.json`` (files, hashes,
-parity). Nothing is written unless every graph of the model passed its parity check, and
-earlier files are replaced atomically.
+``OUTPUT_DIR/{depthnet,posenet,contrafeat,contrafeat_kp}.onnx`` plus ``export.json`` (files,
+kinds, hashes, parity). A keypoint descriptor graph is also checked against the dense graph of
+the same net sampled at the same keypoints by the runtime's rule
+(:func:`export.parity.check_keypoint_sampling`). Nothing is written unless every graph of the
+model passed its checks, and earlier files are replaced atomically.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from export.calibration import metric_scale as measure_metric_scale
 from export.frames import frames_from_source, parity_source
 from export.graphs import Exportable, GraphSpec
 from export.onnx_io import STORAGE, store_float16, to_onnx, write_onnx
-from export.parity import check_parity
+from export.parity import check_keypoint_sampling, check_parity
 
 #: the export's manifest (files, hashes, parity), moved into the output folder last
 MANIFEST = "export.json"
@@ -53,15 +55,16 @@ def graph_specs(model) -> list[GraphSpec]:
     return model.export_graphs()
 
 
-def selected_graphs(specs: list[GraphSpec], kinds: SequenceABC[str] | None) -> list[GraphSpec]:
-    """The specs of ``kinds`` (None: all); InputError naming ``--graphs`` for a kind the model lacks."""
-    if kinds is None:
+def selected_graphs(specs: list[GraphSpec], names: SequenceABC[str] | None) -> list[GraphSpec]:
+    """The specs called ``names`` (:attr:`GraphSpec.name`; None: all); InputError naming
+    ``--graphs`` for a name the model lacks."""
+    if names is None:
         return specs
-    have = [s.kind for s in specs]
-    unknown = [k for k in kinds if k not in have]
-    if unknown or not kinds:
+    have = [s.name for s in specs]
+    unknown = [k for k in names if k not in have]
+    if unknown or not names:
         raise InputError(f"--graphs: {unknown[0] if unknown else 'empty'}: this model exports {have}")
-    return [s for s in specs if s.kind in kinds]
+    return [s for s in specs if s.name in names]
 
 
 def preprocessing_of(datamodule, source) -> Preprocessing:
@@ -90,12 +93,19 @@ def _jsonable(obj) -> dict:
     return json.loads(json.dumps({k: v for k, v in dict(obj).items() if not str(k).startswith("_")}, default=str))
 
 
+KEYPOINTS_MEANING = "(u, v) network-grid pixels, pixel centres at integer coordinates"
+
+
 def _io_entries(spec: GraphSpec, dynamic_size: bool) -> tuple[list[dict], list[dict]]:
     hw = ["height", "width"] if dynamic_size else None
-    inputs = [{"name": n, "shape": ["batch", 3, *(hw or ["H", "W"])], "dtype": "float32",
+    inputs = [{"name": n, "shape": ["batch", "keypoints", 2], "dtype": "float32", "meaning": KEYPOINTS_MEANING}
+              if n in spec.point_inputs else
+              {"name": n, "shape": ["batch", 3, *(hw or ["H", "W"])], "dtype": "float32",
                "meaning": "RGB in [0, 1] after the recorded preprocessing"} for n in spec.input_names]
     if spec.output_channels is None:
         shape = ["batch", 4, 4]
+    elif spec.sampling == "keypoints":
+        shape = ["batch", "keypoints", spec.output_channels]
     else:
         shape = ["batch", spec.output_channels, *(hw or ["H", "W"])]
     outputs = [{"name": spec.output_name, "shape": shape, "dtype": "float32", "units": spec.output_units,
@@ -140,7 +150,8 @@ def export_model(
         dynamic_size: export height/width as dynamic axes.
         weights_only: accepted for the run's saved ``config.yaml``; checkpoints are always read with
             the safe unpickler (:func:`c3f_models.checkpoints.read_checkpoint_weights`), and False is refused.
-        graphs: kinds of graph to export (DepthNet: ``depth``, ``pose``; ContraFeat: ``descriptors``);
+        graphs: names of the graphs to export (DepthNet: ``depth``, ``pose``; ContraFeat:
+            ``descriptors``, the dense map, and ``descriptors_kp``, descriptors at given keypoints);
             None: all of them.
         storage: ``float32``, or ``float16``: weights stored as float16 and cast to float32 when
             the file is loaded (half the size, float32 compute; :func:`export.onnx_io.store_float16`).
@@ -153,7 +164,8 @@ def export_model(
         raise InputError(f"--storage must be one of {', '.join(STORAGE)}, got {storage}")
     if metric_scale is not None and not (np.isfinite(metric_scale) and metric_scale > 0):
         raise InputError(f"--metric_scale must be a positive number, got {metric_scale}")
-    specs = selected_graphs(graph_specs(model), graphs)
+    every = graph_specs(model)
+    specs = selected_graphs(every, graphs)
     source = parity_source(frames, datamodule)  # bad paths fail before the slow steps
     model.load_export_checkpoint(ckpt_path, "--ckpt_path")
     pre = preprocessing_of(datamodule, source)
@@ -163,15 +175,46 @@ def export_model(
                              created=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
 
     staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]] = []
-    for spec in specs:  # export and check everything before writing anything
-        example = spec.example_inputs(images)
-        proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size)
-        if storage == "float16":
-            proto = store_float16(proto)
-        report = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name)
+    for spec, proto, parity in _checked_graphs(specs, every, images, dynamic_size, storage, tolerance):
         depth = _depth_entry(spec, datamodule, pre, metric_scale) if spec.kind == "depth" else None
-        staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, report.as_dict(), provenance)))
+        staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, parity, provenance)))
     return _write_export(staged, Path(output_dir), provenance)
+
+
+def _checked_graphs(specs: list[GraphSpec], every: list[GraphSpec], images, dynamic_size: bool, storage: str,
+                    tolerance: float) -> list[tuple[GraphSpec, onnx.ModelProto, dict]]:
+    """Each spec's ONNX model and parity entry, all exported and checked before anything is
+    written (a keypoint graph also against its dense twin: ``parity.dense_sampling``)."""
+    out, protos = [], {}
+    for spec in specs:
+        example = spec.example_inputs(images)
+        protos[spec.name] = proto = _onnx_proto(spec, example, dynamic_size, storage)
+        parity = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name).as_dict()
+        if spec.sampling == "keypoints":
+            dense = _dense_twin(spec, every, protos, images, dynamic_size, storage)
+            parity["dense_sampling"] = check_keypoint_sampling(proto, dense, *example, name=spec.file_name)
+        out.append((spec, proto, parity))
+    return out
+
+
+def _onnx_proto(spec: GraphSpec, example: tuple, dynamic_size: bool, storage: str) -> onnx.ModelProto:
+    """The ONNX model of ``spec`` traced on ``example``, with ``storage``'s weights."""
+    proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size,
+                    spec.point_inputs)
+    return store_float16(proto) if storage == "float16" else proto
+
+
+def _dense_twin(spec: GraphSpec, every: list[GraphSpec], protos: dict[str, onnx.ModelProto], images,
+                dynamic_size: bool, storage: str) -> onnx.ModelProto:
+    """The dense descriptor graph of the model whose map keypoint graph ``spec`` samples: the one
+    exported in this run, else exported now for the check only (not written)."""
+    twin = next((s for s in every if s.kind == spec.kind and s.sampling == "dense"), None)
+    if twin is None:
+        raise InputError(f"model: its keypoint graph {spec.file_name} has no dense descriptor graph to check it "
+                         "against")
+    if twin.name not in protos:
+        protos[twin.name] = _onnx_proto(twin, twin.example_inputs(images), dynamic_size, storage)
+    return protos[twin.name]
 
 
 def _checked_arguments(ckpt_path: str | Path | None, weights_only: bool | None, num_frames: int) -> Path:
@@ -226,7 +269,8 @@ def _graph_metadata(spec: GraphSpec, pre: Preprocessing, dynamic_size: bool, dep
     return ModelMetadata(
         kind=spec.kind, inputs=inputs, outputs=outputs, preprocessing=pre, dynamic_batch=True,
         dynamic_size=dynamic_size, descriptor_dim=spec.output_channels if spec.kind == "descriptors" else None,
-        depth=depth, opset=spec.opset, training_config=provenance.training_config, checkpoint=provenance.checkpoint,
+        descriptor_sampling=spec.sampling if spec.kind == "descriptors" else None, depth=depth, opset=spec.opset,
+        training_config=provenance.training_config, checkpoint=provenance.checkpoint,
         parity=parity, project_version=__version__, created=provenance.created,
     )
 
@@ -250,7 +294,8 @@ def _write_export(staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]]
         files = [write_onnx(proto, meta, tmp / spec.file_name) for spec, proto, meta in staged]
         manifest = {
             "project_version": __version__, "created": provenance.created, "checkpoint": provenance.checkpoint,
-            "files": {p.name: {"kind": m.kind, "sha256": sha256(p), "opset": m.opset, "parity": m.parity}
+            "files": {p.name: {"kind": m.kind, **({"descriptor_sampling": m.sampling} if m.sampling else {}),
+                               "sha256": sha256(p), "opset": m.opset, "parity": m.parity}
                       for p, (_, _, m) in zip(files, staged)},
         }
         atomic_write_text(tmp / MANIFEST, json.dumps(manifest, indent=2) + "\n")

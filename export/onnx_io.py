@@ -4,7 +4,7 @@ The file is one self-contained ONNX model (no external data), opset 18, or 19 fo
 with ``torchvision.ops.deform_conv2d`` (docs/design.md, Technical choices). Batch is always a
 dynamic axis; height and width are dynamic when ``dynamic_size`` (the fully convolutional nets
 allow it down to ``MIN_SIZE`` pixels, or the training size if smaller: the depth decoder pads its
-coarsest (1/32) map by reflection).
+coarsest (1/32) map by reflection); so is the number of points N of a (B, N, 2) keypoints input.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from c3f_slam.models.metadata import ModelMetadata
 
 MIN_SIZE = 64
 MAX_SIZE = 4096
+MAX_POINTS = 1 << 20
 
 
 def to_onnx(
@@ -34,8 +35,11 @@ def to_onnx(
     output_name: str,
     opset: int,
     dynamic_size: bool = True,
+    point_inputs: tuple[str, ...] = (),
 ) -> onnx.ModelProto:
-    """Export ``module`` (in eval mode, on CPU) and return the ONNX model proto.
+    """Export ``module`` (in eval mode, on CPU) and return the ONNX model proto. Inputs are
+    (B, 3, H, W) images, except those named in ``point_inputs``: (B, N, 2) points, N dynamic
+    (the example needs N >= 2).
 
     Raises RuntimeError with the exporter's reason when the graph cannot be exported.
     """
@@ -48,7 +52,8 @@ def to_onnx(
         h, w = example[0].shape[-2:]
         axes[2] = torch.export.Dim("height", min=min(MIN_SIZE, int(h)), max=max(MAX_SIZE, int(h)))
         axes[3] = torch.export.Dim("width", min=min(MIN_SIZE, int(w)), max=max(MAX_SIZE, int(w)))
-    dynamic_shapes = tuple(dict(axes) for _ in input_names)
+    points = {0: batch, 1: torch.export.Dim("keypoints", min=1, max=MAX_POINTS)}
+    dynamic_shapes = tuple(dict(points if n in point_inputs else axes) for n in input_names)
     log = io.StringIO()
     try:
         with warnings.catch_warnings(), contextlib.redirect_stdout(log), torch.no_grad():

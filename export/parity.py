@@ -2,7 +2,9 @@
 
 The check runs after every export; the export fails loudly when the largest absolute
 difference of any output element exceeds the tolerance (1e-4 by default: metres for depth
-and pose translation, unit-vector components for descriptors).
+and pose translation, unit-vector components for descriptors). A keypoint descriptor graph is
+also checked against the dense graph of the same net sampled by the runtime's rule
+(:func:`check_keypoint_sampling`, 1e-5).
 """
 
 from __future__ import annotations
@@ -14,6 +16,11 @@ import onnx
 import onnxruntime as ort
 import torch
 from torch import nn
+
+from c3f_slam.matching.descriptors import sample_descriptor_map
+
+#: largest accepted |keypoint graph - dense graph sampled by the runtime| (unit-vector components)
+SAMPLING_TOLERANCE = 1e-5
 
 
 class ParityError(RuntimeError):
@@ -73,3 +80,34 @@ def check_parity(
             f"{report.frames} frames, above the tolerance {tolerance:g}; the file was not written"
         )
     return report
+
+
+def check_keypoint_sampling(
+    keypoint_model: onnx.ModelProto | bytes | str,
+    dense_model: onnx.ModelProto | bytes | str,
+    images: torch.Tensor,
+    keypoints: torch.Tensor,
+    tolerance: float = SAMPLING_TOLERANCE,
+    name: str = "graph",
+) -> dict:
+    """Compare, on onnxruntime, the keypoint graph's (B, N, C) descriptors with the dense graph's
+    (B, C, H, W) map sampled at the same (B, N, 2) keypoints by the runtime's rule
+    (:func:`c3f_slam.matching.sample_descriptor_map`: bilinear, clamped, re-normalised). Returns
+    the entry recorded in the parity metadata (``dense_sampling``); :class:`ParityError` above
+    ``tolerance``."""
+    x, kp = images.numpy(), keypoints.numpy()
+    got = ort_session(keypoint_model).run(None, {"image": x, "keypoints": kp})[0]
+    maps = ort_session(dense_model).run(None, {"image": x})[0]
+    expected = np.stack([sample_descriptor_map(m, p, normalise=True) for m, p in zip(maps, kp)])
+    if got.shape != expected.shape:
+        raise ParityError(f"{name}: keypoint graph output shape {got.shape} != sampled dense map {expected.shape}")
+    diff = np.abs(got.astype(np.float64) - expected.astype(np.float64))
+    worst = float(diff.max()) if diff.size else 0.0
+    if not (np.isfinite(worst) and worst <= tolerance):
+        raise ParityError(
+            f"{name}: the keypoint graph differs from the dense graph sampled at the same keypoints by "
+            f"{worst:.3g} (max abs), above the tolerance {tolerance:g}; the file was not written"
+        )
+    return {"max_abs_diff": worst, "mean_abs_diff": float(diff.mean()) if diff.size else 0.0,
+            "tolerance": float(tolerance), "frames": int(kp.shape[0]), "keypoints": int(kp.shape[1]),
+            "reference": "the dense graph on onnxruntime, sampled by c3f_slam.matching.sample_descriptor_map"}

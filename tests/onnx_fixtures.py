@@ -2,7 +2,9 @@
 
 - depth: ``depth = DEPTH_A + DEPTH_B * mean_c(image)`` (metres), (B, 1, H, W);
 - descriptors: a fixed 1x1 convolution 3 -> ``dim`` (:func:`descriptor_weights`) followed by L2
-  normalisation over channels, (B, dim, H, W);
+  normalisation over channels, (B, dim, H, W); the keypoint variant samples that map at
+  ``keypoints`` (B, N, 2) with ``GridSample`` (bilinear, border, align_corners) and normalises
+  again, (B, N, dim);
 - pose: the constant ``T_ba`` given, (B, 4, 4).
 
 Inputs are (B, 3, H, W) float32 with H, W fixed to the metadata size unless ``dynamic``; the
@@ -49,6 +51,11 @@ def metadata(
         if kind == "depth":
             outputs = [{"name": "depth", "shape": ["batch", 1, "height", "width"], "dtype": "float32",
                         "units": "m", "meaning": "depth along the optical axis"}]
+        elif extra.get("descriptor_sampling") == "keypoints":
+            inputs.append({"name": "keypoints", "shape": ["batch", "keypoints", 2], "dtype": "float32",
+                           "meaning": "(u, v) network-grid pixels"})
+            outputs = [{"name": "descriptors", "shape": ["batch", "keypoints", dim], "dtype": "float32",
+                        "units": "unit norm", "meaning": "descriptors at the keypoints"}]
         else:
             outputs = [{"name": "descriptors", "shape": ["batch", dim, "height", "width"], "dtype": "float32",
                         "units": "unit norm", "meaning": "dense descriptors"}]
@@ -110,6 +117,36 @@ def descriptor_graph(size=(32, 32), dim: int = 8, dynamic=False, seed: int = 0) 
     return _model(nodes, [_value("image", shape)], [_value("descriptors", [shape[0], dim, *shape[2:]])], inits)
 
 
+def keypoint_descriptor_graph(size=(32, 32), dim: int = 8, dynamic=False, seed: int = 0) -> onnx.ModelProto:
+    """:func:`descriptor_graph`'s map sampled at ``keypoints`` (B, N, 2) pixels: grid = 2 u / (w - 1)
+    - 1 (same for v), ``GridSample`` bilinear, border, align_corners, then L2 normalisation."""
+    shape = _image_shape(size, dynamic)
+    w, b = descriptor_weights(dim, seed)
+    inits = [numpy_helper.from_array(w.reshape(dim, 3, 1, 1), "w"), numpy_helper.from_array(b, "bias"),
+             numpy_helper.from_array(np.array([3, 2], np.int64), "wh_axes"),
+             numpy_helper.from_array(np.array(1.0, np.float32), "one"),
+             numpy_helper.from_array(np.array(2.0, np.float32), "two"),
+             numpy_helper.from_array(np.array([2], np.int64), "grid_axis"),
+             numpy_helper.from_array(np.array([3], np.int64), "last_axis")]
+    nodes = [helper.make_node("Conv", ["image", "w", "bias"], ["f"], kernel_shape=[1, 1]),
+             helper.make_node("LpNormalization", ["f"], ["m"], axis=1, p=2),
+             helper.make_node("Shape", ["m"], ["shape"]),
+             helper.make_node("Gather", ["shape", "wh_axes"], ["wh"]),  # (w, h)
+             helper.make_node("Cast", ["wh"], ["whf"], to=TensorProto.FLOAT),
+             helper.make_node("Sub", ["whf", "one"], ["wh1"]),
+             helper.make_node("Div", ["two", "wh1"], ["scale"]),
+             helper.make_node("Mul", ["keypoints", "scale"], ["g0"]),
+             helper.make_node("Sub", ["g0", "one"], ["g1"]),
+             helper.make_node("Unsqueeze", ["g1", "grid_axis"], ["grid"]),  # (B, N, 1, 2)
+             helper.make_node("GridSample", ["m", "grid"], ["s"], mode="bilinear", padding_mode="border",
+                              align_corners=1),  # (B, dim, N, 1)
+             helper.make_node("Squeeze", ["s", "last_axis"], ["s2"]),
+             helper.make_node("Transpose", ["s2"], ["s3"], perm=[0, 2, 1]),
+             helper.make_node("LpNormalization", ["s3"], ["descriptors"], axis=2, p=2)]
+    return _model(nodes, [_value("image", shape), _value("keypoints", [shape[0], "keypoints", 2])],
+                  [_value("descriptors", [shape[0], "keypoints", dim])], inits)
+
+
 def pose_graph(T_ba: np.ndarray, size=(32, 32), dynamic=False) -> onnx.ModelProto:
     """``T_ba`` for every batch item (the inputs only set the batch size)."""
     shape = _image_shape(size, dynamic)
@@ -146,6 +183,13 @@ def depth_model(path, size=(32, 32), crop=None, dynamic=False, specular=False) -
 def descriptor_model(path, size=(32, 32), crop=None, dim: int = 8, dynamic=False, specular=False) -> Path:
     meta = metadata("descriptors", size, crop, dynamic, specular, dim)
     return write(path, descriptor_graph(size, dim, dynamic), meta)
+
+
+def keypoint_descriptor_model(path, size=(32, 32), crop=None, dim: int = 8, dynamic=False, specular=False,
+                              **extra) -> Path:
+    """The keypoint variant of :func:`descriptor_model` (same weights: same descriptors)."""
+    meta = metadata("descriptors", size, crop, dynamic, specular, dim, descriptor_sampling="keypoints", **extra)
+    return write(path, keypoint_descriptor_graph(size, dim, dynamic), meta)
 
 
 def pose_model(path, T_ba: np.ndarray, size=(32, 32), crop=None) -> Path:

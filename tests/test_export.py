@@ -186,20 +186,98 @@ def test_checkpoint_of_another_model_class_is_refused_by_the_cli(depth_export, t
 
 @pytest.mark.e2e
 def test_contrafeat_export_parity_and_unit_descriptors(tmp_path, tiny_sequence):
+    """Both graphs: the dense map, and the keypoint graph equal to that map sampled at the same
+    keypoints by the runtime's rule (recorded in its parity entry), which the runtime then prefers."""
+    from c3f_slam.matching import sample_descriptor_map
+    from c3f_slam.models import DescriptorModel
+    from export.graphs import parity_keypoints
+
     torch.manual_seed(0)
     model = ContraFeat(CONTRA_16)
     ckpt = tmp_path / "cf.ckpt"
     torch.save({"state_dict": model.state_dict()}, ckpt)
     fresh = ContraFeat(CONTRA_16)
-    (path,) = export_model(fresh, ckpt, tmp_path / "out", frames=tiny_sequence, num_frames=2)
-    meta = _metadata(path)
-    assert (path.name, meta.kind, meta.descriptor_dim) == ("contrafeat.onnx", "descriptors", 16)
+    path, kp_path = export_model(fresh, ckpt, tmp_path / "out", frames=tiny_sequence, num_frames=2)
+    meta, kp_meta = _metadata(path), _metadata(kp_path)
+    assert (path.name, meta.kind, meta.descriptor_dim, meta.sampling) == ("contrafeat.onnx", "descriptors", 16, "dense")
+    assert (kp_path.name, kp_meta.kind, kp_meta.descriptor_dim, kp_meta.sampling) == (
+        "contrafeat_kp.onnx", "descriptors", 16, "keypoints")
     assert meta.preprocessing.size == (64, 64) and meta.parity["max_abs_diff"] <= TOL
+    assert kp_meta.parity["max_abs_diff"] <= TOL and kp_meta.parity["dense_sampling"]["max_abs_diff"] <= 1e-5
+    assert kp_meta.parity["dense_sampling"]["keypoints"] == 64 and kp_meta.checkpoint == meta.checkpoint
+    assert [i["name"] for i in kp_meta.inputs] == ["image", "keypoints"]
+    assert kp_meta.outputs[0]["shape"] == ["batch", "keypoints", 16]
+    listed = json.loads((tmp_path / "out" / "export.json").read_text())["files"]
+    assert {n: e["descriptor_sampling"] for n, e in listed.items()} == {"contrafeat.onnx": "dense",
+                                                                         "contrafeat_kp.onnx": "keypoints"}
     image = _frame(tiny_sequence, 5)
     got = _session(path).run(None, {"image": image.numpy()})[0]
     with torch.no_grad():
         np.testing.assert_allclose(got, model.eval()(image).numpy(), rtol=0, atol=TOL)
     np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-5)
+    # another image size and another number of keypoints than the export's (dynamic axes)
+    wide = torch.nn.functional.interpolate(torch.cat([image, _frame(tiny_sequence, 2)]), size=(64, 96),
+                                           mode="bilinear")
+    points = parity_keypoints(2, 64, 96, count=100, seed=3)
+    sampled = _session(kp_path).run(None, {"image": wide.numpy(), "keypoints": points.numpy()})[0]
+    maps = _session(path).run(None, {"image": wide.numpy()})[0]
+    want = np.stack([sample_descriptor_map(m, p) for m, p in zip(maps, points.numpy())])
+    assert sampled.shape == (2, 100, 16)
+    np.testing.assert_allclose(sampled, want, rtol=0, atol=1e-5)
+    runtime = DescriptorModel(path, prefer_keypoints=True)
+    assert runtime.onnx.path == kp_path and runtime.keypoint_file == "used"
+
+
+@pytest.mark.e2e
+def test_export_selects_descriptor_graphs_by_name(tmp_path, tiny_sequence):
+    """``descriptors_kp`` alone: the keypoint file (still checked against the dense graph, which
+    is not written); a name the model lacks lists the names it has."""
+    ckpt = tmp_path / "cf.ckpt"
+    torch.save({"state_dict": ContraFeat(CONTRA_16).state_dict()}, ckpt)
+    with pytest.raises(InputError, match=r"--graphs: depth: this model exports \['descriptors', 'descriptors_kp'\]"):
+        export_model(ContraFeat(CONTRA_16), ckpt, tmp_path / "bad", frames=tiny_sequence, graphs=["depth"])
+    (path,) = export_model(ContraFeat(CONTRA_16), ckpt, tmp_path / "out", frames=tiny_sequence, num_frames=1,
+                           graphs=["descriptors_kp"])
+    assert path.name == "contrafeat_kp.onnx" and sorted(p.name for p in path.parent.iterdir()) == [
+        "contrafeat_kp.onnx", "export.json"]
+    assert _metadata(path).parity["dense_sampling"]["max_abs_diff"] <= 1e-5
+
+
+def test_keypoint_sampler_is_the_training_and_runtime_rule():
+    """The keypoint graph's sampler = the training sampler per item = the runtime's NumPy rule,
+    on the parity keypoints (corners, borders, outside the map, sub-pixel)."""
+    from c3f_models.contrafeat.graphs import sample_keypoints
+    from c3f_models.contrafeat.network import sample_descriptors
+    from c3f_slam.matching import sample_descriptor_map
+    from export.graphs import parity_keypoints
+
+    torch.manual_seed(0)
+    maps = torch.nn.functional.normalize(torch.randn(2, 16, 20, 24), dim=1)
+    points = parity_keypoints(2, 20, 24, count=40)
+    u, v = points[..., 0], points[..., 1]
+    assert (u < 0).any() and (u > 23).any() and (v < 0).any() and (v > 19).any()  # outside: clamped
+    assert ((u == 0) & (v == 0)).any(dim=1).all() and ((u == 23) & (v == 19)).any(dim=1).all()  # corners
+    assert (points != points.round()).any()  # sub-pixel positions
+    got = sample_keypoints(maps, points)
+    assert got.shape == (2, 40, 16)
+    for b in range(2):
+        np.testing.assert_allclose(got[b].numpy(), sample_descriptors(maps[b], points[b]).numpy(), atol=1e-6)
+        np.testing.assert_allclose(got[b].numpy(), sample_descriptor_map(maps[b].numpy(), points[b].numpy()),
+                                   atol=1e-6)
+
+
+def test_check_keypoint_sampling_detects_another_map(tmp_path):
+    from export.graphs import parity_keypoints
+    from export.parity import check_keypoint_sampling
+    from tests import onnx_fixtures as fx
+
+    images, points = torch.rand(2, 3, 32, 32), parity_keypoints(2, 32, 32)
+    dense = fx.descriptor_graph(dim=8, dynamic=True)
+    entry = check_keypoint_sampling(fx.keypoint_descriptor_graph(dim=8, dynamic=True), dense, images, points)
+    assert entry["max_abs_diff"] <= 1e-5 and (entry["frames"], entry["keypoints"]) == (2, 64)
+    with pytest.raises(ParityError, match="contrafeat_kp.onnx: the keypoint graph differs from the dense graph"):
+        check_keypoint_sampling(fx.keypoint_descriptor_graph(dim=8, dynamic=True, seed=1), dense, images, points,
+                                name="contrafeat_kp.onnx")
 
 
 @pytest.mark.e2e

@@ -80,8 +80,9 @@ class ContraFeatNet(nn.Module):
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
-        """(B, 3, H, W) RGB in [0, 1] -> (B, C, H, W) unit-norm descriptors."""
+    def features(self, image: torch.Tensor) -> torch.Tensor:
+        """(B, 3, H, W) RGB in [0, 1] -> (B, F + S, H, W) input of the 1x1 head: the finest FPN
+        level upsampled to the input size, beside the full-resolution stem."""
         if image.ndim != 4 or image.shape[1] != 3:
             raise InputError(f"ContraFeatNet expects (B, 3, H, W) images, got {tuple(image.shape)}")
         h, w = image.shape[-2:]
@@ -93,8 +94,12 @@ class ContraFeatNet(nn.Module):
         f4 = self.layer4(f3)
         pyramid = self.fpn(OrderedDict([("p0", f0), ("p1", f1), ("p2", f2), ("p3", f3), ("p4", f4)]))
         fine = F.interpolate(pyramid["p0"], size=(h, w), mode="bilinear", align_corners=False)
-        out = self.head(torch.cat([fine, self.stem(x)], dim=1))
-        return F.normalize(out, dim=1)
+        return torch.cat([fine, self.stem(x)], dim=1)
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        """(B, 3, H, W) RGB in [0, 1] -> (B, C, H, W) unit-norm descriptors: the head, pixel by
+        pixel, on :meth:`features`."""
+        return F.normalize(self.head(self.features(image)), dim=1)
 
 
 def sample_descriptors(descriptors: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:

@@ -5,7 +5,8 @@
   validates feeds (one-line :class:`~c3f_slam.errors.InputError` otherwise);
 - :mod:`.grid`: :class:`NetworkView`, frame pixels <-> network pixels (crop + resize);
 - :mod:`.nets`: :class:`DepthModel`, :class:`DescriptorModel`, :class:`PoseModel` on uint8
-  RGB frames with their camera;
+  RGB frames with their camera (descriptors from a dense-map file or a keypoint file);
+- :mod:`.variants`: the keypoint descriptors file of the same export beside a dense one;
 - :mod:`.summary`: :func:`format_metadata`, the ``inspect`` report.
 
 Example::

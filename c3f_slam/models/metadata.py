@@ -12,7 +12,12 @@ Conventions recorded here and relied on by the runtime:
   (``preprocessing.normalization_in_graph``); the mean/std are recorded for reference.
 - ``depth`` models output depth in metres (B, 1, H, W); the sigmoid disparity -> depth
   conversion is inside the graph and recorded in ``depth.conversion``.
-- ``descriptors`` models output unit-norm descriptors (B, C, H, W), C = ``descriptor_dim``.
+- ``descriptors`` models output unit-norm descriptors, C = ``descriptor_dim``; how is
+  ``descriptor_sampling``: ``dense`` (absent in files written before the field existed): the map
+  (B, C, H, W) from ``image``; ``keypoints``: (B, N, C) at ``keypoints`` (B, N, 2) float32 (u, v)
+  in network-grid pixels (pixel centres at integer coordinates), sampled inside the graph by the
+  rule of :func:`c3f_slam.matching.sample_descriptor_map` (bilinear, clamped at the border,
+  re-normalised).
 - ``pose`` models take two frames (earlier first) and output ``T_ba`` (B, 4, 4): frame-a
   camera coordinates into frame b, metres.
 
@@ -30,6 +35,8 @@ from c3f_slam.preprocess import IMAGENET_MEAN, IMAGENET_STD, SPECULAR_DILATION_P
 
 SCHEMA_VERSION = 1
 KINDS = ("depth", "pose", "descriptors")
+#: how a descriptors model samples: its dense map, or at given keypoints inside the graph
+SAMPLINGS = ("dense", "keypoints")
 KEY_PREFIX = "c3f."
 REQUIRED = ("kind", "inputs", "outputs", "preprocessing")
 
@@ -73,7 +80,8 @@ class ModelMetadata:
     kind: ``depth``, ``pose`` or ``descriptors``. inputs / outputs: one dict per graph
     input/output with ``name``, ``shape`` (ints or axis names), ``dtype`` and ``meaning``
     (outputs also ``units``). depth: ``{"min_depth", "max_depth" (metres), "conversion"}``
-    for depth models. training_config: the model and data settings it was trained with.
+    for depth models. descriptor_sampling: ``dense`` or ``keypoints`` for descriptors models
+    (None: dense). training_config: the model and data settings it was trained with.
     checkpoint: ``{"file", "sha256"}``. parity: ``{"max_abs_diff", "tolerance", "frames"}``
     of the check run at export time.
     """
@@ -85,6 +93,7 @@ class ModelMetadata:
     dynamic_batch: bool = True
     dynamic_size: bool = False
     descriptor_dim: int | None = None
+    descriptor_sampling: str | None = None
     depth: dict[str, Any] | None = None
     opset: int | None = None
     training_config: dict[str, Any] = field(default_factory=dict)
@@ -97,6 +106,10 @@ class ModelMetadata:
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise InputError(f"model kind must be one of {KINDS}, got {self.kind!r}")
+        if self.descriptor_sampling is not None and (self.kind != "descriptors"
+                                                     or self.descriptor_sampling not in SAMPLINGS):
+            raise InputError(f"descriptor_sampling must be one of {SAMPLINGS} on a descriptors model, got "
+                             f"{self.descriptor_sampling!r} on a {self.kind} model")
 
     # -- serialisation -------------------------------------------------------------------
     def to_props(self) -> dict[str, str]:
@@ -143,6 +156,13 @@ class ModelMetadata:
 
     # -- convenience ---------------------------------------------------------------------
     @property
+    def sampling(self) -> str | None:
+        """``dense`` or ``keypoints`` for a descriptors model (no field: ``dense``); None otherwise."""
+        if self.kind != "descriptors":
+            return None
+        return self.descriptor_sampling or "dense"
+
+    @property
     def input_size(self) -> tuple[int, int]:
         """Network input (width, height), pixels."""
         return self.preprocessing.size
@@ -151,7 +171,8 @@ class ModelMetadata:
         """One line for logs: kind, size, outputs."""
         w, h = self.input_size
         outs = ", ".join(f"{o['name']} [{o.get('units', '')}]" for o in self.outputs)
-        return f"{self.kind} model, input {w}x{h}{' (any size)' if self.dynamic_size else ''}, outputs {outs}"
+        kind = "descriptors (at keypoints)" if self.sampling == "keypoints" else self.kind
+        return f"{kind} model, input {w}x{h}{' (any size)' if self.dynamic_size else ''}, outputs {outs}"
 
 
-__all__ = ["SCHEMA_VERSION", "KINDS", "KEY_PREFIX", "Preprocessing", "ModelMetadata"]
+__all__ = ["SCHEMA_VERSION", "KINDS", "SAMPLINGS", "KEY_PREFIX", "Preprocessing", "ModelMetadata"]

@@ -16,6 +16,7 @@ Conventions: metres; pixel centres at integer coordinates; camera x right, y dow
 from __future__ import annotations
 
 import weakref
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +26,10 @@ from c3f_slam.errors import InputError
 from c3f_slam.matching.descriptors import sample_descriptor_map
 from c3f_slam.models.grid import UPSAMPLING, NetworkView
 from c3f_slam.models.metadata import ModelMetadata
-from c3f_slam.models.session import OnnxModel
+from c3f_slam.models.session import DEFAULT_PROVIDERS, OnnxModel
+from c3f_slam.models.variants import keypoint_file_beside
 from c3f_slam.preprocess import prepare_network_input
+from c3f_slam.zoo import is_zoo_name
 
 #: The command-line option that names each kind's file (prefix of error messages).
 OPTIONS = {"depth": "--depth-model", "descriptors": "--feature-model", "pose": "--pose-model"}
@@ -35,7 +38,8 @@ OPTIONS = {"depth": "--depth-model", "descriptors": "--feature-model", "pose": "
 class FrameModel:
     """Common part: the ONNX session, the metadata and the frame -> network-input step.
 
-    ``option``: the option named in error messages (default :data:`OPTIONS` of the kind).
+    ``option``: the option named in error messages (default :data:`OPTIONS` of the kind);
+    ``providers``: onnxruntime execution providers (:class:`OnnxModel`; default CPU only).
 
     The last prepared input is shared by all models (one entry, class level): when a depth
     and a descriptor model with the same pre-processing see the same frame array, the crop,
@@ -47,8 +51,10 @@ class FrameModel:
     kind = ""
     _last_input: tuple | None = None  # (weakref to the frame, camera, preprocessing, input)
 
-    def __init__(self, path: str | Path, threads: int = 2, option: str | None = None) -> None:
-        self.onnx = OnnxModel(path, expect_kind=self.kind, threads=threads, option=option or OPTIONS[self.kind])
+    def __init__(self, path: str | Path, threads: int = 2, option: str | None = None,
+                 providers: Sequence[str] = DEFAULT_PROVIDERS) -> None:
+        self.onnx = OnnxModel(path, expect_kind=self.kind, threads=threads, option=option or OPTIONS[self.kind],
+                              providers=providers)
 
     @property
     def metadata(self) -> ModelMetadata:
@@ -95,11 +101,12 @@ class DepthModel(FrameModel):
     kind = "depth"
 
     def __init__(
-        self, path: str | Path, threads: int = 2, option: str | None = None, upsample: str = "linear"
+        self, path: str | Path, threads: int = 2, option: str | None = None, upsample: str = "linear",
+        providers: Sequence[str] = DEFAULT_PROVIDERS,
     ) -> None:
         if upsample not in UPSAMPLING:
             raise InputError(f"depth upsampling must be one of {tuple(UPSAMPLING)}, got {upsample!r}")
-        super().__init__(path, threads, option)
+        super().__init__(path, threads, option, providers)
         self.upsample = upsample
 
     @property
@@ -138,20 +145,68 @@ class DepthModel(FrameModel):
 
 
 class DescriptorModel(FrameModel):
-    """ContraFeat export: dense unit-norm descriptors, sampled at keypoints."""
+    """ContraFeat export: unit-norm descriptors at keypoints, from a dense-map file (sampled
+    here) or a keypoint file (``descriptor_sampling: keypoints``: sampled inside the graph, by
+    the same rule).
+
+    ``prefer_keypoints``: when ``path`` is a dense file (not a zoo name) and the keypoint file
+    of the same export sits beside it (:func:`c3f_slam.models.variants.keypoint_file_beside`),
+    that file is run instead. ``given`` is the file named; ``keypoint_file`` says which was used
+    and why: ``given`` (the file named is a keypoint file), ``used``, or why not.
+    """
 
     kind = "descriptors"
+
+    def __init__(self, path: str | Path, threads: int = 2, option: str | None = None,
+                 prefer_keypoints: bool = False, providers: Sequence[str] = DEFAULT_PROVIDERS) -> None:
+        super().__init__(path, threads, option, providers)
+        self.given = self.onnx.path
+        self.keypoint_file = "given" if self.sampling == "keypoints" else "not looked for"
+        if prefer_keypoints and self.sampling == "dense" and is_zoo_name(path):
+            self.keypoint_file = "not looked for: a zoo entry's files are the ones its card lists"
+        elif prefer_keypoints and self.sampling == "dense":
+            found, self.keypoint_file = keypoint_file_beside(self.onnx.path, self.metadata, threads, self.onnx.option,
+                                                             providers)
+            if found is not None:
+                self.onnx = found
 
     @property
     def descriptor_dim(self) -> int:
         return int(self.metadata.descriptor_dim)
 
+    @property
+    def sampling(self) -> str:
+        """``dense`` (the file returns the map) or ``keypoints`` (descriptors at given keypoints)."""
+        return self.metadata.sampling or "dense"
+
+    def _dense_only(self) -> None:
+        """InputError (one line, naming the option and file) for a keypoint file."""
+        if self.sampling == "keypoints":
+            raise InputError(f"{self.onnx.where}: is a keypoint descriptors model (descriptors at given keypoints "
+                             "only); a dense descriptor map needs the dense file of its export (contrafeat.onnx)")
+
     def describe_batch(self, images: np.ndarray) -> np.ndarray:
-        """(B, 3, h, w) float32 network inputs -> (B, C, h, w) float32 unit-norm descriptor maps."""
+        """(B, 3, h, w) float32 network inputs -> (B, C, h, w) float32 unit-norm descriptor maps
+        (a dense file only)."""
+        self._dense_only()
         return self.onnx.run({"image": images})["descriptors"]
 
+    def describe_keypoints_batch(self, images: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+        """(B, 3, h, w) float32 network inputs and (B, N, 2) float32 keypoints (u, v) in network
+        pixels -> (B, N, C) float32 unit descriptors: the keypoint graph, or the dense map sampled
+        by :func:`~c3f_slam.matching.sample_descriptor_map` (the same rule)."""
+        if self.sampling == "keypoints":
+            return self.onnx.run({"image": images, "keypoints": keypoints})["descriptors"]
+        maps = self.describe_batch(images)
+        kp = np.asarray(keypoints)
+        if kp.ndim != 3 or kp.shape[0] != len(maps) or kp.shape[2] != 2:
+            raise InputError(f"{self.onnx.where}: keypoints must be (B, N, 2) with B = {len(maps)}, got {kp.shape}")
+        return np.stack([sample_descriptor_map(m, p, normalise=True) for m, p in zip(maps, kp)])
+
     def descriptor_map(self, rgb: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, NetworkView]:
-        """(C, h, w) descriptor map of one frame on the network grid, and the grid's view."""
+        """(C, h, w) descriptor map of one frame on the network grid, and the grid's view (a
+        dense file only)."""
+        self._dense_only()
         x, view = self.prepare(rgb, camera)
         return self.describe_batch(x[None])[0], view
 
@@ -161,15 +216,19 @@ class DescriptorModel(FrameModel):
         Keypoints are mapped into the network grid (:meth:`NetworkView.frame_to_network`) and
         the map is sampled bilinearly with pixel centres at integer coordinates, clamped at the
         border (the training sampler: ``grid_sample(align_corners=True,
-        padding_mode="border")``), then re-normalised. Keypoints outside the crop box get the
+        padding_mode="border")``), then re-normalised: here on the dense map, or inside the
+        graph of a keypoint file (keypoints as float32). Keypoints outside the crop box get the
         descriptor of the nearest border position.
         """
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         if len(xy) == 0:
             camera.check_image(np.shape(rgb), "frame")
             return np.zeros((0, self.descriptor_dim), np.float32)
-        dmap, view = self.descriptor_map(rgb, camera)
-        return sample_descriptor_map(dmap, view.frame_to_network(xy), normalise=True)
+        x, view = self.prepare(rgb, camera)
+        net_xy = view.frame_to_network(xy)
+        if self.sampling == "keypoints":
+            return self.describe_keypoints_batch(x[None], net_xy[None].astype(np.float32))[0]
+        return sample_descriptor_map(self.describe_batch(x[None])[0], net_xy, normalise=True)
 
 
 class PoseModel(FrameModel):

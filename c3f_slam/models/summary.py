@@ -74,7 +74,9 @@ def format_metadata(meta: ModelMetadata, source: str = "model") -> str:
                          f"{d.get('metric_scale_frames', '?')} frames, spread {_num(d.get('metric_scale_spread'))}); "
                          "applied by c3f_slam run unless --depth-scale")
     if meta.descriptor_dim is not None:
-        lines.append(f"  descriptor dim:  {meta.descriptor_dim} (unit norm per pixel)")
+        per = ("per keypoint; sampled at the given keypoints inside the graph" if meta.sampling == "keypoints"
+               else "per pixel")
+        lines.append(f"  descriptor dim:  {meta.descriptor_dim} (unit norm {per})")
     cfg = _flatten(meta.training_config) if meta.training_config else []
     lines.append(f"  training config: {'none recorded' if not cfg else f'{len(cfg)} settings'}")
     for k, v in cfg[:MAX_CONFIG_LINES]:
@@ -87,6 +89,10 @@ def format_metadata(meta: ModelMetadata, source: str = "model") -> str:
     par = meta.parity
     lines.append(f"  parity:          max |diff| {par.get('max_abs_diff')} (tolerance {par.get('tolerance')}, "
                  f"{par.get('frames')} frames)" if par else "  parity:          not recorded")
+    ds = par.get("dense_sampling") if isinstance(par, dict) else None
+    if isinstance(ds, dict):
+        lines.append(f"                   vs the dense graph sampled at the same keypoints: max |diff| "
+                     f"{ds.get('max_abs_diff')} (tolerance {ds.get('tolerance')}, {ds.get('keypoints')} keypoints)")
     lines.append(f"  export:          opset {meta.opset}, c3fusion {meta.project_version}, "
                  f"created {meta.created or 'unknown'}, metadata schema {meta.schema_version}")
     return "\n".join(lines)

@@ -13,6 +13,7 @@ from pathlib import Path
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
 from c3f_slam.models import DepthModel, DescriptorModel
+from c3f_slam.models.session import DEFAULT_PROVIDERS
 from c3f_slam.pipeline.frontend import (
     ContraFeatDescriptors,
     DepthProvider,
@@ -39,6 +40,7 @@ class RunInputs:
     threads: int = 2  #: onnxruntime intra-op threads per model
     depth_scale: float | None = None  #: factor on model depth; None: the model's metric_scale, else 1
     max_bad_frames: int = 10  #: unreadable frames skipped and counted; one more fails the run
+    providers: tuple[str, ...] = DEFAULT_PROVIDERS  #: onnxruntime execution providers of every model, preferred first
 
     def resolved(self) -> RunInputs:
         """A copy with ``descriptors`` and ``depth_source`` decided (:func:`resolve_sources`)."""
@@ -79,11 +81,12 @@ def make_providers(inputs: RunInputs, camera: PinholeCamera | None = None) -> tu
         raise ValueError("model providers need the frames' camera")
     desc: DescriptorProvider = SiftDescriptors()
     depth: DepthProvider = FileDepth()
-    if descriptors == "contrafeat":
-        desc = ContraFeatDescriptors(DescriptorModel(inputs.feature_model, inputs.threads, "--feature-model"), camera)
+    if descriptors == "contrafeat":  # the export's keypoint file when it sits beside the dense one
+        desc = ContraFeatDescriptors(DescriptorModel(inputs.feature_model, inputs.threads, "--feature-model",
+                                                     prefer_keypoints=True, providers=inputs.providers), camera)
     if depth_source == "model":
-        depth = ModelDepth(DepthModel(inputs.depth_model, inputs.threads, "--depth-model"), camera,
-                           inputs.depth_scale)
+        depth = ModelDepth(DepthModel(inputs.depth_model, inputs.threads, "--depth-model",
+                                      providers=inputs.providers), camera, inputs.depth_scale)
     return desc, depth
 
 
@@ -103,15 +106,23 @@ class RunSources:
         return self.stream.camera
 
     def summary(self) -> dict:
-        """What summary.json records about the inputs."""
+        """What summary.json records about the inputs: the choices, the camera, the depth scale
+        and per model the file run and the onnxruntime providers its session uses (``models``;
+        for descriptors also the file given, how it samples and whether the export's keypoint
+        file is used, or why not)."""
         out: dict = {"descriptors": self.descriptors, "depth_source": self.depth_source,
                      "camera": self.camera.to_dict()}
         if isinstance(self.depth, ModelDepth):
             out["depth_scale"] = {"factor": self.depth.scale, "source": self.depth.scale_source}
         out["models"] = {
-            name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe()}
+            name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe(),
+                   "providers": list(p.model.onnx.providers)}
             for name, p in (("descriptors", self.describer), ("depth", self.depth)) if hasattr(p, "model")
         }
+        if isinstance(self.describer, ContraFeatDescriptors):
+            model = self.describer.model
+            out["models"]["descriptors"].update(given=str(model.given), descriptor_sampling=model.sampling,
+                                                keypoint_file=model.keypoint_file)
         return out
 
 
