@@ -39,8 +39,8 @@ from benchmarks.common import RESULTS, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_slam.config import preset as slam_preset
-from c3f_slam.pipeline import run_slam
 from c3f_slam.io import Sequence, read_tum
+from c3f_slam.pipeline import run_slam
 from c3f_slam.pipeline.sources import RunInputs
 from c3f_slam.trajectory_metrics import evaluate_trajectory
 

@@ -90,11 +90,11 @@ class FragmentConfig:
     max_frames: int = 60  #: fragment length cap (memory)
     #: match each new frame to every earlier frame of its fragment (its cost grows with the
     #: fragment's length); False: to a bounded set besides the previous frame: the keyframe, the
-    #: ``intra_recent`` frames before the previous one and ``intra_spaced`` frames evenly spread
+    #: ``intra_recent`` frames before the previous one and ``intra_spaced`` frames evenly spaced
     #: over the rest (:func:`c3f_slam.pipeline.fragments.intra_fragment_targets`)
     intra_all_pairs: bool = False
     intra_recent: int = 2  #: bounded set: the frames just before the previous one
-    intra_spaced: int = 3  #: bounded set: frames evenly spread between the keyframe and the recent ones
+    intra_spaced: int = 8  #: bounded set: at most this many frames spaced between the keyframe and the recent ones
 
     def __post_init__(self) -> None:
         at_least(self.min_correspondences, 0, "fragments.min_correspondences", "from the frame size")
