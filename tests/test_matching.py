@@ -357,3 +357,12 @@ def test_near_misses_split_wrong_matches():
     near, _ = near_misses(found, kp_j, proj, correct, near_radius=3.5)
     assert near.tolist() == [False, True, False, False]
     assert MatchCounts.from_array(c.to_array()) == c
+
+
+def test_pairwise_distances_are_numpys_norm_bit_for_bit():
+    from c3f_slam.matching.filters import pairwise_distances
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 7, 300):
+        p = rng.normal(scale=0.03, size=(n, 3))
+        assert np.array_equal(pairwise_distances(p), np.linalg.norm(p[:, None] - p[None], axis=-1))

@@ -283,3 +283,20 @@ def test_readme_first_example_keeps_its_close_up_in_one_map(tmp_path, bounded):
         assert shares[True] >= 0.95, shares
     else:
         assert shares[True] >= 0.9 and shares[False] < 0.6, shares
+
+
+def test_intra_fragment_targets_are_bounded():
+    from c3f_slam.pipeline.fragments import intra_fragment_targets
+
+    assert intra_fragment_targets(1) == [] and intra_fragment_targets(2) == [0]
+    assert intra_fragment_targets(4) == [0, 1, 2]  # keyframe + the two before the previous (3)
+    assert intra_fragment_targets(10, all_pairs=True) == list(range(9))
+    assert intra_fragment_targets(10, recent=0, spaced=0) == [0]  # keyframe only
+    for n in range(2, 200):
+        t = intra_fragment_targets(n)
+        assert t == sorted(set(t)) and 0 in t and n - 1 not in t and len(t) <= 1 + 2 + 8
+        assert all(0 <= i < n - 1 for i in t)
+    assert intra_fragment_targets(60, spaced=3) == [0, 3, 22, 41, 57, 58]  # every 19th of 1..56, from 1 + 59 % 19
+    assert intra_fragment_targets(61, spaced=3) == [0, 4, 23, 42, 58, 59]  # the next frame: other older frames
+    hit = set().union(*(intra_fragment_targets(n, spaced=3) for n in range(40, 60)))
+    assert len(hit & set(range(1, 37))) >= 18  # over 20 frames, half the older frames took a turn

@@ -88,13 +88,21 @@ class FragmentConfig:
     min_overlap: float = 0.85  #: lower frustum overlap with the active keyframe: new fragment
     overlap_stride: int = 4  #: pixel grid of the overlap test
     max_frames: int = 60  #: fragment length cap (memory)
-    intra_all_pairs: bool = True  #: also match each frame to every frame of its fragment
+    #: match each new frame to every earlier frame of its fragment (its cost grows with the
+    #: fragment's length); False: to a bounded set besides the previous frame: the keyframe, the
+    #: ``intra_recent`` frames before the previous one and ``intra_spaced`` frames evenly spaced
+    #: over the rest (:func:`c3f_slam.pipeline.fragments.intra_fragment_targets`)
+    intra_all_pairs: bool = False
+    intra_recent: int = 2  #: bounded set: the frames just before the previous one
+    intra_spaced: int = 8  #: bounded set: at most this many frames spaced between the keyframe and the recent ones
 
     def __post_init__(self) -> None:
         at_least(self.min_correspondences, 0, "fragments.min_correspondences", "from the frame size")
         check(0.0 <= self.min_overlap <= 1.0, f"fragments.min_overlap must be in [0, 1], got {self.min_overlap}")
         at_least(self.overlap_stride, 1, "fragments.overlap_stride")
         at_least(self.max_frames, 1, "fragments.max_frames")
+        at_least(self.intra_recent, 0, "fragments.intra_recent")
+        at_least(self.intra_spaced, 0, "fragments.intra_spaced")
 
     def correspondences_for(self, width: int, height: int, min_matches: int) -> int:
         """The new-fragment threshold for ``width`` x ``height`` frames: the configured one, else

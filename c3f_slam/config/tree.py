@@ -42,14 +42,19 @@ MODES = ("full", "odometry")
 
 @dataclass(frozen=True)
 class FramesConfig:
-    """Which frames of the input a run reads (frames of the sequence or video, in order)."""
+    """Which frames of the input a run reads (frames of the sequence or video, in order), and
+    how far ahead of the back-end they are read and perceived."""
 
     stride: int = 1  #: every k-th frame
     max_frames: int | None = None  #: at most this many of them; None = all
+    #: frames read and perceived (depth, keypoints, descriptors) ahead of the back-end by a worker
+    #: thread, overlapping it; 0 = one after another in the run loop. Same results either way
+    prefetch: int = 2
 
     def __post_init__(self) -> None:
         at_least(self.stride, 1, "frames.stride")
         at_least(self.max_frames, 1, "frames.max_frames", "all frames")
+        at_least(self.prefetch, 0, "frames.prefetch")
 
 
 @dataclass(frozen=True)

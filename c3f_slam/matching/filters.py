@@ -93,6 +93,19 @@ def spanned_area(points: np.ndarray) -> float:
     return float(w) * float(h)
 
 
+def pairwise_distances(points: np.ndarray) -> np.ndarray:
+    """(N, N) Euclidean distances of (N, 3) points, the same bits as
+    ``np.linalg.norm(p[:, None] - p[None], axis=-1)`` at a fraction of its cost (one coordinate
+    at a time instead of a reduction over a short last axis)."""
+    total = None
+    for k in range(points.shape[1]):
+        c = points[:, k]
+        diff = c[:, None] - c[None, :]
+        sq = diff * diff
+        total = sq if total is None else total + sq
+    return np.sqrt(total)
+
+
 def consistent_subset(
     pts_i: np.ndarray, pts_j: np.ndarray, tolerance: float, relative_tolerance: float = 0.0,
     priority: np.ndarray | None = None,
@@ -106,8 +119,7 @@ def consistent_subset(
     n = len(pts_i)
     if n < 2:
         return np.arange(n)
-    d_i = np.linalg.norm(pts_i[:, None] - pts_i[None], axis=-1)
-    d_j = np.linalg.norm(pts_j[:, None] - pts_j[None], axis=-1)
+    d_i, d_j = pairwise_distances(pts_i), pairwise_distances(pts_j)
     bad = np.abs(d_i - d_j) > tolerance + relative_tolerance * np.maximum(d_i, d_j)
     count = bad.sum(axis=1).astype(np.int64)
     alive = np.ones(n, bool)

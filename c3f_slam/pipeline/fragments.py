@@ -44,6 +44,28 @@ def new_fragment_reason(
     return None
 
 
+def intra_fragment_targets(n_frames: int, all_pairs: bool = False, recent: int = 2, spaced: int = 8) -> list[int]:
+    """Local indices (ascending) of the active fragment's frames that a new frame is matched
+    against besides the previous one (local ``n_frames - 1``, its odometry link), for a fragment
+    of ``n_frames`` frames. ``all_pairs``: every earlier frame (the cost grows with the length);
+    else a bounded set of at most ``1 + recent + spaced``: the keyframe (0), the ``recent``
+    frames before the previous one, and every k-th of the frames between the two (at most
+    ``spaced``; k = their number / ``spaced``), from an offset that moves on with each new frame
+    (``prev mod k``), so that the older frames take turns instead of the same few getting every
+    edge."""
+    prev = n_frames - 1
+    if prev <= 0:
+        return []
+    if all_pairs:
+        return list(range(prev))
+    chosen = {0, *range(max(1, prev - recent), prev)}
+    hi = prev - recent - 1  # the older frames: 1 .. hi
+    if spaced > 0 and hi >= 1:
+        step = -(-hi // spaced)  # ceil: at most `spaced` of them
+        chosen.update(range(1 + prev % step, hi + 1, step))
+    return sorted(chosen)
+
+
 class Fragment:
     """The active fragment: its frames' features (dropped when closed) and local pose graph."""
 

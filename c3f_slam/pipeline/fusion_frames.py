@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from c3f_slam.io.sequence import Sequence, read_rgb
-from c3f_slam.pipeline.frontend import ModelDepth
+from c3f_slam.pipeline.frontend import DepthPrediction, ModelDepth
 from c3f_slam.preprocess import center_crop_resize
 from c3f_slam.stream import StreamFrame
 
@@ -42,7 +42,7 @@ class FusionFrames(Protocol):
 
     K: np.ndarray
 
-    def record(self, row: int, frame: StreamFrame) -> None: ...
+    def record(self, row: int, frame: StreamFrame, prediction: DepthPrediction | None = None) -> None: ...
 
     def load(self, row: int) -> tuple[np.ndarray, np.ndarray]: ...
 
@@ -57,7 +57,7 @@ class SequenceFrames:
         self.index_of = index_of
         self.K = sequence.camera.K
 
-    def record(self, row: int, frame: StreamFrame) -> None:
+    def record(self, row: int, frame: StreamFrame, prediction: DepthPrediction | None = None) -> None:
         pass
 
     def load(self, row: int) -> tuple[np.ndarray, np.ndarray]:
@@ -82,8 +82,9 @@ class PredictedFrames:
     def _paths(self, row: int) -> tuple[Path, Path]:
         return self.root / f"{row:08d}.png", self.root / f"{row:08d}.npy"
 
-    def record(self, row: int, frame: StreamFrame) -> None:
-        pred = self.depth.predict(frame)  # memoised: the prediction the frontend used
+    def record(self, row: int, frame: StreamFrame, prediction: DepthPrediction | None = None) -> None:
+        """``prediction``: the one perception made of this frame (None: predicted again)."""
+        pred = prediction if prediction is not None else self.depth.predict(frame)
         pp = self.depth.model.metadata.preprocessing
         rgb, _ = center_crop_resize(frame.rgb, self.depth.camera, pp.crop, pp.size)
         rgb_path, depth_path = self._paths(row)

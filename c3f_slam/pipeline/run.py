@@ -3,11 +3,12 @@
 :func:`run_slam` opens the run (inputs checked and opened once: :mod:`.sources`), then a
 :class:`SlamRun` (a context manager that owns the run's resources: the BLAS thread limit,
 the progress bar, the frames fusion re-reads, the back-end) takes one frame at a time
-(:meth:`SlamRun.step`): :class:`c3f_slam.stream.FrameStream` reads it, flagged frames
-(black / saturated) are skipped and counted, the depth provider gives its depth (files, or
-DepthNet ONNX), the frontend keeps only keypoints, descriptors (SIFT or ContraFeat ONNX) and
-3D points, the back-end (:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame
-(its :class:`~c3f_slam.pipeline.frame_step.FrameDecision` is counted), and fusion records the
+(:meth:`SlamRun.step`): :class:`c3f_slam.stream.FrameStream` reads it and perception
+(:mod:`.perception`, a worker thread a few frames ahead of the loop: ``frames.prefetch``) gives
+its depth (files, or DepthNet ONNX) and its keypoints, descriptors (SIFT or ContraFeat ONNX)
+and 3D points; flagged frames (black / saturated) are skipped and counted, the back-end
+(:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame (its
+:class:`~c3f_slam.pipeline.frame_step.FrameDecision` is counted), and fusion records the
 frame under its fragment. At the end the main map is fused with its final poses, re-reading
 its frames through :mod:`c3f_slam.pipeline.fusion_frames` (the sequence's files, or the
 on-disk cache of predicted depth, removed at the end), and the components of the map that
@@ -48,6 +49,7 @@ from c3f_slam.pipeline.frontend import Frontend
 from c3f_slam.pipeline.fusion_frames import FusionFrames, fusion_frames
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
 from c3f_slam.pipeline.odometry import OdometrySlam
+from c3f_slam.pipeline.perception import PerceivedFrame, Perception, Prefetcher
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.pipeline.sources import RunInputs, RunSources, open_sources
 from c3f_slam.pipeline.timings import Timings
@@ -120,14 +122,25 @@ class SlamRun:
         self.close()
 
     def run(self) -> TriangleMesh | None:
-        """Every frame of the stream, then the end of the run; returns the mesh (None without fusion)."""
-        for frame in self.timings.timed("io", self.sources.stream):
-            self.step(frame)
-        return self.finish()
+        """Every frame of the stream (perceived ahead of the back-end: ``frames.prefetch``),
+        then the end of the run; returns the mesh (None without fusion)."""
+        t0 = time.perf_counter()
+        perceive = Perception(self.sources.depth, self.frontend)
+        try:
+            with Prefetcher(self.sources.stream, perceive, self.cfg.frames.prefetch) as frames:
+                for item in frames:
+                    self.step(item)
+                self.timings.add("wait", frames.wait_seconds)
+            return self.finish()
+        finally:
+            self.timings.wall_seconds = time.perf_counter() - t0
 
-    def step(self, frame: StreamFrame) -> None:
-        """One streamed frame: skip it, or depth, features, back-end and fusion."""
+    def step(self, item: PerceivedFrame) -> None:
+        """One perceived frame: skip it, or the back-end and fusion."""
+        frame = item.frame
         self.counts.frames += 1
+        for stage, seconds in item.seconds.items():
+            self.timings.add(stage, seconds)
         if self.bar is not None:
             self.bar.update(1)
         if not frame.usable:
@@ -135,19 +148,17 @@ class SlamRun:
             if frame.status == UNREADABLE:
                 self._check_bad_frames(frame)
             return
-        with self.timings.stage("depth"):
-            depth = self.sources.depth.depth(frame)
-        with self.timings.stage("keypoints"):
-            feat = self.frontend.describe(frame, self.frontend.keypoints(frame.rgb), depth)
+        feat = item.features
+        assert feat is not None and item.depth is not None
         if int(np.isfinite(feat.points).all(axis=1).sum()) < self.cfg.match_filter.min_matches:
             self._skip(frame, "featureless")
             return
         self.counts.processed += 1
-        decision = self.backend.add(FrameInput(feat, depth, frame.rgb))
+        decision = self.backend.add(FrameInput(feat, item.depth, frame.rgb))
         self.counts.decisions.add(decision)
         if self.fusion is not None and decision.fragment >= 0:
             with self.timings.stage("fusion"):
-                self._fuse(decision.fragment, frame)
+                self._fuse(decision.fragment, item)
         if self.bar is not None:
             self.bar.set_postfix(kf=self.backend.map.n_keyframes(), refresh=False)
 
@@ -161,11 +172,11 @@ class SlamRun:
         self.counts.skipped[reason] += 1
         self.backend.skip(frame.index, frame.timestamp)
 
-    def _fuse(self, fid: int, frame: StreamFrame) -> None:
+    def _fuse(self, fid: int, item: PerceivedFrame) -> None:
         """Record the frame (log row) under its fragment for the fusion at the end."""
         assert self.fusion is not None and self.frames is not None
         row = len(self.backend.map.log) - 1
-        self.frames.record(row, frame)
+        self.frames.record(row, item.frame, item.prediction)
         self.fusion.add_frame(fid, row)
 
     def finish(self) -> TriangleMesh | None:

@@ -40,7 +40,7 @@ from c3f_slam.config import SlamConfig
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
-from c3f_slam.pipeline.fragments import FIRST, new_fragment_reason
+from c3f_slam.pipeline.fragments import FIRST, intra_fragment_targets, new_fragment_reason
 from c3f_slam.pipeline.frame_step import EXTENDED, FrameDecision, FrameInput
 from c3f_slam.pipeline.frontend import FrameFeatures, Matcher, PairMatch, frame_matcher
 from c3f_slam.pipeline.placement import FragmentPlacer, NewFragment
@@ -137,16 +137,14 @@ class FragmentSlam:
         """Append the frame to the active fragment, with its extra intra-fragment matches."""
         act = self.map.active
         assert act is not None and link is not None and act.features is not None
+        rules = self.cfg.fragments
         extra = []
-        all_pairs = self.cfg.fragments.intra_all_pairs
-        if all_pairs or len(act) > 1:
-            with self.t.stage("matching"):
-                for local in range(len(act) - 1) if all_pairs else [0]:
-                    if local == len(act) - 1:
-                        continue
-                    m, _ = self.match(act.features[local], feat)
-                    if m is not None:
-                        extra.append((local, m))
+        with self.t.stage("matching"):
+            for local in intra_fragment_targets(len(act), rules.intra_all_pairs, rules.intra_recent,
+                                                rules.intra_spaced):
+                m, _ = self.match(act.features[local], feat)
+                if m is not None:
+                    extra.append((local, m))
         return self.map.extend(feat, link, extra)
 
     def _open_fragment(self, frame: FrameInput, link: PairMatch | None, reason: str,

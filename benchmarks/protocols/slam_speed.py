@@ -1,0 +1,224 @@
+"""Speed of the SLAM runtime, before vs after, side by side in one run: frames/s and ms per
+frame per stage, with the ATE and registered share of each run (speed must not cost accuracy).
+
+Variants (the same code, the settings differ; runs alternate so machine noise hits all alike):
+
+- ``before``: the loop as it was: each frame perceived (read, depth, keypoints, descriptors) in
+  the run loop (``frames.prefetch=0``), each new frame matched against every earlier frame of
+  its fragment (``fragments.intra_all_pairs=true``), ContraFeat's dense descriptor map sampled in
+  NumPy;
+- ``prefetch``: only perception beside tracking (``frames.prefetch=2``);
+- ``bounded``: only the bounded intra-fragment matching (``fragments.intra_all_pairs=false``);
+- ``after``: the defaults (both, and ContraFeat's keypoint graph where the export has one).
+
+Cases (``--cases``): ``rgbd-128`` (simulator colon, 128 px, true depth, SIFT), ``rgbd-640x480``
+(the synthetic room at 640x480 with Kinect-like noise, room preset, true depth, SIFT),
+``model-128`` (simulator colon at 128 px, the zoo's DepthNet and ContraFeat) and ``model-224``
+(simulator colon at 224 px, the paper-size networks: DepthNet ResNet50 + DCN and ContraFeat
+ResNet18-FPN, 128-d, random weights: speed does not depend on the weight values).
+
+    python -m benchmarks.protocols.slam_speed --repeats 2
+
+Inputs: every sequence is generated from its seed under ``--work`` (default
+``runs/bench/slam_speed``); the zoo's models by name; the paper-size exports made from random
+weights with the project's exporter. Memory over a long stream: ``slam_scale.md``.
+Writes benchmarks/results/slam_speed.md and its .json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+
+from benchmarks.common import RESULTS, WORK
+from benchmarks.common.report import Report
+from benchmarks.common.simulate import SimSequence, ensure_sequence
+from c3f_slam.config import preset as slam_preset
+from c3f_slam.io import Sequence, read_tum
+from c3f_slam.pipeline import run_slam
+from c3f_slam.pipeline.sources import RunInputs
+from c3f_slam.trajectory_metrics import evaluate_trajectory
+
+NO_EVENTS = ("path.closeups=0", "path.bursts=0", "path.occlusions=0", "path.roll_events=0")
+VARIANTS: dict[str, dict] = {
+    "before": {"frames": {"prefetch": 0}, "fragments": {"intra_all_pairs": True}},
+    "prefetch": {"frames": {"prefetch": 2}, "fragments": {"intra_all_pairs": True}},
+    "bounded": {"frames": {"prefetch": 0}, "fragments": {"intra_all_pairs": False}},
+    "after": {},
+}
+DENSE_ONLY = ("before", "prefetch", "bounded")  # variants that use ContraFeat's dense graph
+STAGES = ("io", "depth", "keypoints", "wait", "matching", "fallback", "refine", "posegraph", "fusion")
+PERCEPTION = ("io", "depth", "keypoints")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One input: a sequence, the preset, and the models (None: true depth, SIFT)."""
+
+    name: str
+    preset: str
+    what: str
+    models: str | None = None  # "zoo" | "paper"
+
+
+CASES = {
+    "rgbd-128": Case("rgbd-128", "colon", "simulator colon seq1 (no events), 128 px, true depth, SIFT"),
+    "rgbd-640x480": Case("rgbd-640x480", "room", "synthetic room, 640x480, Kinect-like depth noise, SIFT"),
+    "model-128": Case("model-128", "colon", "simulator colon seq1 (no events), 128 px, zoo DepthNet + ContraFeat",
+                      "zoo"),
+    "model-224": Case("model-224", "colon", "simulator colon seq1 (no events), 224 px, paper-size DepthNet "
+                      "(ResNet50 + DCN) + ContraFeat (ResNet18-FPN, 128-d), random weights", "paper"),
+}
+ZOO = ("zoo:c3f-depth-r18w32", "zoo:c3f-features-r18w32")
+
+
+def sequence(case: Case, frames: int, work: Path) -> Path:
+    """The case's sequence under ``work`` (generated once)."""
+    out = work / "data" / f"{case.name}_{frames}"
+    if case.name == "rgbd-640x480":
+        if not (out / "camera.json").is_file():
+            from datamodules.synthetic.room import room_sequence
+
+            shutil.rmtree(out, ignore_errors=True)
+            room_sequence(out, frames=frames, width=640, height=480, seed=0)
+        return out
+    size = 224 if case.name == "model-224" else 128
+    return ensure_sequence(SimSequence("seq1", 1, frames, size, NO_EVENTS), out, echo=True)
+
+
+def paper_size_models(seq: Path, work: Path) -> tuple[Path, Path]:
+    """(depth, descriptors) ONNX exports of the paper-size networks with random weights (made once)."""
+    out = work / "paper_size_models"
+    depth, feat = out / "depthnet.onnx", out / "contrafeat.onnx"
+    if depth.is_file() and feat.is_file():
+        return depth, feat
+    import torch
+
+    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.depthnet import DepthNet
+    from export import export_model
+
+    torch.manual_seed(0)
+    models = (DepthNet(network={"encoder_layers": 50, "dcn": True}), ContraFeat(
+        network={"backbone_layers": 18, "descriptor_dim": 128, "fpn_channels": 128, "stem_channels": 32,
+                 "head_channels": 128}))
+    out.mkdir(parents=True, exist_ok=True)
+    for model, graphs in zip(models, (["depth"], None), strict=True):
+        ckpt = out / f"{type(model).__name__}.pt"
+        torch.save(model.state_dict(), ckpt)
+        export_model(model, ckpt, out, frames=seq, graphs=graphs, num_frames=2)
+    return depth, feat
+
+
+def run_inputs(case: Case, variant: str, seq: Path, work: Path, threads: int) -> RunInputs:
+    if case.models is None:
+        return RunInputs()
+    depth, feat = ZOO if case.models == "zoo" else paper_size_models(seq, work)
+    if variant in DENSE_ONLY:
+        feat = dense_file(feat)
+    return RunInputs(depth_model=depth, feature_model=feat, threads=threads)
+
+
+def dense_file(feat: str | Path) -> str | Path:
+    """The dense-graph file of a ContraFeat export, as the runtime takes it without the keypoint
+    graph (where the export has none, the file itself)."""
+    return feat
+
+
+def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int) -> dict:
+    """One run of ``variant`` on ``case``: its summary with the evaluation's ATE."""
+    cfg = slam_preset(case.preset, **VARIANTS[variant])
+    out = work / "runs" / case.name / variant
+    s = run_slam(seq, out, cfg, run_inputs(case, variant, seq, work, threads), progress=False, overwrite=True)
+    stamps, poses = read_tum(out / "trajectory.txt")
+    gt = Sequence(seq)
+    ev = evaluate_trajectory(stamps, poses, gt.timestamps, gt.poses, n_frames=len(gt))
+    s["ate_sim3_cm"] = 100 * ev.get("ate_sim3", {}).get("rmse_m", float("nan"))
+    return s
+
+
+def ms(s: dict, stage: str) -> float:
+    return s["timings"][stage]["ms_per_frame"]
+
+
+def row(case: Case, variant: str, runs: list[dict], base_fps: float) -> tuple[str, dict]:
+    """The table row of one variant (medians over the repeats) and its numbers."""
+    fps = statistics.median(r["timings"]["total"]["frames_per_second"] for r in runs)
+    stage = {k: statistics.median(ms(r, k) for r in runs) for k in STAGES}
+    frame_ms = 1000.0 / fps
+    perception = sum(stage[k] for k in PERCEPTION)
+    backend = sum(v for k, v in stage.items() if k not in PERCEPTION and k != "wait")
+    slowest = max(perception, backend)
+    r = runs[0]
+    data = {"fps": fps, "speedup": fps / base_fps, "stage_ms": stage, "frame_ms": frame_ms,
+            "perception_ms": perception, "backend_ms": backend, "frame_over_slowest": frame_ms / slowest,
+            "ate_sim3_cm": r["ate_sim3_cm"], "registered_share": r["registered_share"],
+            "fragments": r.get("fragments"), "intra_edges": r.get("intra_edges")}
+    text = (f"| {case.name} | {variant} | {fps:.2f} | {fps / base_fps:.2f}x | {frame_ms:.0f} | "
+            + " | ".join(f"{stage[k]:.1f}" for k in STAGES)
+            + f" | {perception:.0f} / {backend:.0f} | {frame_ms / slowest:.2f} | {r['ate_sim3_cm']:.2f} | "
+            f"{100 * r['registered_share']:.1f} | {r.get('intra_edges')} |")
+    return text, data
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cases", nargs="+", choices=tuple(CASES), default=list(CASES))
+    ap.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=list(VARIANTS))
+    ap.add_argument("--frames", type=int, default=600, help="frames per sequence (model-224: half)")
+    ap.add_argument("--repeats", type=int, default=1, help="runs of each variant (alternating)")
+    ap.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model")
+    ap.add_argument("--work", type=Path, default=WORK / "slam_speed")
+    ap.add_argument("--report", type=Path, default=RESULTS / "slam_speed.md")
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    rows, data = [], {}
+    for name in args.cases:
+        case = CASES[name]
+        seq = sequence(case, args.frames // 2 if name == "model-224" else args.frames, args.work)
+        runs: dict[str, list[dict]] = {v: [] for v in args.variants}
+        for _ in range(args.repeats):
+            for v in args.variants:
+                runs[v].append(run_once(case, v, seq, args.work, args.threads))
+                t = runs[v][-1]["timings"]["total"]
+                print(f"{name} {v}: {t['frames_per_second']:.2f} frames/s", flush=True)
+        base = statistics.median(r["timings"]["total"]["frames_per_second"] for r in runs[args.variants[0]])
+        data[name] = {}
+        for v in args.variants:
+            text, data[name][v] = row(case, v, runs[v], base)
+            rows.append(text)
+    Report(__file__, "SLAM runtime speed: before vs after").publish(args.report, body(args, rows), args, data)
+
+
+def body(args: argparse.Namespace, rows: list[str]) -> list[str]:
+    return [
+        f"- Machine: {os.cpu_count()} CPU cores ({platform.machine()}), no GPU, shared with other jobs; "
+        f"onnxruntime {args.threads} threads per model; medians of {args.repeats} run(s) per variant, the "
+        "variants alternating.",
+        "- Cases: " + "; ".join(f"{c}: {CASES[c].what}" for c in args.cases)
+        + f"; {args.frames} frames (model-224: {args.frames // 2}).",
+        "- Variants: " + "; ".join(f"{v}: {VARIANTS[v] or 'the defaults'}" for v in args.variants) + ".",
+        "- Columns: frames/s over the whole run (wall clock, the final optimisation and fusion included) and "
+        "its ratio to the first variant; ms per frame; ms per frame per stage (with perception ahead of the "
+        "loop, io, depth and keypoints run in the worker beside the other stages, and wait is the time the "
+        "loop waited for it); perception (io + depth + keypoints) / back-end (the rest but wait) ms per "
+        "frame; frame time over the slower of the two; ATE Sim(3) RMSE (cm); registered share; "
+        "intra-fragment edges.",
+        "",
+        "| case | variant | frames/s | vs first | ms/frame | " + " | ".join(STAGES)
+        + " | perception / back-end ms | frame / slowest | ATE cm | registered % | intra edges |",
+        "|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|---|",
+        *rows,
+    ]
+
+
+if __name__ == "__main__":
+    main()
