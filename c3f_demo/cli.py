@@ -14,7 +14,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from c3f_demo.config import demo_config
-from c3f_demo.runner import DemoInterrupted, StageFailed, run_demo
 from c3f_slam.errors import InputError
 
 
@@ -41,6 +40,9 @@ def _interrupt(signum, frame) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    # the stages (OpenCV, Open3D, onnxruntime): only once the arguments parsed (--help needs none)
+    from c3f_demo.runner import DemoInterrupted, StageFailed, run_demo
+
     # SIGTERM and SIGHUP (the terminal closed) stop the demo like Ctrl-C; restored on return
     previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:

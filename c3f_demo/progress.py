@@ -1,5 +1,7 @@
-"""Progress of the demo: a training callback that writes its step to a file, and the console
-line per stage (fraction, elapsed, ETA) with the per-stage time table at the end."""
+"""Progress of the demo: the training step read from the file the training callback writes
+(:class:`c3f_demo.progress_callback.ProgressFile`, a module of its own so that the demo's own
+process never imports Lightning), and the console line per stage (fraction, elapsed, ETA) with
+the per-stage time table at the end."""
 
 from __future__ import annotations
 
@@ -9,21 +11,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import lightning as L
-
-
-class ProgressFile(L.Callback):
-    """Writes ``"STEP MAX_STEPS"`` to ``path`` after every training batch (read by the demo's ETA)."""
-
-    def __init__(self, path: str) -> None:
-        self.path = Path(path)
-
-    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        self.path.write_text(f"{trainer.global_step} {trainer.max_steps}\n")
-
 
 def read_step_fraction(path: Path) -> float | None:
-    """Fraction done from a :class:`ProgressFile` file (None when absent or unreadable)."""
+    """Fraction done from a :class:`~c3f_demo.progress_callback.ProgressFile` file (None when absent or unreadable)."""
     try:
         step, total = (int(x) for x in path.read_text().split())
     except (OSError, ValueError):

@@ -109,7 +109,7 @@ def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: d
                        "init_args": {"save_dir": str(run), "name": "tb"}},
             "callbacks": [
                 {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint", "init_args": {"save_last": True}},
-                {"class_path": "c3f_demo.progress.ProgressFile",
+                {"class_path": "c3f_demo.progress_callback.ProgressFile",
                  "init_args": {"path": str(run / "progress.txt")}},
             ],
         },

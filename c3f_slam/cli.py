@@ -120,13 +120,14 @@ def _warn_replay_inputs(summary: dict, inputs) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from c3f_slam.config.loading import config_yaml
-    from c3f_slam.models.session import check_providers
-    from c3f_slam.pipeline import RunInputs, run_slam
 
     cfg, replayed = _settings(args)
     if args.print_config:
         print(config_yaml(cfg), end="")
         return 0
+    from c3f_slam.models.session import check_providers  # onnxruntime, Open3D, OpenCV: not for --print-config
+    from c3f_slam.pipeline import RunInputs, run_slam
+
     _check(args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
     inputs = RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, args.camera,
                        args.threads, args.depth_scale, args.max_bad_frames, check_providers(args.providers))

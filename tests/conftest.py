@@ -28,6 +28,11 @@ if HAVE_TORCH:  # one intra-op thread per test process: with pytest -n 2 on 2 co
     import torch
 
     torch.set_num_threads(1)
+if importlib.util.find_spec("lightning") is not None:
+    # Lightning's console log handler takes sys.stderr when lightning is first imported. c3f_models.cli
+    # imports it only when a Lightning subcommand runs, i.e. inside a test, whose captured stderr would
+    # then get every later test's "Seed set to 42" lines; imported here, it writes to the real stderr.
+    import lightning  # noqa: F401
 
 #: top-level modules of the training stack and the packages built on it
 TRAINING_STACK = frozenset({"torch", "torchvision", "lightning", "kornia", "jsonargparse", "safetensors", "tensorboard",

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from c3f_models.cli import main
+from tests.startup import packages_loaded_by
 
 ROOT = Path(__file__).resolve().parents[1]
 BORING = "lightning.pytorch.demos.boring_classes.BoringModel"
@@ -105,3 +106,22 @@ def test_model_option_error_is_one_line(tmp_path, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["error: model.network.min_depth/max_depth: need 0 < min_depth < max_depth, got 0.5, 0.3"]
+
+
+@pytest.mark.parametrize("argv", [["zoo", "list"], ["zoo", "show", "c3f-depth-r18w32", "--json"], ["zoo", "--help"],
+                                  ["zoo", "recipes"]], ids=" ".join)
+def test_zoo_commands_start_without_torch(argv):
+    """Reading the zoo needs neither torch nor Lightning: ``python -m c3f_models zoo ...`` imports
+    them not at all (LightningCLI's subcommands do, :mod:`c3f_models.lightning_cli`)."""
+    loaded = packages_loaded_by("c3f_models", *argv)
+    assert "c3f_models" in loaded and "c3f_slam" in loaded  # the command ran, and the check sees its imports
+    assert not loaded & {"torch", "lightning", "jsonargparse", "torchvision"}, sorted(loaded)
+
+
+def test_lightning_names_stay_importable_from_cli():
+    """``c3f_models.cli`` still gives the LightningCLI's names (imported on first access)."""
+    from c3f_models import cli, lightning_cli
+
+    assert cli.C3FCLI is lightning_cli.C3FCLI and cli.EXTRA_SUBCOMMANDS == {"export": {"model", "datamodule"}}
+    with pytest.raises(AttributeError):
+        cli.NoSuchName  # noqa: B018

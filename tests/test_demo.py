@@ -22,6 +22,7 @@ from c3f_demo.report import SECTIONS, build_report
 from c3f_demo.stages import Stage
 from c3f_demo.state import DemoState, stage_key
 from c3f_slam.errors import InputError
+from tests.startup import packages_loaded_by
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -323,3 +324,37 @@ def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path, sig):
     assert p.returncode == 130 and err.count("\n") == 1 and "interrupted in stage train_depth" in err
     assert list(json.loads((out / "demo_state.json").read_text())["stages"]) == ["simulate"]
     assert list(out.glob("runs/depthnet/tb/version_0/checkpoints/interrupted.ckpt"))
+
+
+def test_the_demo_process_starts_without_the_training_stack(tmp_path):
+    """``python -m c3f_demo --help`` imports none of torch, Lightning, Open3D, OpenCV, onnxruntime;
+    the demo's own process (runner, every stage: here stopped by a bad ``--out``) neither torch nor
+    Lightning: its ``fit`` and ``export`` subprocesses load them (the training callback too,
+    :mod:`c3f_demo.progress_callback`)."""
+    heavy = {"torch", "lightning", "open3d", "cv2", "onnxruntime"}
+    loaded = packages_loaded_by("c3f_demo", "--help")
+    assert "c3f_demo" in loaded and not loaded & heavy, sorted(loaded & heavy)
+    (tmp_path / "file").write_text("")
+    loaded = packages_loaded_by("c3f_demo", "--out", str(tmp_path / "file"), status=2)
+    assert {"open3d", "cv2"} <= loaded  # the stages were imported
+    assert not loaded & {"torch", "lightning"}, sorted(loaded & heavy)
+
+
+def test_progress_callback_of_the_fit_config_writes_what_the_eta_reads(tmp_path):
+    """The callback class path of the demo's ``fit`` configs loads, and its file gives the fraction."""
+    import importlib
+    from types import SimpleNamespace
+
+    import yaml
+
+    from c3f_demo.context import DemoContext
+    from c3f_demo.stages import _fit_yaml
+
+    ctx = DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
+    callbacks = yaml.safe_load(_fit_yaml(ctx, "depthnet", 12, 0, {}, {}).read_text())["trainer"]["callbacks"]
+    (progress,) = [c for c in callbacks if c["class_path"].endswith("ProgressFile")]
+    module, name = progress["class_path"].rsplit(".", 1)
+    callback = getattr(importlib.import_module(module), name)(**progress["init_args"])
+    ctx.run_dir("depthnet").mkdir(parents=True)  # the fit's logger makes it
+    callback.on_train_batch_end(SimpleNamespace(global_step=3, max_steps=12), None, None, None, 0)
+    assert read_step_fraction(ctx.run_dir("depthnet") / "progress.txt") == pytest.approx(0.25)

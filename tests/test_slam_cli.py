@@ -15,6 +15,7 @@ import pytest
 
 from c3f_slam.cli import main
 from datamodules.synthetic.fixture import make_tiny_sequence
+from tests.startup import packages_loaded_by
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -159,3 +160,13 @@ def test_onnx_options_fail_clearly(seq, tmp_path, capsys):
 def test_evaluate_without_run(seq, tmp_path, capsys):
     assert main(["evaluate", str(tmp_path), "--gt", str(seq)]) == 2
     assert "trajectory" in _error_line(capsys)
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["run", "--preset", "room", "--print-config"]],
+                         ids=" ".join)
+def test_help_and_print_config_import_no_heavy_library(argv):
+    """Help and ``--print-config`` read no frames and run no model: they start without NumPy,
+    OpenCV, Open3D or onnxruntime (a run imports them when it starts)."""
+    loaded = packages_loaded_by("c3f_slam", *argv)
+    assert "c3f_slam" in loaded
+    assert not loaded & {"numpy", "cv2", "open3d", "onnxruntime", "scipy", "torch"}, sorted(loaded)
