@@ -1,14 +1,14 @@
 """Speed of the SLAM runtime, before vs after, side by side in one run: frames/s and ms per
 frame per stage, with the ATE and registered share of each run (speed must not cost accuracy).
 
-Variants (the same code, the settings differ; runs alternate so machine noise hits all alike):
+Variants, run with the CLI one after another (runs alternate so machine noise hits all alike):
 
-- ``before``: the loop as it was: each frame perceived (read, depth, keypoints, descriptors) in
-  the run loop (``frames.prefetch=0``), each new frame matched against every earlier frame of
-  its fragment (``fragments.intra_all_pairs=true``), ContraFeat's dense descriptor map sampled in
-  NumPy;
-- ``prefetch``: only perception beside tracking (``frames.prefetch=2``);
-- ``bounded``: only the bounded intra-fragment matching (``fragments.intra_all_pairs=false``);
+- ``baseline`` (with ``--baseline CHECKOUT``): the code before, from that checkout, its defaults;
+- ``serial``: this checkout as the loop was: each frame perceived (read, depth, keypoints,
+  descriptors) in the run loop (``frames.prefetch=0``), each new frame matched against every
+  earlier frame of its fragment (``fragments.intra_all_pairs=true``), ContraFeat's dense graph;
+- ``prefetch``: only perception beside tracking;
+- ``bounded``: only the bounded intra-fragment matching;
 - ``after``: the defaults (both, and ContraFeat's keypoint graph where the export has one).
 
 Cases (``--cases``): ``rgbd-128`` (simulator colon, 128 px, true depth, SIFT), ``rgbd-640x480``
@@ -17,7 +17,7 @@ Cases (``--cases``): ``rgbd-128`` (simulator colon, 128 px, true depth, SIFT), `
 (simulator colon at 224 px, the paper-size networks: DepthNet ResNet50 + DCN and ContraFeat
 ResNet18-FPN, 128-d, random weights: speed does not depend on the weight values).
 
-    python -m benchmarks.protocols.slam_speed --repeats 2
+    python -m benchmarks.protocols.slam_speed --baseline /tmp/before
 
 Inputs: every sequence is generated from its seed under ``--work`` (default
 ``runs/bench/slam_speed``); the zoo's models by name; the paper-size exports made from random
@@ -28,30 +28,32 @@ Writes benchmarks/results/slam_speed.md and its .json.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import shlex
 import shutil
 import statistics
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmarks.common import RESULTS, WORK
+from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
-from c3f_slam.config import preset as slam_preset
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.pipeline import run_slam
-from c3f_slam.pipeline.sources import RunInputs
 from c3f_slam.trajectory_metrics import evaluate_trajectory
 
 NO_EVENTS = ("path.closeups=0", "path.bursts=0", "path.occlusions=0", "path.roll_events=0")
-VARIANTS: dict[str, dict] = {
-    "before": {"frames": {"prefetch": 0}, "fragments": {"intra_all_pairs": True}},
-    "prefetch": {"frames": {"prefetch": 2}, "fragments": {"intra_all_pairs": True}},
-    "bounded": {"frames": {"prefetch": 0}, "fragments": {"intra_all_pairs": False}},
-    "after": {},
+BASELINE = "baseline"  #: the variant run from ``--baseline CHECKOUT`` with its defaults
+VARIANTS: dict[str, tuple[str, ...]] = {  # --set overrides of this checkout's defaults
+    "serial": ("frames.prefetch=0", "fragments.intra_all_pairs=true"),
+    "prefetch": ("fragments.intra_all_pairs=true",),
+    "bounded": ("frames.prefetch=0",),
+    "after": (),
 }
-DENSE_ONLY = ("before", "prefetch", "bounded")  # variants that use ContraFeat's dense graph
+DENSE_ONLY = (BASELINE, "serial", "prefetch", "bounded")  # variants given ContraFeat's dense graph alone
 STAGES = ("io", "depth", "keypoints", "wait", "matching", "fallback", "refine", "posegraph", "fusion")
 PERCEPTION = ("io", "depth", "keypoints")
 
@@ -115,40 +117,57 @@ def paper_size_models(seq: Path, work: Path) -> tuple[Path, Path]:
     return depth, feat
 
 
-def run_inputs(case: Case, variant: str, seq: Path, work: Path, threads: int) -> RunInputs:
+def model_options(case: Case, variant: str, seq: Path, work: Path, threads: int) -> list[str]:
+    """The run's model options (none for true depth and SIFT)."""
     if case.models is None:
-        return RunInputs()
+        return ["--depth-source", "files", "--descriptors", "sift"]
     depth, feat = ZOO if case.models == "zoo" else paper_size_models(seq, work)
     if variant in DENSE_ONLY:
-        feat = dense_file(feat)
-    return RunInputs(depth_model=depth, feature_model=feat, threads=threads)
+        feat = dense_only(feat, work)
+    return ["--depth-model", str(depth), "--feature-model", str(feat), "--threads", str(threads)]
 
 
-def dense_file(feat: str | Path) -> str | Path:
-    """The dense-graph file of a ContraFeat export, as the runtime takes it without the keypoint
-    graph (where the export has none, the file itself)."""
-    return feat
+def dense_only(feat: str | Path, work: Path) -> str | Path:
+    """The dense-graph ContraFeat file alone in a folder of its own, so that the runtime does not
+    find the export's keypoint graph beside it (a zoo name as it is: the zoo has no keypoint graph)."""
+    if str(feat).startswith("zoo:"):
+        return feat
+    alone = work / "dense_only" / Path(feat).name
+    if not alone.is_file():
+        alone.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(feat, alone)
+    return alone
 
 
-def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int) -> dict:
-    """One run of ``variant`` on ``case``: its summary with the evaluation's ATE."""
-    cfg = slam_preset(case.preset, **VARIANTS[variant])
+def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int, baseline: Path | None) -> dict:
+    """One run of ``variant`` on ``case`` with the CLI (``baseline``: that checkout, its defaults;
+    else this one with the variant's settings): its summary with the ATE (Sim(3), cm)."""
     out = work / "runs" / case.name / variant
-    s = run_slam(seq, out, cfg, run_inputs(case, variant, seq, work, threads), progress=False, overwrite=True)
+    checkout = baseline if variant == BASELINE else ROOT
+    sets = [] if variant == BASELINE else [x for kv in VARIANTS[variant] for x in ("--set", kv)]
+    cmd = [sys.executable, "-m", "c3f_slam", "run", str(seq), "--out", str(out), "--overwrite", "--quiet",
+           "--preset", case.preset, "--set", "coverage.enabled=false", *sets,
+           *model_options(case, variant, seq, work, threads)]
+    proc = subprocess.run(cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True,
+                          text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"{case.name} {variant}: {shlex.join(cmd)} failed: {proc.stderr.strip()[-400:]}")
+    s = json.loads((out / "summary.json").read_text())
     stamps, poses = read_tum(out / "trajectory.txt")
     gt = Sequence(seq)
     ev = evaluate_trajectory(stamps, poses, gt.timestamps, gt.poses, n_frames=len(gt))
     s["ate_sim3_cm"] = 100 * ev.get("ate_sim3", {}).get("rmse_m", float("nan"))
+    s["fps"] = s["frames"] / s["wall_seconds"]
     return s
 
 
 def ms(s: dict, stage: str) -> float:
-    return s["timings"][stage]["ms_per_frame"]
+    return s["timings"].get(stage, {}).get("ms_per_frame", 0.0)
 
 
 def row(case: Case, variant: str, runs: list[dict], base_fps: float) -> tuple[str, dict]:
     """The table row of one variant (medians over the repeats) and its numbers."""
-    fps = statistics.median(r["timings"]["total"]["frames_per_second"] for r in runs)
+    fps = statistics.median(r["fps"] for r in runs)
     stage = {k: statistics.median(ms(r, k) for r in runs) for k in STAGES}
     frame_ms = 1000.0 / fps
     perception = sum(stage[k] for k in PERCEPTION)
@@ -169,7 +188,9 @@ def row(case: Case, variant: str, runs: list[dict], base_fps: float) -> tuple[st
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cases", nargs="+", choices=tuple(CASES), default=list(CASES))
-    ap.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=list(VARIANTS))
+    ap.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=list(VARIANTS),
+                    help="this checkout's variants (after --baseline's run, when given)")
+    ap.add_argument("--baseline", type=Path, help="checkout of the code before (run from its folder, its defaults)")
     ap.add_argument("--frames", type=int, default=600, help="frames per sequence (model-224: half)")
     ap.add_argument("--repeats", type=int, default=1, help="runs of each variant (alternating)")
     ap.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model")
@@ -184,15 +205,15 @@ def main(argv: list[str] | None = None) -> None:
     for name in args.cases:
         case = CASES[name]
         seq = sequence(case, args.frames // 2 if name == "model-224" else args.frames, args.work)
-        runs: dict[str, list[dict]] = {v: [] for v in args.variants}
+        variants = ([BASELINE] if args.baseline else []) + list(args.variants)
+        runs: dict[str, list[dict]] = {v: [] for v in variants}
         for _ in range(args.repeats):
-            for v in args.variants:
-                runs[v].append(run_once(case, v, seq, args.work, args.threads))
-                t = runs[v][-1]["timings"]["total"]
-                print(f"{name} {v}: {t['frames_per_second']:.2f} frames/s", flush=True)
-        base = statistics.median(r["timings"]["total"]["frames_per_second"] for r in runs[args.variants[0]])
+            for v in variants:
+                runs[v].append(run_once(case, v, seq, args.work, args.threads, args.baseline))
+                print(f"{name} {v}: {runs[v][-1]['fps']:.2f} frames/s", flush=True)
+        base = statistics.median(r["fps"] for r in runs[variants[0]])
         data[name] = {}
-        for v in args.variants:
+        for v in variants:
             text, data[name][v] = row(case, v, runs[v], base)
             rows.append(text)
     Report(__file__, "SLAM runtime speed: before vs after").publish(args.report, body(args, rows), args, data)
@@ -205,8 +226,11 @@ def body(args: argparse.Namespace, rows: list[str]) -> list[str]:
         "variants alternating.",
         "- Cases: " + "; ".join(f"{c}: {CASES[c].what}" for c in args.cases)
         + f"; {args.frames} frames (model-224: {args.frames // 2}).",
-        "- Variants: " + "; ".join(f"{v}: {VARIANTS[v] or 'the defaults'}" for v in args.variants) + ".",
-        "- Columns: frames/s over the whole run (wall clock, the final optimisation and fusion included) and "
+        "- Variants: " + (f"baseline: {args.baseline} with its defaults; " if args.baseline else "")
+        + "; ".join(f"{v}: {' '.join(VARIANTS[v]) or 'the defaults'}" for v in args.variants)
+        + " (variants other than after are given ContraFeat's dense graph alone); coverage off.",
+        "- Columns: frames/s over the whole command's wall-clock time (summary.json's wall_seconds: opening "
+        "the models, the frames, the final optimisation, fusion and the outputs) and "
         "its ratio to the first variant; ms per frame; ms per frame per stage (with perception ahead of the "
         "loop, io, depth and keypoints run in the worker beside the other stages, and wait is the time the "
         "loop waited for it); perception (io + depth + keypoints) / back-end (the rest but wait) ms per "
