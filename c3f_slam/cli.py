@@ -49,7 +49,8 @@ def _run_parser(sub: argparse._SubParsersAction) -> None:
                                          "(a model of the repository's zoo/, `python -m c3f_models zoo list`)")
     r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints), or zoo:NAME")
     r.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video)")
-    r.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model (default 2)")
+    r.add_argument("--threads", type=int, default=None,
+                   help="onnxruntime threads per model (default: the cores less one, at least 1)")
     r.add_argument("--providers", default="CPUExecutionProvider",
                    help="onnxruntime execution providers of the models, comma-separated, preferred first, e.g. "
                         "CUDAExecutionProvider,CPUExecutionProvider (CUDA needs the onnxruntime-gpu package); "
@@ -128,7 +129,7 @@ def _run(args: argparse.Namespace) -> int:
     from c3f_slam.models.session import check_providers  # onnxruntime, Open3D, OpenCV: not for --print-config
     from c3f_slam.pipeline import RunInputs, run_slam
 
-    _check(args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
+    _check(args.threads is None or args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
     inputs = RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, args.camera,
                        args.threads, args.depth_scale, args.max_bad_frames, check_providers(args.providers))
     if replayed is not None:

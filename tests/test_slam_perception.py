@@ -130,3 +130,17 @@ def test_prefetched_run_equals_serial_model_depth_and_contrafeat(seq, tmp_path):
     assert serial["depth_source"] == "model" and serial["descriptors"] == "contrafeat"
     assert serial["processed"] >= 20
     _same_run(tmp_path / "serial", tmp_path / "ahead")
+
+
+def test_model_threads_default_to_the_cores_less_one(seq, tmp_path, monkeypatch):
+    from c3f_slam.pipeline import sources
+
+    monkeypatch.setattr(sources.os, "cpu_count", lambda: 2)
+    assert sources.default_threads() == 1
+    monkeypatch.setattr(sources.os, "cpu_count", lambda: 16)
+    assert sources.default_threads() == 15
+    inputs = RunInputs(depth_model=fx.depth_model(tmp_path / "d.onnx", (96, 96)))
+    desc, depth = sources.make_providers(inputs, sources.FrameStream(seq).camera)
+    assert depth.model.onnx.threads == 15
+    given = sources.make_providers(RunInputs(depth_model=inputs.depth_model, threads=3), sources.FrameStream(seq).camera)
+    assert given[1].model.onnx.threads == 3

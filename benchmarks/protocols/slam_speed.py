@@ -117,14 +117,15 @@ def paper_size_models(seq: Path, work: Path) -> tuple[Path, Path]:
     return depth, feat
 
 
-def model_options(case: Case, variant: str, seq: Path, work: Path, threads: int) -> list[str]:
+def model_options(case: Case, variant: str, seq: Path, work: Path, threads: int | None) -> list[str]:
     """The run's model options (none for true depth and SIFT)."""
     if case.models is None:
         return ["--depth-source", "files", "--descriptors", "sift"]
     depth, feat = ZOO if case.models == "zoo" else paper_size_models(seq, work)
     if variant in DENSE_ONLY:
         feat = dense_only(feat, work)
-    return ["--depth-model", str(depth), "--feature-model", str(feat), "--threads", str(threads)]
+    threads_option = ["--threads", str(threads)] if threads else []
+    return ["--depth-model", str(depth), "--feature-model", str(feat), *threads_option]
 
 
 def dense_only(feat: str | Path, work: Path) -> str | Path:
@@ -139,7 +140,8 @@ def dense_only(feat: str | Path, work: Path) -> str | Path:
     return alone
 
 
-def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int, baseline: Path | None) -> dict:
+def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int | None, baseline: Path | None,
+             providers: str | None = None) -> dict:
     """One run of ``variant`` on ``case`` with the CLI (``baseline``: that checkout, its defaults;
     else this one with the variant's settings): its summary with the ATE (Sim(3), cm)."""
     out = work / "runs" / case.name / variant
@@ -147,7 +149,8 @@ def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int, base
     sets = [] if variant == BASELINE else [x for kv in VARIANTS[variant] for x in ("--set", kv)]
     cmd = [sys.executable, "-m", "c3f_slam", "run", str(seq), "--out", str(out), "--overwrite", "--quiet",
            "--preset", case.preset, "--set", "coverage.enabled=false", *sets,
-           *model_options(case, variant, seq, work, threads)]
+           *model_options(case, variant, seq, work, threads),
+           *(["--providers", providers] if providers and case.models and variant != BASELINE else [])]
     proc = subprocess.run(cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True,
                           text=True)
     if proc.returncode != 0:
@@ -193,7 +196,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--baseline", type=Path, help="checkout of the code before (run from its folder, its defaults)")
     ap.add_argument("--frames", type=int, default=600, help="frames per sequence (model-224: half)")
     ap.add_argument("--repeats", type=int, default=1, help="runs of each variant (alternating)")
-    ap.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="onnxruntime threads per model; default: each checkout's own default")
+    ap.add_argument("--providers", help="the runs' --providers (model cases, this checkout), e.g. "
+                                        "CUDAExecutionProvider,CPUExecutionProvider on a GPU; default CPU")
     ap.add_argument("--work", type=Path, default=WORK / "slam_speed")
     ap.add_argument("--report", type=Path, default=RESULTS / "slam_speed.md")
     return ap.parse_args(argv)
@@ -209,7 +215,7 @@ def main(argv: list[str] | None = None) -> None:
         runs: dict[str, list[dict]] = {v: [] for v in variants}
         for _ in range(args.repeats):
             for v in variants:
-                runs[v].append(run_once(case, v, seq, args.work, args.threads, args.baseline))
+                runs[v].append(run_once(case, v, seq, args.work, args.threads, args.baseline, args.providers))
                 print(f"{name} {v}: {runs[v][-1]['fps']:.2f} frames/s", flush=True)
         base = statistics.median(r["fps"] for r in runs[variants[0]])
         data[name] = {}
@@ -222,7 +228,8 @@ def main(argv: list[str] | None = None) -> None:
 def body(args: argparse.Namespace, rows: list[str]) -> list[str]:
     return [
         f"- Machine: {os.cpu_count()} CPU cores ({platform.machine()}), no GPU, shared with other jobs; "
-        f"onnxruntime {args.threads} threads per model; medians of {args.repeats} run(s) per variant, the "
+        f"onnxruntime {args.threads or 'the default number of'} threads per model (the baseline's default: 2; "
+        f"this checkout's: the cores less one); medians of {args.repeats} run(s) per variant, the "
         "variants alternating.",
         "- Cases: " + "; ".join(f"{c}: {CASES[c].what}" for c in args.cases)
         + f"; {args.frames} frames (model-224: {args.frames // 2}).",

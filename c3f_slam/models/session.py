@@ -136,7 +136,8 @@ class OnnxModel:
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = max(1, threads)
+        self.threads = max(1, threads)  #: onnxruntime intra-op threads
+        opts.intra_op_num_threads = self.threads
         opts.inter_op_num_threads = 1
         opts.log_severity_level = 3  # errors only; ours are raised as InputError
         try:

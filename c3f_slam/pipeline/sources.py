@@ -7,6 +7,7 @@ means model depth, ``--feature-model`` alone ContraFeat, else depth files and SI
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -37,7 +38,8 @@ class RunInputs:
     depth_model: str | Path | None = None  #: DepthNet ONNX export
     feature_model: str | Path | None = None  #: ContraFeat ONNX export
     camera: str | Path | PinholeCamera | None = None  #: intrinsics of a video (default camera.json beside it)
-    threads: int = 2  #: onnxruntime intra-op threads per model
+    #: onnxruntime intra-op threads per model; None: :func:`default_threads` (one core left for the back-end)
+    threads: int | None = None
     depth_scale: float | None = None  #: factor on model depth; None: the model's metric_scale, else 1
     max_bad_frames: int = 10  #: unreadable frames skipped and counted; one more fails the run
     providers: tuple[str, ...] = DEFAULT_PROVIDERS  #: onnxruntime execution providers of every model, preferred first
@@ -72,6 +74,14 @@ def resolve_sources(
     return descriptors, depth_source
 
 
+def default_threads() -> int:
+    """onnxruntime threads per model when none are given: the machine's cores less one, which the
+    back-end uses while perception runs ahead of it (at least 1). On 2 cores: 1, which made whole
+    model-mode runs 1.3x faster than 2 threads at 128 px and equal at 224 px
+    (benchmarks/results/slam_speed.md)."""
+    return max(1, (os.cpu_count() or 2) - 1)
+
+
 def make_providers(inputs: RunInputs, camera: PinholeCamera | None = None) -> tuple[DescriptorProvider, DepthProvider]:
     """The descriptor and depth providers of ``inputs``; model providers load their ONNX file
     and are bound to ``camera``, the frames' intrinsics. InputError otherwise."""
@@ -81,11 +91,12 @@ def make_providers(inputs: RunInputs, camera: PinholeCamera | None = None) -> tu
         raise ValueError("model providers need the frames' camera")
     desc: DescriptorProvider = SiftDescriptors()
     depth: DepthProvider = FileDepth()
+    threads = inputs.threads or default_threads()
     if descriptors == "contrafeat":  # the export's keypoint file when it sits beside the dense one
-        desc = ContraFeatDescriptors(DescriptorModel(inputs.feature_model, inputs.threads, "--feature-model",
+        desc = ContraFeatDescriptors(DescriptorModel(inputs.feature_model, threads, "--feature-model",
                                                      prefer_keypoints=True, providers=inputs.providers), camera)
     if depth_source == "model":
-        depth = ModelDepth(DepthModel(inputs.depth_model, inputs.threads, "--depth-model",
+        depth = ModelDepth(DepthModel(inputs.depth_model, threads, "--depth-model",
                                       providers=inputs.providers), camera, inputs.depth_scale)
     return desc, depth
 
@@ -116,7 +127,7 @@ class RunSources:
             out["depth_scale"] = {"factor": self.depth.scale, "source": self.depth.scale_source}
         out["models"] = {
             name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe(),
-                   "providers": list(p.model.onnx.providers)}
+                   "providers": list(p.model.onnx.providers), "threads": p.model.onnx.threads}
             for name, p in (("descriptors", self.describer), ("depth", self.depth)) if hasattr(p, "model")
         }
         if isinstance(self.describer, ContraFeatDescriptors):
