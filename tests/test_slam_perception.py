@@ -140,7 +140,8 @@ def test_model_threads_default_to_the_cores_less_one(seq, tmp_path, monkeypatch)
     monkeypatch.setattr(sources.os, "cpu_count", lambda: 16)
     assert sources.default_threads() == 15
     inputs = RunInputs(depth_model=fx.depth_model(tmp_path / "d.onnx", (96, 96)))
-    desc, depth = sources.make_providers(inputs, sources.FrameStream(seq).camera)
+    camera = sources.FrameStream(seq).camera
+    desc, depth = sources.make_providers(inputs, camera)
     assert depth.model.onnx.threads == 15
-    given = sources.make_providers(RunInputs(depth_model=inputs.depth_model, threads=3), sources.FrameStream(seq).camera)
+    given = sources.make_providers(RunInputs(depth_model=inputs.depth_model, threads=3), camera)
     assert given[1].model.onnx.threads == 3
