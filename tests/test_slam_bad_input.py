@@ -29,6 +29,7 @@ from tests.bad_input import Case, check_refused, error_line, interrupt, left_bes
 
 SIZE = 128  #: frame side (pixels): enough correspondences to register the tiny sequences
 RUN = ["--min-correspondences", "15", "--quiet"]
+LONG = 240  #: frames of the interrupted run: enough that Ctrl-C comes before its last frame is read
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,7 @@ def test_ctrl_c_during_a_run_over_a_complete_run(inputs, tmp_path):
     """SIGINT to ``c3f_slam run --overwrite`` while it works: exit 130, one line saying where the
     partial run is; OUT holds that run marked status error, nothing of the earlier complete run
     (its mesh), and nothing is left beside it."""
-    long_seq = make_tiny_sequence(tmp_path / "long", frames=60, size=SIZE, seed=5)
+    long_seq = make_tiny_sequence(tmp_path / "long", frames=LONG, size=SIZE, seed=5)
     out = tmp_path / "out"
     shutil.copytree(inputs.run, out)
     assert (out / "mesh.ply").is_file()
@@ -141,5 +142,5 @@ def test_ctrl_c_during_a_run_over_a_complete_run(inputs, tmp_path):
     assert code == 130
     assert error_line(err) == f"error: interrupted; the run so far is in {out} (summary.json status error)"
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["status"] == "error" and 0 < summary["frames"] < 60
+    assert summary["status"] == "error" and 0 < summary["frames"] < LONG
     assert not (out / "mesh.ply").exists() and left_beside(out) == []
