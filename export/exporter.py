@@ -30,10 +30,11 @@ from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write_text, staging_dir
 from c3f_slam.models.metadata import ModelMetadata, Preprocessing
 from export.calibration import metric_scale as measure_metric_scale
-from export.frames import frames_from_source, parity_source
+from export.frames import calibration_images, frames_from_source, parity_source
 from export.graphs import Exportable, GraphSpec
 from export.onnx_io import STORAGE, store_float16, to_onnx, write_onnx
-from export.parity import check_keypoint_sampling, check_parity
+from export.parity import SAMPLING_TOLERANCE, check_keypoint_sampling, check_parity
+from export.precision import PRECISIONS, RELATIVE_TOLERANCE, convert
 
 #: the export's manifest (files, hashes, parity), moved into the output folder last
 MANIFEST = "export.json"
@@ -129,12 +130,14 @@ def export_model(
     datamodule=None,
     frames: str | Path | None = None,
     num_frames: int = 4,
-    tolerance: float = 1e-4,
+    tolerance: float | None = None,
     dynamic_size: bool = True,
     weights_only: bool | None = None,
     graphs: SequenceABC[str] | None = None,
     storage: str = "float32",
     metric_scale: float | None = None,
+    precision: str = "float32",
+    calibration_frames: int = 32,
 ) -> list[Path]:
     """Export every graph of ``model`` (or those of ``graphs``) into ``output_dir``; returns the
     written files.
@@ -146,7 +149,10 @@ def export_model(
         datamodule: the training data module (pre-processing settings; parity frames).
         frames: a sequence folder for the parity frames (default: the data module's).
         num_frames: frames in the parity check.
-        tolerance: largest accepted |onnxruntime - PyTorch| of any output element.
+        tolerance: the parity bound: for float32 the largest accepted |onnxruntime - PyTorch| of
+            any output element (None: 1e-4); for float16 and int8 the largest accepted mean
+            absolute difference relative to the mean magnitude of PyTorch's float32 output
+            (None: :data:`export.precision.RELATIVE_TOLERANCE`).
         dynamic_size: export height/width as dynamic axes.
         weights_only: accepted for the run's saved ``config.yaml``; checkpoints are always read with
             the safe unpickler (:func:`c3f_models.checkpoints.read_checkpoint_weights`), and False is refused.
@@ -158,10 +164,12 @@ def export_model(
         metric_scale: record this factor to metres instead of measuring it on the training data
             (a network tuned without ground truth from one whose scale was measured, e.g. test-time
             training from a zoo model: give the zoo model's recorded scale).
+        precision: the graphs' arithmetic: ``float32``, ``float16`` or ``int8``
+            (:mod:`export.precision`; inputs and outputs stay float32).
+        calibration_frames: training frames whose activation ranges int8 quantisation uses.
     """
     ckpt_path = _checked_arguments(ckpt_path, weights_only, num_frames)
-    if storage not in STORAGE:
-        raise InputError(f"--storage must be one of {', '.join(STORAGE)}, got {storage}")
+    _check_encoding(storage, precision, tolerance, calibration_frames)
     if metric_scale is not None and not (np.isfinite(metric_scale) and metric_scale > 0):
         raise InputError(f"--metric_scale must be a positive number, got {metric_scale}")
     every = graph_specs(model)
@@ -170,42 +178,92 @@ def export_model(
     model.load_export_checkpoint(ckpt_path, "--ckpt_path")
     pre = preprocessing_of(datamodule, source)
     images = frames_from_source(source, pre, num_frames)
+    if tolerance is None:
+        tolerance = 1e-4 if precision == "float32" else RELATIVE_TOLERANCE[precision]
+    calibration = calibration_images(datamodule, source, pre, calibration_frames) if precision == "int8" else None
+    encoding = _Encoding(storage, precision, tolerance, calibration)
     provenance = _Provenance(training_config=_training_config(model, datamodule),
                              checkpoint={"file": ckpt_path.name, "sha256": sha256(ckpt_path)},
                              created=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
 
     staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]] = []
-    for spec, proto, parity in _checked_graphs(specs, every, images, dynamic_size, storage, tolerance):
+    for spec, proto, parity in _checked_graphs(specs, every, images, dynamic_size, encoding):
         depth = _depth_entry(spec, datamodule, pre, metric_scale) if spec.kind == "depth" else None
-        staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, parity, provenance)))
+        staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, parity, provenance, precision)))
     return _write_export(staged, Path(output_dir), provenance)
 
 
-def _checked_graphs(specs: list[GraphSpec], every: list[GraphSpec], images, dynamic_size: bool, storage: str,
-                    tolerance: float) -> list[tuple[GraphSpec, onnx.ModelProto, dict]]:
+def _check_encoding(storage: str, precision: str, tolerance: float | None, calibration: int) -> None:
+    """InputError naming the option for an unknown storage or precision, float16 storage of a
+    reduced-precision graph, a tolerance that is not positive, or int8 without calibration frames."""
+    if storage not in STORAGE:
+        raise InputError(f"--storage must be one of {', '.join(STORAGE)}, got {storage}")
+    if precision not in PRECISIONS:
+        raise InputError(f"--precision must be one of {', '.join(PRECISIONS)}, got {precision}")
+    if precision != "float32" and storage != "float32":
+        raise InputError(f"--storage {storage}: applies to --precision float32 only (a {precision} graph stores "
+                         f"its weights in {precision} already)")
+    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
+        raise InputError(f"--tolerance must be a positive number, got {tolerance}")
+    if precision == "int8" and calibration < 1:
+        raise InputError(f"--calibration_frames must be >= 1 for --precision int8, got {calibration}")
+
+
+@dataclass(frozen=True)
+class _Encoding:
+    """How every graph of an export is written: weights ``storage`` (float32 graphs),
+    arithmetic ``precision``, the parity ``tolerance`` and, for int8, the ``calibration`` frames
+    (N, 3, h, w) of the training data."""
+
+    storage: str
+    precision: str
+    tolerance: float
+    calibration: object = None
+
+    @property
+    def criterion(self) -> str:
+        """What the parity tolerance bounds (:class:`export.parity.ParityReport`)."""
+        return "max_abs" if self.precision == "float32" else "relative_mean"
+
+
+def _checked_graphs(specs: list[GraphSpec], every: list[GraphSpec], images, dynamic_size: bool,
+                    encoding: _Encoding) -> list[tuple[GraphSpec, onnx.ModelProto, dict]]:
     """Each spec's ONNX model and parity entry, all exported and checked before anything is
     written (a keypoint graph also against its dense twin: ``parity.dense_sampling``)."""
     out, protos = [], {}
     for spec in specs:
         example = spec.example_inputs(images)
-        protos[spec.name] = proto = _onnx_proto(spec, example, dynamic_size, storage)
-        parity = check_parity(spec.module, proto, example, spec.input_names, tolerance, name=spec.file_name).as_dict()
+        protos[spec.name] = proto = _onnx_proto(spec, example, dynamic_size, encoding)
+        parity = check_parity(spec.module, proto, example, spec.input_names, encoding.tolerance, name=spec.file_name,
+                              criterion=encoding.criterion).as_dict()
         if spec.sampling == "keypoints":
-            dense = _dense_twin(spec, every, protos, images, dynamic_size, storage)
-            parity["dense_sampling"] = check_keypoint_sampling(proto, dense, *example, name=spec.file_name)
+            dense = _dense_twin(spec, every, protos, images, dynamic_size, encoding)
+            parity["dense_sampling"] = check_keypoint_sampling(
+                proto, dense, *example, name=spec.file_name,
+                tolerance=SAMPLING_TOLERANCE if encoding.precision == "float32" else encoding.tolerance,
+                criterion=encoding.criterion)
+        if encoding.calibration is not None:
+            parity["calibration_frames"] = int(encoding.calibration.shape[0])
         out.append((spec, proto, parity))
     return out
 
 
-def _onnx_proto(spec: GraphSpec, example: tuple, dynamic_size: bool, storage: str) -> onnx.ModelProto:
-    """The ONNX model of ``spec`` traced on ``example``, with ``storage``'s weights."""
+def _onnx_proto(spec: GraphSpec, example: tuple, dynamic_size: bool, encoding: _Encoding) -> onnx.ModelProto:
+    """The ONNX model of ``spec`` traced on ``example``, in ``encoding``'s storage and precision."""
     proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size,
                     spec.point_inputs)
-    return store_float16(proto) if storage == "float16" else proto
+    if encoding.precision != "float32":
+        calibration = ()
+        if encoding.calibration is not None:
+            inputs = spec.example_inputs(encoding.calibration)
+            calibration = [{n: x[i:i + 1].numpy() for n, x in zip(spec.input_names, inputs)}
+                           for i in range(inputs[0].shape[0])]
+        return convert(proto, encoding.precision, calibration)
+    return store_float16(proto) if encoding.storage == "float16" else proto
 
 
 def _dense_twin(spec: GraphSpec, every: list[GraphSpec], protos: dict[str, onnx.ModelProto], images,
-                dynamic_size: bool, storage: str) -> onnx.ModelProto:
+                dynamic_size: bool, encoding: _Encoding) -> onnx.ModelProto:
     """The dense descriptor graph of the model whose map keypoint graph ``spec`` samples: the one
     exported in this run, else exported now for the check only (not written)."""
     twin = next((s for s in every if s.kind == spec.kind and s.sampling == "dense"), None)
@@ -213,7 +271,7 @@ def _dense_twin(spec: GraphSpec, every: list[GraphSpec], protos: dict[str, onnx.
         raise InputError(f"model: its keypoint graph {spec.file_name} has no dense descriptor graph to check it "
                          "against")
     if twin.name not in protos:
-        protos[twin.name] = _onnx_proto(twin, twin.example_inputs(images), dynamic_size, storage)
+        protos[twin.name] = _onnx_proto(twin, twin.example_inputs(images), dynamic_size, encoding)
     return protos[twin.name]
 
 
@@ -263,13 +321,14 @@ def _depth_entry(spec: GraphSpec, datamodule, pre: Preprocessing, given_scale: f
 
 
 def _graph_metadata(spec: GraphSpec, pre: Preprocessing, dynamic_size: bool, depth: dict | None, parity: dict,
-                    provenance: _Provenance) -> ModelMetadata:
+                    provenance: _Provenance, precision: str = "float32") -> ModelMetadata:
     """The metadata written into the graph's ONNX file."""
     inputs, outputs = _io_entries(spec, dynamic_size)
     return ModelMetadata(
         kind=spec.kind, inputs=inputs, outputs=outputs, preprocessing=pre, dynamic_batch=True,
         dynamic_size=dynamic_size, descriptor_dim=spec.output_channels if spec.kind == "descriptors" else None,
-        descriptor_sampling=spec.sampling if spec.kind == "descriptors" else None, depth=depth, opset=spec.opset,
+        descriptor_sampling=spec.sampling if spec.kind == "descriptors" else None, precision=precision, depth=depth,
+        opset=spec.opset,
         training_config=provenance.training_config, checkpoint=provenance.checkpoint,
         parity=parity, project_version=__version__, created=provenance.created,
     )
@@ -295,7 +354,7 @@ def _write_export(staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]]
         manifest = {
             "project_version": __version__, "created": provenance.created, "checkpoint": provenance.checkpoint,
             "files": {p.name: {"kind": m.kind, **({"descriptor_sampling": m.sampling} if m.sampling else {}),
-                               "sha256": sha256(p), "opset": m.opset, "parity": m.parity}
+                               "precision": m.precision, "sha256": sha256(p), "opset": m.opset, "parity": m.parity}
                       for p, (_, _, m) in zip(files, staged)},
         }
         atomic_write_text(tmp / MANIFEST, json.dumps(manifest, indent=2) + "\n")

@@ -37,6 +37,19 @@ def frames_from_source(source, pre: Preprocessing, count: int = 4) -> torch.Tens
     return frames
 
 
+def calibration_images(datamodule, fallback, pre: Preprocessing, count: int) -> torch.Tensor:
+    """(count, 3, h, w) frames for int8 calibration: evenly spaced over the data module's training
+    sequences (about ``count / sequences`` from each), else from ``fallback`` (the parity sequence)."""
+    paths = []
+    if datamodule is not None and hasattr(datamodule, "split") and hasattr(datamodule, "open_sequence"):
+        paths = list(datamodule.split().get("train") or [])
+    if not paths:
+        return frames_from_source(fallback, pre, count)
+    per = max(1, -(-count // len(paths)))
+    frames = torch.cat([frames_from_source(datamodule.open_sequence(p), pre, per) for p in paths])
+    return frames[torch.from_numpy(evenly_spaced(len(frames), count))]
+
+
 def parity_source(frames: str | Path | None, datamodule) -> object:
     """The sequence the parity frames come from: ``frames`` (a sequence folder) when given,
     else the first test (then val, then train) sequence of the datamodule."""

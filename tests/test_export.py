@@ -308,7 +308,7 @@ def test_failed_parity_writes_nothing_and_keeps_earlier_files(tmp_path, tiny_seq
     out.mkdir()
     (out / "depthnet.onnx").write_bytes(b"earlier export")
 
-    def bad_parity(module, model, inputs, input_names, tolerance=1e-4, name="graph"):
+    def bad_parity(module, model, inputs, input_names, tolerance=1e-4, name="graph", criterion="max_abs"):
         raise ParityError(f"{name}: onnxruntime differs from PyTorch by 0.5 (max abs)")
 
     monkeypatch.setattr(exporter_mod, "to_onnx", lambda *a, **k: onnx.ModelProto())  # the export itself is tested above

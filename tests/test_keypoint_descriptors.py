@@ -196,6 +196,9 @@ def test_a_keypoint_file_of_another_export_is_not_used(tmp_path):
     moved.write_bytes(dense.read_bytes())
     (tmp_path / "elsewhere" / "export.json").write_text(json.dumps({"files": {"depthnet.onnx": {"kind": "depth"}}}))
     assert _use_of(moved) == ("contrafeat.onnx", "export.json does not list contrafeat.onnx")
+    dense, _ = _export_folder(tmp_path / "precision", precision="int8")
+    assert _use_of(dense) == ("contrafeat.onnx",
+                              "contrafeat_kp.onnx: its precision (int8) is not the dense file's (float32)")
 
 
 def test_run_records_which_descriptor_file_was_used(tiny_sequence, tmp_path):

@@ -28,13 +28,10 @@ Writes benchmarks/results/slam_speed.md and its .json.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import shlex
 import shutil
 import statistics
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,8 +39,7 @@ from pathlib import Path
 from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
-from c3f_slam.io import Sequence, read_tum
-from c3f_slam.trajectory_metrics import evaluate_trajectory
+from benchmarks.common.slam_run import run_and_score
 
 NO_EVENTS = ("path.closeups=0", "path.bursts=0", "path.occlusions=0", "path.roll_events=0")
 BASELINE = "baseline"  #: the variant run from ``--baseline CHECKOUT`` with its defaults
@@ -151,14 +147,8 @@ def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int | Non
            "--preset", case.preset, "--set", "coverage.enabled=false", *sets,
            *model_options(case, variant, seq, work, threads),
            *(["--providers", providers] if providers and case.models and variant != BASELINE else [])]
-    proc = subprocess.run(cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True,
-                          text=True)
-    if proc.returncode != 0:
-        raise SystemExit(f"{case.name} {variant}: {shlex.join(cmd)} failed: {proc.stderr.strip()[-400:]}")
-    s = json.loads((out / "summary.json").read_text())
-    stamps, poses = read_tum(out / "trajectory.txt")
-    gt = Sequence(seq)
-    ev = evaluate_trajectory(stamps, poses, gt.timestamps, gt.poses, n_frames=len(gt))
+    s, ev = run_and_score(cmd, out, seq, f"{case.name} {variant}", cwd=checkout,
+                          env={**os.environ, "PYTHONPATH": str(checkout)})
     s["ate_sim3_cm"] = 100 * ev.get("ate_sim3", {}).get("rmse_m", float("nan"))
     s["fps"] = s["frames"] / s["wall_seconds"]
     return s

@@ -18,6 +18,9 @@ Conventions recorded here and relied on by the runtime:
   in network-grid pixels (pixel centres at integer coordinates), sampled inside the graph by the
   rule of :func:`c3f_slam.matching.sample_descriptor_map` (bilinear, clamped at the border,
   re-normalised).
+- ``precision``: the arithmetic of the graph: ``float32`` (absent in files written before the
+  field existed), ``float16`` or ``int8`` (weights int8, activations uint8 in QDQ form); inputs
+  and outputs are float32 in every precision.
 - ``pose`` models take two frames (earlier first) and output ``T_ba`` (B, 4, 4): frame-a
   camera coordinates into frame b, metres.
 
@@ -37,6 +40,8 @@ SCHEMA_VERSION = 1
 KINDS = ("depth", "pose", "descriptors")
 #: how a descriptors model samples: its dense map, or at given keypoints inside the graph
 SAMPLINGS = ("dense", "keypoints")
+#: a graph's arithmetic (:mod:`export.precision`); inputs and outputs are float32 in each
+PRECISIONS = ("float32", "float16", "int8")
 KEY_PREFIX = "c3f."
 REQUIRED = ("kind", "inputs", "outputs", "preprocessing")
 
@@ -83,7 +88,8 @@ class ModelMetadata:
     for depth models. descriptor_sampling: ``dense`` or ``keypoints`` for descriptors models
     (None: dense). training_config: the model and data settings it was trained with.
     checkpoint: ``{"file", "sha256"}``. parity: ``{"max_abs_diff", "tolerance", "frames"}``
-    of the check run at export time.
+    of the check run at export time. precision: ``float32``, ``float16`` or ``int8`` (the
+    graph's arithmetic; inputs and outputs are float32 in all three).
     """
 
     kind: str
@@ -94,6 +100,7 @@ class ModelMetadata:
     dynamic_size: bool = False
     descriptor_dim: int | None = None
     descriptor_sampling: str | None = None
+    precision: str = "float32"
     depth: dict[str, Any] | None = None
     opset: int | None = None
     training_config: dict[str, Any] = field(default_factory=dict)
@@ -106,6 +113,8 @@ class ModelMetadata:
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise InputError(f"model kind must be one of {KINDS}, got {self.kind!r}")
+        if self.precision not in PRECISIONS:
+            raise InputError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if self.descriptor_sampling is not None and (self.kind != "descriptors"
                                                      or self.descriptor_sampling not in SAMPLINGS):
             raise InputError(f"descriptor_sampling must be one of {SAMPLINGS} on a descriptors model, got "
@@ -172,7 +181,9 @@ class ModelMetadata:
         w, h = self.input_size
         outs = ", ".join(f"{o['name']} [{o.get('units', '')}]" for o in self.outputs)
         kind = "descriptors (at keypoints)" if self.sampling == "keypoints" else self.kind
+        if self.precision != "float32":
+            kind = f"{self.precision} {kind}"
         return f"{kind} model, input {w}x{h}{' (any size)' if self.dynamic_size else ''}, outputs {outs}"
 
 
-__all__ = ["SCHEMA_VERSION", "KINDS", "SAMPLINGS", "KEY_PREFIX", "Preprocessing", "ModelMetadata"]
+__all__ = ["SCHEMA_VERSION", "KINDS", "SAMPLINGS", "PRECISIONS", "KEY_PREFIX", "Preprocessing", "ModelMetadata"]

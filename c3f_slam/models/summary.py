@@ -37,6 +37,16 @@ def _io_line(d: dict) -> str:
     return f"    {d.get('name')}{units}: {_shape(d.get('shape'))} {d.get('dtype', '')}  {d.get('meaning', '')}".rstrip()
 
 
+def _parity_line(par: dict) -> str:
+    """The parity entry in one line: the bounded number first (max |diff|, or for a float16 or
+    int8 graph the mean |diff| relative to the mean output magnitude)."""
+    where = f"tolerance {par.get('tolerance')}, {par.get('frames')} frames"
+    if par.get("criterion") == "relative_mean":
+        return (f"  parity:          mean |diff| / mean |output| {_num(par.get('relative_mean_diff'))} ({where}; "
+                f"max |diff| {_num(par.get('max_abs_diff'))}) against PyTorch float32")
+    return f"  parity:          max |diff| {par.get('max_abs_diff')} ({where})"
+
+
 def format_metadata(meta: ModelMetadata, source: str = "model") -> str:
     """Multi-line report: kind, input size, inputs/outputs with units, pre-processing, depth
     range, descriptor dim, training-config summary, checkpoint hash, parity, provenance."""
@@ -45,6 +55,7 @@ def format_metadata(meta: ModelMetadata, source: str = "model") -> str:
     lines = [
         f"{source}",
         f"  kind:            {meta.kind}",
+        f"  precision:       {meta.precision}{'' if meta.precision == 'float32' else ' (float32 inputs and outputs)'}",
         f"  input size:      {w}x{h} (width x height){', any size accepted' if meta.dynamic_size else ''}"
         f"{', dynamic batch' if meta.dynamic_batch else ''}",
         "  inputs:",
@@ -87,8 +98,7 @@ def format_metadata(meta: ModelMetadata, source: str = "model") -> str:
     lines.append(f"  checkpoint:      {ck.get('file', 'unknown')} sha256 {ck.get('sha256', 'unknown')}" if ck
                  else "  checkpoint:      not recorded")
     par = meta.parity
-    lines.append(f"  parity:          max |diff| {par.get('max_abs_diff')} (tolerance {par.get('tolerance')}, "
-                 f"{par.get('frames')} frames)" if par else "  parity:          not recorded")
+    lines.append(_parity_line(par) if par else "  parity:          not recorded")
     ds = par.get("dense_sampling") if isinstance(par, dict) else None
     if isinstance(ds, dict):
         lines.append(f"                   vs the dense graph sampled at the same keypoints: max |diff| "

@@ -5,7 +5,7 @@ An export of ContraFeat writes the dense map graph (``contrafeat.onnx``) and the
 uses the keypoint file instead (the same descriptors without the full-resolution map) when it is
 of the same export: ``export.json`` beside the dense file lists both, the keypoint file is listed
 with ``descriptor_sampling: keypoints`` and its SHA-256 matches the listing, and its metadata
-records the same checkpoint (SHA-256), pre-processing and descriptor dimension. Otherwise the
+records the same checkpoint (SHA-256), pre-processing, descriptor dimension and precision. Otherwise the
 dense file is used and :func:`keypoint_file_beside` says why.
 """
 
@@ -54,6 +54,8 @@ def _differences(kp: ModelMetadata, dense: ModelMetadata) -> str:
         return "it records another checkpoint (SHA-256)"
     if kp.preprocessing != dense.preprocessing or kp.descriptor_dim != dense.descriptor_dim:
         return "its pre-processing or descriptor dimension differs"
+    if kp.precision != dense.precision:
+        return f"its precision ({kp.precision}) is not the dense file's ({dense.precision})"
     return ""
 
 

@@ -118,7 +118,7 @@ class RunSources:
 
     def summary(self) -> dict:
         """What summary.json records about the inputs: the choices, the camera, the depth scale
-        and per model the file run and the onnxruntime providers its session uses (``models``;
+        and per model the file run, its precision and the onnxruntime providers its session uses (``models``;
         for descriptors also the file given, how it samples and whether the export's keypoint
         file is used, or why not)."""
         out: dict = {"descriptors": self.descriptors, "depth_source": self.depth_source,
@@ -127,7 +127,8 @@ class RunSources:
             out["depth_scale"] = {"factor": self.depth.scale, "source": self.depth.scale_source}
         out["models"] = {
             name: {"file": str(p.model.onnx.path), "model": p.model.metadata.describe(),
-                   "providers": list(p.model.onnx.providers), "threads": p.model.onnx.threads}
+                   "precision": p.model.metadata.precision, "providers": list(p.model.onnx.providers),
+                   "threads": p.model.onnx.threads}
             for name, p in (("descriptors", self.describer), ("depth", self.depth)) if hasattr(p, "model")
         }
         if isinstance(self.describer, ContraFeatDescriptors):
