@@ -133,7 +133,7 @@ def write_view(run: str | Path, gt: str | Path | None = None, videos: bool = Tru
     # --no-video keeps (and links) the videos an earlier view wrote
     linked = dict(res.videos) | {n: {} for n in (RERENDER, FLYTHROUGH) if not videos and (out.root / n).is_file()}
     page = view_page(f"C3Fusion view: {out.root.resolve().name}", _intro(summary, out.root),
-                     view_data(layers), layers, _videos_html(linked))
+                     view_data(layers), _videos_html(linked))
     atomic_write_text(out.root / PAGE, page)
     res.files = [PAGE, *res.videos]
     res.page_bytes = len(page.encode())

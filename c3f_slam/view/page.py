@@ -63,9 +63,14 @@ def view_scripts() -> str:
             f"<script>{VIEWER_JS.read_text()}</script>\n")
 
 
-def layer_table(layers: list[Layer]) -> str:
+def layer_table_rows(data: dict) -> list[list[str]]:
+    """[label, note] (HTML-escaped) of each layer of the viewer's JSON :func:`view_data`."""
+    return [[html.escape(lay["label"]), html.escape(lay["note"])] for lay in data["layers"]]
+
+
+def layer_table(data: dict) -> str:
     """An HTML table: each layer and where its data came from (decimated or not)."""
-    rows = "".join(f"<tr><td>{html.escape(lay.label)}</td><td>{html.escape(lay.note)}</td></tr>" for lay in layers)
+    rows = "".join(f"<tr><td>{a}</td><td>{b}</td></tr>" for a, b in layer_table_rows(data))
     return f"<table><tr><th>layer</th><th>data</th></tr>{rows}</table>"
 
 
@@ -80,9 +85,9 @@ td,th{border:1px solid #ccc;padding:.2em .5em;text-align:left;font-size:13px}fig
 vertical-align:top}video{max-width:100%;background:#000}figcaption{font-size:.85em;color:#555}"""
 
 
-def view_page(title: str, intro: str, data: dict, layers: list[Layer], extra: str = "") -> str:
+def view_page(title: str, intro: str, data: dict, extra: str = "") -> str:
     """``view.html``: the title, ``intro`` (HTML), the viewer, the layers' sources and ``extra`` (HTML:
     videos, links to the full-resolution files)."""
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
             f"<style>{PAGE_STYLE}</style></head><body><h1>{html.escape(title)}</h1>\n{intro}\n"
-            + view_fragment(data) + layer_table(layers) + extra + view_scripts() + "</body></html>\n")
+            + view_fragment(data) + layer_table(data) + extra + view_scripts() + "</body></html>\n")
