@@ -19,8 +19,9 @@ from c3f_slam.view.raycast import principal_axes
 ASSETS = Path(__file__).parent
 THREE_JS = ASSETS / "vendor" / "three.view.min.js"
 VIEWER_JS = ASSETS / "viewer.js"
-VIEW_CSS = """.c3f-view{position:relative;display:flex;gap:0;height:70vh;min-height:420px;border:1px solid #444;
-background:#1d2127;color:#eee;font:14px sans-serif}.c3f-canvas{flex:1;min-width:0;position:relative}
+VIEW_CSS = """.c3f-view{position:relative;display:flex;gap:0;height:70vh;max-height:760px;min-height:420px;
+border:1px solid #444;background:#1d2127;color:#eee;font:14px sans-serif}
+.c3f-canvas{flex:1;min-width:0;position:relative}
 .c3f-canvas canvas{display:block;width:100%!important;height:100%!important}
 .c3f-panel{width:240px;padding:.6em;overflow:auto;border-left:1px solid #444}
 .c3f-panel label{display:block;margin:.25em 0;cursor:pointer}

@@ -3,7 +3,8 @@
    <script type="application/json"> named by its data-source attribute. Orbit: left drag; pan:
    right drag (or shift + left drag); zoom: wheel. Units: metres in the data, cm on the page.
    With "#selftest" in the page's address it switches each layer off and on, reads the canvas
-   pixels and writes the result as JSON into a <pre> element with id c3f-selftest (tests/test_view.py). */
+   pixels and writes the result as JSON into a <pre> element with id c3f-selftest (tests/test_view.py);
+   "#show=surface,unseen,cut" shows those layers only (and cuts the near half away). */
 (function () {
   "use strict";
   const errors = [];
@@ -77,7 +78,7 @@
     }
     const cut = document.createElement("label");
     const cb = document.createElement("input");
-    cb.type = "checkbox"; cb.dataset.control = "cut";
+    cb.type = "checkbox"; cb.dataset.control = "cut"; cb.checked = view.cut;
     cb.addEventListener("change", () => { view.cut = cb.checked; view.render(); });
     cut.append(cb, document.createTextNode(" cut away the near half"));
     const reset = document.createElement("button");
@@ -93,6 +94,8 @@
 
   function mount(root) {
     const data = JSON.parse(document.getElementById(root.dataset.source).textContent);
+    const show = location.hash.startsWith("#show=") ? location.hash.slice(6).split(",") : null;
+    if (show) for (const L of data.layers) L.visible = show.includes(L.id); // e.g. view.html#show=surface,unseen,cut
     const { centre, radius } = bounds(data);
     const canvasBox = document.createElement("div");
     canvasBox.className = "c3f-canvas";
@@ -111,7 +114,7 @@
     scene.add(camera);
     const controls = new THREE.OrbitControls(camera, renderer.domElement);
     const plane = new THREE.Plane();
-    const view = { objects: {}, cut: false, renderer, camera, controls };
+    const view = { objects: {}, cut: Boolean(show && show.includes("cut")), renderer, camera, controls };
     for (const L of data.layers) {
       const obj = buildLayer(L, centre);
       obj.visible = L.visible;
@@ -129,7 +132,7 @@
       const n = Math.hypot(v[0], v[1], v[2]);
       const half = Math.tan((camera.fov * Math.PI) / 360);
       const e = data.view_extent || [radius, radius, radius];
-      const d = Math.max(e[0] / (half * camera.aspect), e[1] / half) * 1.1 + e[2];
+      const d = Math.max(e[0] / (half * camera.aspect), e[1] / half) * 1.2 + e[2];
       camera.position.set(v[0] / n * d, v[1] / n * d, v[2] / n * d);
       camera.up.set(...(data.view_up || [0, -1, 0]));
       controls.target.set(0, 0, 0);
