@@ -31,17 +31,18 @@ def image(path: Path, caption: str = "", width: int | None = None) -> str:
     return f'<figure><img alt="{esc(caption or path.name)}"{w} src="data:image/png;base64,{data}">{cap}</figure>'
 
 
-def video(path: Path, caption: str, max_bytes: int) -> str:
-    """A ``<video>`` with the MP4 at ``path`` embedded when it is at most ``max_bytes``, else linked
-    by ``path``'s name relative to the report (a note says so)."""
+def video(root: Path, rel: str, caption: str, max_bytes: int) -> str:
+    """A ``<video>`` with the MP4 ``root / rel`` embedded when it is at most ``max_bytes``, else a
+    note with a link to it (``rel``, relative to the report)."""
     from c3f_slam.view.page import video_element
 
+    path = root / rel
     if not path.is_file():
-        return f'<p class="fail">missing video: {esc(path.name)}</p>'
+        return f'<p class="fail">missing video: {esc(rel)}</p>'
     size = path.stat().st_size
     if size > max_bytes:
         return (f"<p>{esc(caption)}: {size / 1e6:.1f} MB, above the report's {max_bytes / 1e6:.0f} MB per video, "
-                f"so not embedded: <code>{esc(path)}</code> beside the report.</p>")
+                f'so not embedded: <a href="{esc(rel)}">{esc(rel)}</a>, beside the report.</p>')
     data = base64.b64encode(path.read_bytes()).decode("ascii")
     return video_element(f"data:video/mp4;base64,{data}", caption, path.name)
 

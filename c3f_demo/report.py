@@ -35,6 +35,9 @@ ARTEFACTS = [
     ("slam/NAME/coverage.json, coverage_map.png, unseen.ply", "the run's own unseen-wall estimate (no ground truth); "
      "coverage_map_truth.png: the truth's map for the same run", "any text editor / image viewer; MeshLab"),
     ("slam/NAME/summary.json, evaluation.json, keyframe_graph.json", "run and evaluation numbers", "any text editor"),
+    ("slam/NAME/view.html, rerender.mp4, flythrough.mp4", "the 3D view of one configuration at the full page "
+     "budget, the input beside the re-rendered reconstruction, the fly-through (python -m c3f_slam view)",
+     "any browser (offline)"),
     ("metrics/*.json, figures/*.png", "the report's numbers and images", "any text editor / image viewer"),
     ("logs/*.log", "the output of every command the demo ran", "any text editor"),
 ]
@@ -220,7 +223,7 @@ def _view3d(d: dict, root: Path) -> str:
             + "<p>The input beside the reconstruction rendered from each frame's estimated pose (same intrinsics; "
               "unseen wall blue), and a fly-through of the final model along the smoothed camera path, rendered "
               f"on the CPU ({cost}).</p>"
-            + "".join(H.video(root / path, caption, VIDEO_EMBED_MAX) for path, caption in v["videos"]))
+            + "".join(H.video(root, path, caption, VIDEO_EMBED_MAX) for path, caption in v["videos"]))
 
 
 def _unseen(d: dict, root: Path) -> str:

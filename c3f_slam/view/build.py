@@ -74,6 +74,8 @@ def _input_stream(summary: dict, sequence: str | Path | None):
     if not source.exists() or str(source) in ("", "."):
         raise InputError(f"{source}: the run's input is not there (summary.json sequence); give --sequence "
                          "SEQ_OR_VIDEO, or --no-video for the page alone")
+    if "camera" not in summary:
+        raise InputError(f"summary.json has no camera to re-render {source} with; --no-video for the page alone")
     frames = summary.get("config", {}).get("frames", {})
     cam = PinholeCamera(**{k: summary["camera"][k] for k in ("width", "height", "fx", "fy", "cx", "cy")})
     return open_stream(source, camera=cam, use_depth=False, step=int(frames.get("stride") or 1),
