@@ -1,5 +1,6 @@
-"""Self-contained HTML of the demo report: every image embedded as a base64 data URI, no
-script, no link to load, so the file opens offline in any browser."""
+"""Self-contained HTML of the demo report: every image and video embedded as a base64 data URI,
+the 3D view's scripts inlined (c3f_slam.view.page), nothing to load, so the file opens offline
+in any browser."""
 
 from __future__ import annotations
 
@@ -30,6 +31,22 @@ def image(path: Path, caption: str = "", width: int | None = None) -> str:
     return f'<figure><img alt="{esc(caption or path.name)}"{w} src="data:image/png;base64,{data}">{cap}</figure>'
 
 
+def video(root: Path, rel: str, caption: str, max_bytes: int) -> str:
+    """A ``<video>`` with the MP4 ``root / rel`` embedded when it is at most ``max_bytes``, else a
+    note with a link to it (``rel``, relative to the report)."""
+    from c3f_slam.view.page import video_element
+
+    path = root / rel
+    if not path.is_file():
+        return f'<p class="fail">missing video: {esc(rel)}</p>'
+    size = path.stat().st_size
+    if size > max_bytes:
+        return (f"<p>{esc(caption)}: {size / 1e6:.1f} MB, above the report's {max_bytes / 1e6:.0f} MB per video, "
+                f'so not embedded: <a href="{esc(rel)}">{esc(rel)}</a>, beside the report.</p>')
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return video_element(f"data:video/mp4;base64,{data}", caption, path.name)
+
+
 def table(header: list[str], rows: list[list]) -> str:
     head = "".join(f"<th>{esc(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
@@ -40,6 +57,8 @@ def section(sid: str, title: str, body: str) -> str:
     return f'<section id="{sid}"><h2>{esc(title)}</h2>\n{body}\n</section>\n'
 
 
-def page(title: str, sections: list[str]) -> str:
+def page(title: str, sections: list[str], tail: str = "") -> str:
+    """The whole document; ``tail``: HTML after the sections (the 3D view's scripts)."""
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{esc(title)}</title>'
-            f"<style>{STYLE}</style></head><body><h1>{esc(title)}</h1>\n" + "".join(sections) + "</body></html>\n")
+            f"<style>{STYLE}</style></head><body><h1>{esc(title)}</h1>\n" + "".join(sections) + tail
+            + "</body></html>\n")

@@ -13,10 +13,12 @@ from pathlib import Path
 
 from c3f_demo import html as H
 from c3f_models.zoo.card import summary_numbers
+from c3f_slam.view.page import layer_table_rows, view_fragment, view_scripts
 
 #: section ids of the report, in order (the tests check every one is present)
-SECTIONS = ("summary", "models", "deviations", "depth", "matches", "trajectories", "meshes", "keyframe-graph",
-            "unseen", "timings", "environment", "artefacts")
+SECTIONS = ("summary", "models", "deviations", "depth", "matches", "trajectories", "meshes", "view3d",
+            "keyframe-graph", "unseen", "timings", "environment", "artefacts")
+VIDEO_EMBED_MAX = 8_000_000  #: bytes: a larger video is linked beside the report, not embedded
 METRIC_LABELS = {"abs_rel": "Abs Rel", "sq_rel": "Sq Rel (cm)", "rmse": "RMSE (cm)", "rmse_log": "RMSE log",
                  "a1": "δ < 1.25", "a2": "δ < 1.25²", "a3": "δ < 1.25³"}
 ARTEFACTS = [
@@ -33,6 +35,9 @@ ARTEFACTS = [
     ("slam/NAME/coverage.json, coverage_map.png, unseen.ply", "the run's own unseen-wall estimate (no ground truth); "
      "coverage_map_truth.png: the truth's map for the same run", "any text editor / image viewer; MeshLab"),
     ("slam/NAME/summary.json, evaluation.json, keyframe_graph.json", "run and evaluation numbers", "any text editor"),
+    ("slam/NAME/view.html, rerender.mp4, flythrough.mp4", "the 3D view of one configuration at the full page "
+     "budget, the input beside the re-rendered reconstruction, the fly-through (python -m c3f_slam view)",
+     "any browser (offline)"),
     ("metrics/*.json, figures/*.png", "the report's numbers and images", "any text editor / image viewer"),
     ("logs/*.log", "the output of every command the demo ran", "any text editor"),
 ]
@@ -202,6 +207,25 @@ def _meshes(d: dict, root: Path) -> str:
     return "".join(out)
 
 
+def _view3d(d: dict, root: Path) -> str:
+    """The interactive 3D view of one configuration and its two videos (``d["view"]``)."""
+    v = d.get("view")
+    if not v:
+        return '<p class="fail">No configuration gave a reconstruction to view.</p>'
+    title = H.esc(v["title"])
+    if v.get("error"):
+        return f'<p class="fail">{title}: no 3D view ({H.esc(v["error"])})</p>'
+    cost = "; ".join(f"{H.esc(name)} {_num(ms, 1, 0)} ms per rendered frame" for name, ms in v["render_ms"].items())
+    return (f"<p>{title}, in 3D: drag to orbit, right drag to pan, wheel to zoom; switch the layers on the right. "
+            f"The geometry is decimated to the report's budget ({v['budget_triangles']:,} triangles); "
+            f"<code>slam/{H.esc(v['run'])}/view.html</code> has it at the full page budget, linked to the PLY "
+            "files.</p>" + view_fragment(v["data"]) + H.table(["layer", "data"], layer_table_rows(v["data"]))
+            + "<p>The input beside the reconstruction rendered from each frame's estimated pose (same intrinsics; "
+              "unseen wall blue), and a fly-through of the final model along the smoothed camera path, rendered "
+              f"on the CPU ({cost}).</p>"
+            + "".join(H.video(root, path, caption, VIDEO_EMBED_MAX) for path, caption in v["videos"]))
+
+
 def _unseen(d: dict, root: Path) -> str:
     u = d["figures"].get("unseen", {})
     if u.get("source") == "run":
@@ -254,7 +278,8 @@ def _artefacts() -> str:
 def build_report(root: Path, d: dict) -> str:
     """HTML of the report. ``d``: ``config`` (DemoConfig.as_dict), ``metrics`` (slam, depth, matches:
     the evaluate stage's JSON), ``figures`` (depth, meshes, unseen), ``timings`` [(stage, s, status)],
-    ``environment`` {name: value}; image paths are relative to ``root``."""
+    ``environment`` {name: value}, ``view`` (optional, :func:`c3f_demo.report_stage.view_entry`); image
+    and video paths are relative to ``root``."""
     ate = lambda r: f"ATE {_num(r.get('ate_sim3_m'), 100, 2)} cm, path {_num(r.get('gt_length_m'), 100, 1)} cm"  # noqa: E731
     parts = {
         "summary": ("Summary", _summary(d)),
@@ -264,6 +289,7 @@ def build_report(root: Path, d: dict) -> str:
         "matches": ("Matches: SIFT vs ContraFeat", _matches(d, root)),
         "trajectories": ("Trajectories vs ground truth", _per_run(d, root, "trajectory.png", ate)),
         "meshes": ("Reconstructed meshes", _meshes(d, root)),
+        "view3d": ("3D view and videos", _view3d(d, root)),
         "keyframe-graph": ("Keyframe connectivity graph", _per_run(
             d, root, "keyframe_graph.png", lambda r: "",
             {"odometry": "No keyframe graph: frame-to-frame odometry chains each frame to the one before."})),
@@ -272,4 +298,5 @@ def build_report(root: Path, d: dict) -> str:
         "environment": ("Versions, machine, seeds", _environment(d)),
         "artefacts": ("Files in this folder", _artefacts()),
     }
-    return H.page("C3Fusion demo report", [H.section(sid, *parts[sid]) for sid in SECTIONS])
+    tail = view_scripts() if (d.get("view") or {}).get("data") else ""
+    return H.page("C3Fusion demo report", [H.section(sid, *parts[sid]) for sid in SECTIONS], tail)

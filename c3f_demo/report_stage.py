@@ -14,6 +14,7 @@ from c3f_demo.context import REPO, DemoContext
 from c3f_demo.figures import depth_samples, mesh_renders
 from c3f_demo.report import build_report
 from c3f_demo.stages import Stage
+from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.io.atomic import atomic_write_text
 
@@ -77,6 +78,31 @@ def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
     return {"source": "ground_truth", "runs": runs} if runs else {}
 
 
+def view_entry(ctx: DemoContext, slam: dict) -> dict | None:
+    """The 3D view of the paper's configuration (else the first that worked): ``slam/NAME/view.html``
+    and its videos written by :func:`c3f_slam.view.build.write_view`, and the viewer's data at the
+    report's budget; None when no configuration worked."""
+    from c3f_slam.view.budget import REPORT_BUDGET
+    from c3f_slam.view.build import CAPTIONS, write_view
+    from c3f_slam.view.page import view_data
+    from c3f_slam.view.scene import run_layers
+
+    ok = [n for n in ctx.slam_runs if slam.get(n, {}).get("status") == "ok"]
+    if not ok:
+        return None
+    name = "paper" if "paper" in ok else ok[0]
+    entry = {"run": name, "title": slam[name]["title"]}
+    try:
+        res = write_view(ctx.slam_dir(name), progress=False)
+    except InputError as exc:
+        return {**entry, "error": str(exc)}
+    entry["data"] = view_data(run_layers(ctx.slam_dir(name), REPORT_BUDGET))
+    entry["budget_triangles"] = REPORT_BUDGET.triangles
+    entry["videos"] = [(f"slam/{name}/{v}", f"{v}: {CAPTIONS[v]}") for v in res.videos]
+    entry["render_ms"] = {v: r["ms_per_frame"] for v, r in res.videos.items()}
+    return entry
+
+
 def depth_columns(models: Path) -> dict[str, Path]:
     """The depth networks of the sample figure: before and after test-time training when both
     were exported, else the one SLAM used."""
@@ -99,7 +125,7 @@ class Report(Stage):
         return [ctx.root / "report.html"]
 
     def estimate_s(self, cfg):
-        return 20.0
+        return 40.0  # figures, and the 3D view's videos (about 45 ms per rendered frame)
 
     def run(self, ctx, done=None):
         timings = (done or {}).get("timings", [])
@@ -117,6 +143,6 @@ class Report(Stage):
         data = {"config": ctx.cfg.as_dict(), "metrics": metrics, "figures": figures,
                 "timings": [*timings, ("report", float("nan"), "this stage (running)")],
                 "environment": environment(ctx.cfg), "zoo": models, "ttt_guard": (notes.get("ttt_depth") or {}).get(
-                    "guard")}
+                    "guard"), "view": view_entry(ctx, metrics["slam"])}
         atomic_write_text(ctx.root / "report.html", build_report(ctx.root, data))
         return {"report": "report.html"}

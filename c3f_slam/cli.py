@@ -7,6 +7,7 @@
     python -m c3f_slam run [--preset room] [--config FILE] [--set ...] --print-config
     python -m c3f_slam evaluate OUT --gt SEQUENCE_DIR
     python -m c3f_slam inspect MODEL.onnx
+    python -m c3f_slam view OUT [--gt SEQUENCE_DIR] [--sequence SEQ_OR_VIDEO] [--no-video] [--no-open]
     python -m c3f_slam simcol3d SEQUENCE_DIR --depth-model depth.onnx --out SUBMISSION/SCENE/Frames_X_OP
         [--trajectory OUT/trajectory.txt] [--depth-scale F] [--threads N]
 
@@ -68,6 +69,24 @@ def _run_parser(sub: argparse._SubParsersAction) -> None:
     add_settings_options(r)
 
 
+def _view_parser(sub: argparse._SubParsersAction) -> None:
+    v = sub.add_parser("view", help="write OUT/view.html (interactive 3D view) and the videos rerender.mp4, "
+                                    "flythrough.mp4 of a run folder, and open the page",
+                       description="Write an interactive 3D view of a run folder (view.html: one self-contained "
+                                   "file, offline) and two videos: the input beside the reconstruction re-rendered "
+                                   "from the estimated poses (rerender.mp4) and a fly-through along the smoothed "
+                                   "camera path (flythrough.mp4). docs/view.md")
+    v.add_argument("out", help="run folder (summary.json, trajectory.txt, mesh.ply, unseen.ply)")
+    v.add_argument("--gt", help="ground-truth sequence folder: its path and surface as layers (default: the one "
+                                "`evaluate --gt` recorded in evaluation.json, if any)")
+    v.add_argument("--sequence", help="the run's input (sequence folder or video) for rerender.mp4, when it is no "
+                                      "longer where summary.json says")
+    v.add_argument("--no-video", action="store_true", help="the page alone (no rerender.mp4, flythrough.mp4)")
+    v.add_argument("--no-open", action="store_true", help="do not open the page in a browser (never opened "
+                                                          "without a display)")
+    v.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = OneLineParser(prog="python -m c3f_slam", description="C3Fusion SLAM runtime")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -77,6 +96,7 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--gt", required=True, help="ground-truth sequence folder (poses.txt, optional mesh.ply)")
     i = sub.add_parser("inspect", help="print the metadata of an exported ONNX model (kind, size, units, ...)")
     i.add_argument("model", help="an .onnx file written by the C3Fusion exporter")
+    _view_parser(sub)
     c = sub.add_parser("simcol3d", help="write a sequence's depth (and relative poses) as SimCol3D challenge "
                                         "submission files (c3f_slam.simcol3d)")
     c.add_argument("sequence", help="sequence folder (rgb/, camera.json), e.g. a SimCol3D one made by "
@@ -180,7 +200,13 @@ def _simcol3d(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": _run, "evaluate": _evaluate, "inspect": _inspect, "simcol3d": _simcol3d}
+def _view(args: argparse.Namespace) -> int:
+    from c3f_slam.view.command import view_command
+
+    return view_command(args.out, args.gt, args.sequence, not args.no_video, not args.no_open, not args.quiet)
+
+
+COMMANDS = {"run": _run, "evaluate": _evaluate, "inspect": _inspect, "simcol3d": _simcol3d, "view": _view}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

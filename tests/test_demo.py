@@ -74,6 +74,39 @@ def test_report_writer_on_fake_inputs(tmp_path):
     assert "http" not in html and "<script" not in html
 
 
+@pytest.mark.e2e
+def test_report_embeds_the_3d_view_and_videos(tmp_path):
+    """The report with a real run's 3D view and an embedded video: one file with nothing to fetch;
+    in headless Chromium with the network off it draws, every layer toggles, the video decodes."""
+    from c3f_slam.cli import main as slam_main
+    from c3f_slam.view.budget import REPORT_BUDGET
+    from c3f_slam.view.page import view_data
+    from c3f_slam.view.scene import run_layers
+    from c3f_slam.view.video import write_mp4
+    from datamodules.synthetic.fixture import make_tiny_sequence
+    from tests import browser
+
+    seq = make_tiny_sequence(tmp_path / "seq", frames=8, size=128, seed=3)
+    run = tmp_path / "slam" / "gt_sift"
+    assert slam_main(["run", str(seq), "--out", str(run), "--min-correspondences", "15", "--quiet"]) == 0
+    write_mp4(run / "rerender.mp4", [np.full((64, 96, 3), 20 * i, np.uint8) for i in range(10)])
+    d = fake_report_inputs(tmp_path)
+    d["view"] = {"run": "gt_sift", "title": "ground-truth depth + SIFT", "data": view_data(
+        run_layers(run, REPORT_BUDGET)), "budget_triangles": REPORT_BUDGET.triangles,
+        "videos": [("slam/gt_sift/rerender.mp4", "rerender.mp4")], "render_ms": {"rerender.mp4": 12.0}}
+    report = tmp_path / "report.html"
+    report.write_text(build_report(tmp_path, d))
+    html = report.read_text()
+    assert 'class="c3f-view"' in html and "data:video/mp4;base64," in html
+    assert not re.search(r'(src|href)="https?:', html)
+    res = browser.selftest(report)
+    assert res["errors"] == [] and len(res["views"]) == 1
+    view = res["views"][0]
+    assert view["drawn"] > 0 and {"surface", "unseen", "path", "keyframes"} <= set(view["layers"])
+    assert all(r["changed"] > 0 and r["restored"] for r in view["layers"].values()), view["layers"]
+    assert [(v["width"], v["height"], v["error"]) for v in res["videos"]] == [(96, 64, None)]
+
+
 def test_report_says_missing_image_and_run_coverage(tmp_path):
     d = fake_report_inputs(tmp_path)
     (tmp_path / "figures" / "matches.png").unlink()
@@ -287,6 +320,10 @@ def test_quick_demo_end_to_end(quick_demo):
         assert f'<section id="{sid}">' in html, sid
     images = embedded_images(html)
     assert len(images) >= 8 and all(im is not None and im.size > 0 for im in images)
+    viewed = "paper" if slam["paper"]["status"] == "ok" else next(n for n, v in slam.items() if v["status"] == "ok")
+    for f in ("view.html", "rerender.mp4", "flythrough.mp4"):  # the 3D view of one configuration
+        assert (out / "slam" / viewed / f).is_file(), f
+    assert 'class="c3f-view"' in html and html.count("data:video/mp4;base64,") == 2
     state = json.loads((out / "demo_state.json").read_text())
     assert list(state["stages"]) == [s.name for s in runner.STAGES]
     assert "total" in r.stdout and "report:" in r.stdout

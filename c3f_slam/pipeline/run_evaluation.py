@@ -52,6 +52,7 @@ def evaluate_run(out: str | Path, gt: str | Path, coverage_samples: int = 50_000
     (Path(out) / EVALUATION_NAME).unlink(missing_ok=True)
     rgbd = summary.get("depth_source", "files") == "files"
     res["alignment_for_mesh"] = "se3" if rgbd else "sim3"
+    res["gt_sequence"] = str(seq.root.resolve())  # where the view finds the true path and surface
     if "error" not in res:
         ie, ig = associate(stamps, seq.timestamps)
         a = ate(poses[ie], seq.poses[ig], "sim3")

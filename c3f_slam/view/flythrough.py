@@ -1,0 +1,85 @@
+"""``flythrough.mp4``: the final model seen from a camera gliding along the smoothed camera path.
+
+The registered camera positions are resampled by arc length, smoothed (a Gaussian of
+:data:`SMOOTH_SHARE` of the path length) and resampled again to the video's frame count, so
+the camera moves at constant speed; it looks along the path's direction of travel, with the
+run's own camera "up" (smoothed the same way) kept up. The model is ray cast on the CPU with
+a wide-angle pinhole (:data:`FOV_DEG`) and a light at the eye that fades with distance, as an
+endoscope's does.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from c3f_slam.camera import PinholeCamera
+from c3f_slam.geometry import look_at
+from c3f_slam.view.raycast import MeshScene, render_pinhole
+from c3f_slam.view.rerender import RenderClock
+from c3f_slam.view.video import label
+
+SIZE = (384, 288)  #: width, height of the fly-through (pixels)
+FOV_DEG = 100.0  #: horizontal field of view (degrees)
+FRAMES = 240  #: frames of the fly-through (8 s at 30 frames/s)
+SMOOTH_SHARE = 0.03  #: Gaussian sigma as a share of the path length
+SAMPLES = 600  #: arc-length samples of the path before smoothing
+
+
+def _by_arc_length(points: np.ndarray, n: int) -> np.ndarray:
+    """(n, D) points evenly spaced along the polyline through the first 3 columns of ``points``."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points[:, :3], axis=0), axis=1))])
+    t = np.linspace(0, s[-1], n)
+    return np.stack([np.interp(t, s, points[:, k]) for k in range(points.shape[1])], axis=1)
+
+
+def smoothed_path(poses: np.ndarray, frames: int = FRAMES) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(eyes (frames, 3), ups (frames, 3), path length in metres) along the smoothed path of the
+    camera-to-world ``poses``; None when the camera did not move."""
+    pos = poses[:, :3, 3]
+    if len(pos) < 2 or np.linalg.norm(np.diff(pos, axis=0), axis=1).sum() <= 0:
+        return None
+    both = _by_arc_length(np.concatenate([pos, -poses[:, :3, 1]], axis=1), SAMPLES)  # position, camera up
+    smooth = gaussian_filter1d(both, SMOOTH_SHARE * SAMPLES, axis=0, mode="nearest")
+    out = _by_arc_length(smooth, frames)
+    length = float(np.linalg.norm(np.diff(out[:, :3], axis=0), axis=1).sum())
+    return out[:, :3], out[:, 3:], length
+
+
+def _camera_poses(eyes: np.ndarray, ups: np.ndarray) -> list[np.ndarray]:
+    """Camera-to-world poses looking along the direction of travel (the last one keeps going)."""
+    ahead = np.gradient(eyes, axis=0)
+    poses, last = [], None
+    for eye, d, up in zip(eyes, ahead, ups):
+        try:
+            last = look_at(eye, eye + d, up)
+        except ValueError:  # standing still or looking straight up: keep the previous view
+            if last is None:
+                continue
+            last = last.copy()
+            last[:3, 3] = eye
+        poses.append(last)
+    return poses
+
+
+def flythrough_frames(ms: MeshScene, poses: np.ndarray, clock: RenderClock,
+                      frames: int = FRAMES) -> Iterator[np.ndarray]:
+    """The fly-through's RGB frames (nothing when the camera did not move)."""
+    path = smoothed_path(poses, frames)
+    if path is None:
+        return
+    eyes, ups, length = path
+    cam = PinholeCamera.from_fov(*SIZE, FOV_DEG)
+    falloff = max(0.3 * length, 1e-3)
+    cams = _camera_poses(eyes, ups)
+    for i, T in enumerate(cams):
+        t0 = time.perf_counter()
+        img, _ = render_pinhole(ms, cam.K, T, *SIZE, falloff=falloff, ambient=0.5)
+        clock.seconds += time.perf_counter() - t0
+        clock.frames += 1
+        label(img, f"fly-through: {100 * length * i / max(1, len(cams) - 1):.1f} of {100 * length:.1f} cm",
+              corner="bottom")
+        yield img

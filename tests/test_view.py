@@ -1,0 +1,212 @@
+"""`python -m c3f_slam view OUT`: the 3D view page, the re-rendered video and the fly-through.
+
+The re-rendered depth from a registered pose matches the simulator's true depth; the page opens
+in headless Chromium with the network off, draws, and every layer toggles (tests/browser.py).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import open3d as o3d
+import pytest
+
+from c3f_slam.cli import main
+from c3f_slam.coverage.render import UNSEEN_COLOUR
+from c3f_slam.io import Sequence, read_tum
+from c3f_slam.io.sequence import read_depth_png
+from c3f_slam.view.budget import ViewBudget, decimate
+from c3f_slam.view.flythrough import smoothed_path
+from c3f_slam.view.layers import frusta, triangles_coloured
+from c3f_slam.view.raycast import MeshScene, render_pinhole, scale_intrinsics
+from c3f_slam.view.rerender import PoseLookup, RenderClock, rerender_frames
+from c3f_slam.view.scene import run_layers
+from datamodules.synthetic.fixture import make_tiny_sequence
+from tests import browser
+from tests.bad_input import fingerprint
+from tests.scenes import tube_mesh
+
+RUN = ["--min-correspondences", "15", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def evaluated(tmp_path_factory) -> tuple[Path, Path]:
+    """(sequence, run folder): 16 simulator frames at 128 px, RGB-D run, evaluated."""
+    root = tmp_path_factory.mktemp("view")
+    seq = make_tiny_sequence(root / "seq", frames=16, size=128, seed=3)
+    assert main(["run", str(seq), "--out", str(root / "out"), *RUN]) == 0
+    assert main(["evaluate", str(root / "out"), "--gt", str(seq)]) == 0
+    return seq, root / "out"
+
+
+@pytest.fixture(scope="module")
+def viewed(evaluated, tmp_path_factory) -> Path:
+    """A copy of the run with a component beside the main map, then `view` of it."""
+    out = tmp_path_factory.mktemp("viewed") / "out"
+    shutil.copytree(evaluated[1], out)
+    comp = out / "components" / "01"
+    comp.mkdir(parents=True)
+    for name in ("mesh.ply", "trajectory.txt"):
+        shutil.copy(out / name, comp / name)
+    summary = json.loads((out / "summary.json").read_text())
+    summary["components"].append({"id": 1, "main": False, "frames": 16, "files": [
+        "components/01/mesh.ply", "components/01/trajectory.txt"]})
+    (out / "summary.json").write_text(json.dumps(summary))
+    assert main(["view", str(out), "--no-open", "--quiet"]) == 0
+    return out
+
+
+def test_scaled_intrinsics_keep_pixel_centres():
+    """A point at pixel (u, v) lands at f (u + 0.5) - 0.5 in the image f times as large."""
+    K = np.array([[40.0, 0, 31.5], [0, 40.0, 23.5], [0, 0, 1]])
+    p = np.array([0.01, -0.02, 0.1])
+    uv = (K @ p)[:2] / p[2]
+    uv3 = (scale_intrinsics(K, 3) @ p)[:2] / p[2]
+    assert np.allclose(uv3, 3 * (uv + 0.5) - 0.5)
+
+
+def test_render_depth_of_a_tube_from_its_axis():
+    """On the axis of a tube of radius 2.5 cm (open ends), looking along it: each pixel sees the
+    wall at depth R / tan(angle off the axis), or nothing when that is beyond the tube's end."""
+    from c3f_slam.camera import PinholeCamera
+    from c3f_slam.geometry import look_at
+
+    cam = PinholeCamera.from_fov(32, 32, 60.0)
+    T = look_at([0, 0, 0.05], [0, 0, 0.09], [0, 1.0, 0])
+    rgb, depth = render_pinhole(MeshScene.of(tube_mesh()), cam.K, T, 32, 32)
+    u = np.arange(32) - cam.cx
+    x, y = np.meshgrid(u / cam.fx, u / cam.fy)
+    expect = 0.025 / np.hypot(x, y)
+    wall = expect < 0.07  # the tube ends 7 cm ahead
+    assert rgb.shape == (32, 32, 3) and 0.5 < wall.mean() < 1 and (depth[~wall] == 0).all()
+    assert np.median(np.abs(depth[wall] - expect[wall]) / expect[wall]) < 0.01
+
+
+def test_unseen_patches_and_decimation():
+    mesh = tube_mesh(length=0.05)
+    cols = np.asarray(mesh.vertex_colors)
+    cols[: len(cols) // 4] = UNSEEN_COLOUR
+    mesh.vertex_colors = o3d.utility.Vector3dVector(cols)
+    patches = triangles_coloured(mesh, UNSEEN_COLOUR)
+    assert 0 < len(patches.triangles) < len(mesh.triangles) / 4
+    assert np.allclose(np.asarray(patches.vertex_colors), UNSEEN_COLOUR)
+    small, cut = decimate(mesh, 5000)
+    assert cut and len(small.triangles) <= 5000 and small.has_vertex_colors()
+    assert decimate(mesh, 10**9) == (mesh, False)
+
+
+def test_frusta_and_smoothed_path():
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 31.5], [0, 0, 1]])
+    seg = frusta(np.eye(4)[None], K, 64, 64, 0.01)
+    assert seg.shape == (16, 3) and np.allclose(seg[1::4][:, 2], 0.01)  # corners 1 cm ahead
+    poses = np.repeat(np.eye(4)[None], 50, axis=0)
+    poses[:, 2, 3] = np.linspace(0, 0.1, 50) ** 2 * 10  # uneven speed along z
+    poses[:, 0, 3] = 0.001 * np.sin(np.arange(50))  # and jitter
+    eyes, ups, length = smoothed_path(poses, 60)
+    steps = np.linalg.norm(np.diff(eyes, axis=0), axis=1)
+    assert np.allclose(steps, steps.mean(), rtol=0.05) and length == pytest.approx(0.1, rel=0.05)
+    assert np.allclose(ups, [0, -1, 0], atol=1e-6)
+    assert smoothed_path(np.repeat(np.eye(4)[None], 5, axis=0)) is None
+
+
+def test_unregistered_frames_say_so(evaluated):
+    """A frame without a pose gets a grey panel with text, a registered one a render."""
+    from c3f_slam.stream import open_stream
+
+    seq, out = evaluated
+    stamps, poses = read_tum(out / "trajectory.txt")
+    keep = np.arange(len(stamps)) != 3
+    stream = open_stream(seq, use_depth=False, max_frames=5)
+    cam, ms, clock = stream.camera, MeshScene.of(o3d.io.read_triangle_mesh(str(out / "mesh.ply"))), RenderClock()
+    frames = list(rerender_frames(stream, cam.K, cam.width, cam.height, ms, PoseLookup(stamps[keep], poses[keep]),
+                                  clock))
+    assert len(frames) == 5 and frames[0].shape == (256, 512, 3) and clock.frames == 4
+    right = frames[3][40:, 256:]  # below the label
+    assert np.median(right) == 40 and right.max() > 200  # grey, with the white "not registered"
+    assert np.std(frames[2][40:, 256:]) > 10  # a rendered colon
+
+
+@pytest.mark.e2e
+def test_rerendered_depth_matches_the_true_depth(evaluated):
+    """From each registered pose, the fused mesh's depth (ray cast with the run's intrinsics)
+    against the simulator's true depth. Measured (16 frames, 128 px): median error 0.18-0.35 mm at
+    2-3 cm depth; the render covers 98-100 % of the pixels the truth has in the fusion range, 54 %
+    on the first frame (its far wall was seen once) and has surface nowhere else."""
+    seq, out = evaluated
+    s, (stamps, poses) = Sequence(seq), read_tum(out / "trajectory.txt")
+    ms, cam = MeshScene.of(o3d.io.read_triangle_mesh(str(out / "mesh.ply"))), s.camera
+    medians, covered, stray = [], [], []
+    for i in range(0, len(stamps), 3):
+        _, depth = render_pinhole(ms, cam.K, poses[i], cam.width, cam.height)
+        true = read_depth_png(s.depth_paths[i], cam.depth_scale)
+        in_range = (true > 0.001) & (true < 0.2)
+        both = in_range & (depth > 0)
+        medians.append(np.median(np.abs(depth[both] - true[both])))
+        covered.append(both.sum() / in_range.sum())
+        stray.append(((depth > 0) & ~in_range).mean())
+    assert np.median(medians) < 0.0007 and max(medians) < 0.0015  # metres
+    assert np.median(covered) > 0.9 and max(stray) < 0.01
+
+
+@pytest.mark.e2e
+def test_view_writes_page_and_videos(viewed, evaluated):
+    page = (viewed / "view.html").read_text()
+    assert not re.search(r'(src|href)="https?:', page)  # nothing to fetch: one file, offline
+    assert "three.js" in page and 'data-source="c3f-view-data"' in page
+    data = json.loads(re.search(r'<script type="application/json" id="c3f-view-data">(.*?)</script>', page).group(1))
+    ids = [lay["id"] for lay in data["layers"]]
+    assert ids == ["surface", "unseen", "path", "keyframes", "gt_path", "gt_surface", "components", "components_path"]
+    for name, n in (("rerender.mp4", 16), ("flythrough.mp4", 240)):
+        cap = cv2.VideoCapture(str(viewed / name))
+        assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == n and cap.read()[0], name
+    cap = cv2.VideoCapture(str(viewed / "rerender.mp4"))
+    assert (cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == (512, 256)
+    assert not list(viewed.glob(".*"))  # no temporary file left
+
+
+def test_budget_decimates_and_page_alone(evaluated, tmp_path, capsys):
+    """A small budget decimates the surface and says so; --no-video writes the page alone and
+    needs no input; the run's own files are left as they were."""
+    seq, src = evaluated
+    out = tmp_path / "out"
+    shutil.copytree(src, out)
+    before = fingerprint(out)
+    layers = {lay.id: lay for lay in run_layers(out, ViewBudget(surface=2000), gt=seq)}
+    assert layers["surface"].triangles <= 2000 and "decimated; full resolution: mesh.ply" in layers["surface"].note
+    shutil.move(seq, tmp_path / "moved")
+    try:
+        assert main(["view", str(out), "--no-video", "--no-open"]) == 0
+        after = fingerprint(out)
+        assert set(after) - set(before) == {"view.html"} and all(after[k] == v for k, v in before.items())
+        assert main(["view", str(out), "--no-open", "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and "--sequence" in err[0], err
+        assert main(["view", str(out), "--no-open", "--quiet", "--sequence", str(tmp_path / "moved")]) == 0
+    finally:
+        shutil.move(tmp_path / "moved", seq)
+
+
+def test_bad_run_folder_is_one_line(tmp_path, capsys):
+    for target in (tmp_path / "missing", tmp_path):
+        assert main(["view", str(target), "--no-open"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and str(target) in err[0], err
+
+
+@pytest.mark.e2e
+def test_page_draws_and_every_layer_toggles_in_chromium(viewed):
+    res = browser.selftest(viewed / "view.html")
+    assert res["errors"] == []
+    (view,) = res["views"]
+    assert view["drawn"] > 0.02 * view["pixels"]
+    assert set(view["layers"]) == {"surface", "unseen", "path", "keyframes", "gt_path", "gt_surface", "components",
+                                   "components_path", "cut"}
+    for name, r in view["layers"].items():
+        assert r["changed"] > 0 and r["restored"], (name, r)
+    assert [(v["src"], v["error"]) for v in res["videos"]] == [("rerender.mp4", None), ("flythrough.mp4", None)]
+    assert all(v["width"] > 0 for v in res["videos"])  # Chromium decodes the H.264
