@@ -297,8 +297,10 @@ class SequenceDataModule(L.LightningDataModule):
                    "persistent_workers": workers > 0, "drop_last": False}
         seed = torch.initial_seed()  # the run's seed (seed_everything), else this process's random one
         if split == "train":
+            trainer = getattr(self, "trainer", None)  # with DDP: this process's share of each epoch
+            replicas, rank = (trainer.world_size, trainer.global_rank) if trainer is not None else (1, 0)
             sampler = ResumableSampler(len(dataset), seed, shuffle, self.keyed_samples,
-                                       lambda: self._train_progress()[0])
+                                       lambda: self._train_progress()[0], replicas, rank)
             return ResumableLoader(dataset, sampler, self._train_progress, **options)
         return DataLoader(dataset, shuffle=False, generator=torch.Generator().manual_seed(seed), **options)
 
