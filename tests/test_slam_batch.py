@@ -53,6 +53,7 @@ def _runs(out: Path) -> dict[str, dict]:
     return {r["name"]: r for r in json.loads((out / "batch.json").read_text())["runs"]}
 
 
+@pytest.mark.e2e
 def test_bad_sequences_are_reported_the_good_ones_finish_and_a_rerun_skips_them(dataset, tmp_path):
     out = tmp_path / "out"
     r = _batch(str(dataset), "--out", str(out), "--workers", "2", "--threads", "1")
@@ -86,6 +87,7 @@ def test_bad_sequences_are_reported_the_good_ones_finish_and_a_rerun_skips_them(
     assert stamps == {n: (out / n / "summary.json").stat().st_mtime_ns for n in GOOD}, "a complete run was redone"
 
 
+@pytest.mark.e2e
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None,
                     reason="ray is not installed (pip install -e \".[ray]\"; the dev extra has it)")
 def test_ray_gives_the_same_summary_as_the_pool(dataset, tmp_path):
@@ -138,6 +140,7 @@ def test_budget_fills_the_machine():
     assert (budget(None, None, machine=16).workers, budget(None, None, machine=16).threads) == (8, 1)
     assert budget(2, None, machine=16).threads == 7 and budget(2, None, machine=16).cores == 8
     assert budget(None, 3, machine=16).workers == 4 and budget(None, None, machine=1).workers == 1
+    assert budget(2, None, machine=2) == budget(2, 1, machine=2) and budget(2, None, machine=2).cores == 1
     with pytest.raises(InputError, match="--workers must be >= 1"):
         budget(0, None)
 

@@ -4,8 +4,8 @@ index.html (:mod:`c3f_slam.batch.report`).
 
 The options of ``run`` that choose the inputs, models and settings (``--preset``, ``--config``,
 ``--set``, ``--depth-model``, ...) apply to every sequence. Locally ``--workers`` processes run
-at once, each with a budget of cores (``--threads`` onnxruntime threads per model, plus one for
-the back-end); ``--ray`` runs the same jobs as Ray tasks. A rerun skips the complete runs; a
+at once, each with an equal share of the cores (:func:`budget`); ``--ray`` runs the same jobs as
+Ray tasks of that many CPUs. A rerun skips the complete runs; a
 sequence whose run fails is tried once more, then reported; the command ends with exit status
 2 and one ``error:`` line naming the failed sequences when any failed.
 """
@@ -23,7 +23,7 @@ from c3f_slam.cli_settings import add_settings_options
 from c3f_slam.errors import InputError
 
 THREADS_HELP = ("onnxruntime threads per model in each worker (default: the worker's share of the cores less one, "
-                "at least 1); each worker's budget is this plus one core for the back-end")
+                "at least 1)")
 SHOWN_FAILURES = 5  #: failed sequences named in the final error line (all are in the summary)
 
 
@@ -36,8 +36,8 @@ def add_batch_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("dataset", nargs="?", help="a folder of sequence folders and/or videos, or a list file (one "
                                               "sequence folder or video per line, relative to the file; # comments)")
     b.add_argument("--out", help="output folder: OUT/NAME/ per sequence, OUT/index.html, batch.json, batch.csv")
-    b.add_argument("--workers", type=int, help="runs at once (default: the cores divided by each run's budget, "
-                                               "--threads + 1, at least 1); with --ray: at most this many")
+    b.add_argument("--workers", type=int, help="runs at once, each with an equal share of the cores (default: the "
+                                               "cores / (--threads + 1), at least 1); with --ray: at most this many")
     b.add_argument("--ray", metavar="ADDRESS", help="run on Ray: auto (the cluster this machine is in), a cluster's "
                                                     "address, or local (a Ray instance started here); needs the "
                                                     "project's ray extra, and the same paths on every node")
@@ -57,8 +57,10 @@ class Budget:
 
 
 def budget(workers: int | None, threads: int | None, machine: int | None = None) -> Budget:
-    """Fill the machine (``machine`` cores, default all): each run takes ``threads + 1`` cores,
-    ``threads`` being what is left of its share less one for the back-end (at least 1)."""
+    """Fill the machine (``machine`` cores, default all): ``workers`` runs (default: as many as
+    runs of ``threads + 1`` cores fit), each with an equal share of the cores (its numerical
+    libraries' threads) and ``threads`` onnxruntime threads per model (default: its share less
+    one for the back-end, at least 1)."""
     machine = machine or os.cpu_count() or 1
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
@@ -66,9 +68,8 @@ def budget(workers: int | None, threads: int | None, machine: int | None = None)
         raise InputError(f"--threads must be >= 1, got {threads}")
     if workers is None:
         workers = max(1, machine // ((threads or 1) + 1))
-    if threads is None:
-        threads = max(1, machine // workers - 1)
-    return Budget(workers, threads, threads + 1)
+    cores = max(1, machine // workers)
+    return Budget(workers, threads or max(1, cores - 1), cores)
 
 
 def _settings_record(args: argparse.Namespace, b: Budget) -> dict:
