@@ -286,8 +286,9 @@ class SequenceDataModule(L.LightningDataModule):
     # ----------------------------------------------------------- loaders
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         """The loader of ``split``: training over a :class:`ResumableSampler` (order from the run's
-        seed and the epoch; a checkpoint keeps its position), the others in order. No loader draws
-        from the global RNG (each has its own generator for its processes' seeds)."""
+        seed and the epoch; a checkpoint keeps its position; under DDP this process's share), the
+        others in order (under DDP Lightning shares them out). No loader draws from the global RNG
+        (each has its own generator for its processes' seeds)."""
         if split not in self.datasets:
             raise InputError(
                 f"no {split} sequences in {self.data_dir} (set data.split.{split} or the split fractions)"

@@ -1,4 +1,5 @@
-"""``python -m c3f_slam batch``: a data set reconstructed in one command (docs/runtime.md, Batch).
+"""``python -m c3f_slam batch``: a data set reconstructed in one command
+(docs/runtime.md, Batch: many sequences in one command).
 
 - :mod:`.dataset`: the sequences of a folder or a list file, each with its run folder's name;
 - :mod:`.job`: one sequence's run (:func:`c3f_slam.pipeline.run_slam`, as ``run``) and
