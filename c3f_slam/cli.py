@@ -5,6 +5,8 @@
     python -m c3f_slam run SEQUENCE_DIR|VIDEO --depth-model depth.onnx --feature-model feat.onnx --out OUT
         [--camera camera.json] [--threads N] [--providers CUDAExecutionProvider,CPUExecutionProvider]
     python -m c3f_slam run [--preset room] [--config FILE] [--set ...] --print-config
+    python -m c3f_slam batch DATASET_DIR|LIST_FILE --out OUT [--workers N] [--threads N] [--ray auto|ADDRESS|local]
+        [the options of run: models, --preset, --config, --set ...]
     python -m c3f_slam evaluate OUT --gt SEQUENCE_DIR
     python -m c3f_slam inspect MODEL.onnx
     python -m c3f_slam view OUT [--gt SEQUENCE_DIR] [--sequence SEQ_OR_VIDEO] [--no-video] [--no-open]
@@ -27,9 +29,9 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from c3f_slam.cli_inputs import add_input_options, inputs_from_args, settings_from_args
 from c3f_slam.cli_parser import OneLineParser, run_subcommand
 from c3f_slam.cli_settings import add_settings_options
-from c3f_slam.errors import InputError
 
 
 def _run_parser(sub: argparse._SubParsersAction) -> None:
@@ -40,29 +42,7 @@ def _run_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("sequence", nargs="?", help="sequence folder (rgb/, depth/, camera.json), or a video with "
                                                "--depth-model")
     r.add_argument("--out", help="output folder (a run folder: built beside it and moved into place)")
-    r.add_argument("--depth-source", choices=("files", "model"),
-                   help="files: depth/ of the sequence (RGB-D mode); model: DepthNet ONNX (--depth-model). "
-                        "Default: model when --depth-model is given, else files")
-    r.add_argument("--descriptors", choices=("sift", "contrafeat"),
-                   help="sift (the SIFT baseline) or contrafeat (ONNX, --feature-model). "
-                        "Default: contrafeat when --feature-model is given, else sift")
-    r.add_argument("--depth-model", help="DepthNet ONNX export (see `python -m c3f_slam inspect`), or zoo:NAME "
-                                         "(a model of the repository's zoo/, `python -m c3f_models zoo list`)")
-    r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints), or zoo:NAME")
-    r.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video)")
-    r.add_argument("--threads", type=int, default=None,
-                   help="onnxruntime threads per model (default: the cores less one, at least 1)")
-    r.add_argument("--providers", default="CPUExecutionProvider",
-                   help="onnxruntime execution providers of the models, comma-separated, preferred first, e.g. "
-                        "CUDAExecutionProvider,CPUExecutionProvider (CUDA needs the onnxruntime-gpu package); "
-                        "default CPUExecutionProvider")
-    r.add_argument("--depth-scale", type=float,
-                   help="multiply the --depth-model depth by this factor (self-supervised depth is known up to "
-                        "a scale, the thresholds are in metres); default: the factor the exporter measured on the "
-                        "training data (metadata depth.metric_scale), else 1")
-    r.add_argument("--max-bad-frames", type=int, default=10,
-                   help="unreadable frames (missing or corrupt files, undecodable video frames) skipped and counted "
-                        "(summary.json skipped_unreadable); one more fails the run (default 10)")
+    add_input_options(r)
     r.add_argument("--overwrite", action="store_true",
                    help="replace a complete earlier run in --out (an incomplete one is always replaced)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -87,10 +67,17 @@ def _view_parser(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _batch_parser(sub: argparse._SubParsersAction) -> None:
+    from c3f_slam.batch.cli import add_batch_parser
+
+    add_batch_parser(sub)
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = OneLineParser(prog="python -m c3f_slam", description="C3Fusion SLAM runtime")
     sub = ap.add_subparsers(dest="command", required=True)
     _run_parser(sub)
+    _batch_parser(sub)
     e = sub.add_parser("evaluate", help="ATE / RPE / registered share / coverage of a run against ground truth")
     e.add_argument("out", help="run folder (trajectory.txt, summary.json, mesh.ply)")
     e.add_argument("--gt", required=True, help="ground-truth sequence folder (poses.txt, optional mesh.ply)")
@@ -116,19 +103,6 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _check(ok: bool, message: str) -> None:
-    if not ok:
-        raise InputError(message)
-
-
-def _settings(args: argparse.Namespace):
-    """The run's settings tree (preset, --config, --set and aliases) and the replayed summary, if any."""
-    from c3f_slam.config.loading import read_config_file, resolve_config
-
-    config = read_config_file(args.config) if args.config else None
-    return resolve_config(args.preset, config, args.set), (config.summary if config else None)
-
-
 def _warn_replay_inputs(summary: dict, inputs) -> None:
     """One stderr line when a replayed run read its depth or descriptors from other sources."""
     was = {k: summary.get(k) for k in ("depth_source", "descriptors")}
@@ -142,16 +116,13 @@ def _warn_replay_inputs(summary: dict, inputs) -> None:
 def _run(args: argparse.Namespace) -> int:
     from c3f_slam.config.loading import config_yaml
 
-    cfg, replayed = _settings(args)
+    cfg, replayed = settings_from_args(args)
     if args.print_config:
         print(config_yaml(cfg), end="")
         return 0
-    from c3f_slam.models.session import check_providers  # onnxruntime, Open3D, OpenCV: not for --print-config
-    from c3f_slam.pipeline import RunInputs, run_slam
+    from c3f_slam.pipeline import run_slam
 
-    _check(args.threads is None or args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
-    inputs = RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, args.camera,
-                       args.threads, args.depth_scale, args.max_bad_frames, check_providers(args.providers))
+    inputs = inputs_from_args(args)
     if replayed is not None:
         _warn_replay_inputs(replayed, inputs.resolved())
     s = run_slam(args.sequence, args.out, cfg, inputs, progress=not args.quiet, overwrite=args.overwrite)
@@ -206,7 +177,14 @@ def _view(args: argparse.Namespace) -> int:
     return view_command(args.out, args.gt, args.sequence, not args.no_video, not args.no_open, not args.quiet)
 
 
-COMMANDS = {"run": _run, "evaluate": _evaluate, "inspect": _inspect, "simcol3d": _simcol3d, "view": _view}
+def _batch(args: argparse.Namespace) -> int:
+    from c3f_slam.batch.cli import batch_command
+
+    return batch_command(args)
+
+
+COMMANDS = {"run": _run, "batch": _batch, "evaluate": _evaluate, "inspect": _inspect, "simcol3d": _simcol3d,
+            "view": _view}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

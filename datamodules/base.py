@@ -286,8 +286,9 @@ class SequenceDataModule(L.LightningDataModule):
     # ----------------------------------------------------------- loaders
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         """The loader of ``split``: training over a :class:`ResumableSampler` (order from the run's
-        seed and the epoch; a checkpoint keeps its position), the others in order. No loader draws
-        from the global RNG (each has its own generator for its processes' seeds)."""
+        seed and the epoch; a checkpoint keeps its position; under DDP this process's share), the
+        others in order (under DDP Lightning shares them out). No loader draws from the global RNG
+        (each has its own generator for its processes' seeds)."""
         if split not in self.datasets:
             raise InputError(
                 f"no {split} sequences in {self.data_dir} (set data.split.{split} or the split fractions)"
@@ -297,8 +298,10 @@ class SequenceDataModule(L.LightningDataModule):
                    "persistent_workers": workers > 0, "drop_last": False}
         seed = torch.initial_seed()  # the run's seed (seed_everything), else this process's random one
         if split == "train":
+            trainer = getattr(self, "trainer", None)  # with DDP: this process's share of each epoch
+            replicas, rank = (trainer.world_size, trainer.global_rank) if trainer is not None else (1, 0)
             sampler = ResumableSampler(len(dataset), seed, shuffle, self.keyed_samples,
-                                       lambda: self._train_progress()[0])
+                                       lambda: self._train_progress()[0], replicas, rank)
             return ResumableLoader(dataset, sampler, self._train_progress, **options)
         return DataLoader(dataset, shuffle=False, generator=torch.Generator().manual_seed(seed), **options)
 
