@@ -57,7 +57,7 @@ def test_export_interrupted_keeps_the_earlier_export_whole(tmp_path, monkeypatch
         return Path(path)
 
     monkeypatch.setattr(exporter, "write_onnx", write_onnx)
-    meta = SimpleNamespace(kind="depth", opset=18, parity={}, sampling=None)
+    meta = SimpleNamespace(kind="depth", opset=18, parity={}, sampling=None, precision="float32")
     staged = [(SimpleNamespace(file_name=name), None, meta) for name in ("depthnet.onnx", "posenet.onnx")]
     with pytest.raises(KeyboardInterrupt):
         exporter._write_export(staged, out, SimpleNamespace(created="now", checkpoint={}))

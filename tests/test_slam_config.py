@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from c3f_slam.cli import _parser, _settings, main
+from c3f_slam.cli import _parser, main
+from c3f_slam.cli_inputs import settings_from_args as _settings
 from c3f_slam.cli_settings import ALIASES
 from c3f_slam.config import PRESETS, SlamConfig, config_from_dict, preset
 from c3f_slam.config.loading import config_yaml, read_config_file, resolve_config

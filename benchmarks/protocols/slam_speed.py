@@ -113,11 +113,15 @@ def paper_size_models(seq: Path, work: Path) -> tuple[Path, Path]:
     return depth, feat
 
 
-def model_options(case: Case, variant: str, seq: Path, work: Path, threads: int | None) -> list[str]:
-    """The run's model options (none for true depth and SIFT)."""
+def model_options(case: Case, variant: str, seq: Path, work: Path, threads: int | None,
+                  models: tuple[Path, Path] | None = None) -> list[str]:
+    """The run's model options (none for true depth and SIFT); ``models``: (depth, descriptors)
+    files in place of the case's for this checkout's variants (the baseline keeps the case's)."""
     if case.models is None:
         return ["--depth-source", "files", "--descriptors", "sift"]
     depth, feat = ZOO if case.models == "zoo" else paper_size_models(seq, work)
+    if models is not None and variant != BASELINE:
+        depth, feat = models
     if variant in DENSE_ONLY:
         feat = dense_only(feat, work)
     threads_option = ["--threads", str(threads)] if threads else []
@@ -129,7 +133,9 @@ def dense_only(feat: str | Path, work: Path) -> str | Path:
     find the export's keypoint graph beside it (a zoo name as it is: the zoo has no keypoint graph)."""
     if str(feat).startswith("zoo:"):
         return feat
-    alone = work / "dense_only" / Path(feat).name
+    from c3f_slam.zoo import sha256_of
+
+    alone = work / "dense_only" / sha256_of(feat)[:16] / Path(feat).name  # one folder per file content
     if not alone.is_file():
         alone.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(feat, alone)
@@ -137,7 +143,7 @@ def dense_only(feat: str | Path, work: Path) -> str | Path:
 
 
 def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int | None, baseline: Path | None,
-             providers: str | None = None) -> dict:
+             providers: str | None = None, models: tuple[Path, Path] | None = None) -> dict:
     """One run of ``variant`` on ``case`` with the CLI (``baseline``: that checkout, its defaults;
     else this one with the variant's settings): its summary with the ATE (Sim(3), cm)."""
     out = work / "runs" / case.name / variant
@@ -145,7 +151,7 @@ def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int | Non
     sets = [] if variant == BASELINE else [x for kv in VARIANTS[variant] for x in ("--set", kv)]
     cmd = [sys.executable, "-m", "c3f_slam", "run", str(seq), "--out", str(out), "--overwrite", "--quiet",
            "--preset", case.preset, "--set", "coverage.enabled=false", *sets,
-           *model_options(case, variant, seq, work, threads),
+           *model_options(case, variant, seq, work, threads, models),
            *(["--providers", providers] if providers and case.models and variant != BASELINE else [])]
     s, ev = run_and_score(cmd, out, seq, f"{case.name} {variant}", cwd=checkout,
                           env={**os.environ, "PYTHONPATH": str(checkout)})
@@ -190,6 +196,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="onnxruntime threads per model; default: each checkout's own default")
     ap.add_argument("--providers", help="the runs' --providers (model cases, this checkout), e.g. "
                                         "CUDAExecutionProvider,CPUExecutionProvider on a GPU; default CPU")
+    ap.add_argument("--models", nargs=2, type=Path, metavar=("DEPTH", "DESCRIPTORS"),
+                    help="ONNX files this checkout's variants of the model cases run instead of the case's (e.g. "
+                         "int8 exports, benchmarks/protocols/lighter_models.py); the baseline keeps the case's")
     ap.add_argument("--work", type=Path, default=WORK / "slam_speed")
     ap.add_argument("--report", type=Path, default=RESULTS / "slam_speed.md")
     return ap.parse_args(argv)
@@ -205,7 +214,8 @@ def main(argv: list[str] | None = None) -> None:
         runs: dict[str, list[dict]] = {v: [] for v in variants}
         for _ in range(args.repeats):
             for v in variants:
-                runs[v].append(run_once(case, v, seq, args.work, args.threads, args.baseline, args.providers))
+                runs[v].append(run_once(case, v, seq, args.work, args.threads, args.baseline, args.providers,
+                                        tuple(args.models) if args.models else None))
                 print(f"{name} {v}: {runs[v][-1]['fps']:.2f} frames/s", flush=True)
         base = statistics.median(r["fps"] for r in runs[variants[0]])
         data[name] = {}
@@ -225,7 +235,9 @@ def body(args: argparse.Namespace, rows: list[str]) -> list[str]:
         + f"; {args.frames} frames (model-224: {args.frames // 2}).",
         "- Variants: " + (f"baseline: {args.baseline} with its defaults; " if args.baseline else "")
         + "; ".join(f"{v}: {' '.join(VARIANTS[v]) or 'the defaults'}" for v in args.variants)
-        + " (variants other than after are given ContraFeat's dense graph alone); coverage off.",
+        + " (variants other than after are given ContraFeat's dense graph alone); coverage off."
+        + (f" This checkout's variants run {args.models[0]} and {args.models[1]} in place of the case's models."
+           if args.models else ""),
         "- Columns: frames/s over the whole command's wall-clock time (summary.json's wall_seconds: opening "
         "the models, the frames, the final optimisation, fusion and the outputs) and "
         "its ratio to the first variant; ms per frame; ms per frame per stage (with perception ahead of the "
