@@ -95,7 +95,9 @@ class DemoContext:
         ``log_names[key]``); returns key -> None (done) or its :class:`StageFailed`. On Ctrl-C no
         further command starts; each running one gets one SIGINT (they run in their own process
         groups, so the terminal's does not reach them twice), is waited for (so it can write its
-        partial state, e.g. a fit's checkpoint), and KeyboardInterrupt is re-raised."""
+        partial state, e.g. a fit's checkpoint) up to :data:`INTERRUPT_GRACE_S` seconds, then killed
+        (a child that ignores SIGINT, as one started from a background shell does, would otherwise
+        run to its end), and KeyboardInterrupt is re-raised."""
         pending, running, results = list(commands.items()), {}, {}
         try:
             while pending or running:
@@ -109,10 +111,18 @@ class DemoContext:
             for child in running.values():
                 child.proc.send_signal(signal.SIGINT)
             for child in running.values():
-                child.proc.wait()
+                try:
+                    child.proc.wait(timeout=INTERRUPT_GRACE_S)
+                except subprocess.TimeoutExpired:
+                    child.proc.kill()
+                    child.proc.wait()
                 child.finish()
             raise
         return {k: results[k] for k in commands}
+
+
+#: seconds a command interrupted by run_many has to stop on its own before it is killed
+INTERRUPT_GRACE_S = 20.0
 
 
 @dataclass

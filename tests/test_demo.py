@@ -237,6 +237,29 @@ def test_run_many_on_ctrl_c_stops_the_running_and_starts_no_more(tmp_path, monke
     assert ctx.log("s_a").is_file() and ctx.log("s_b").is_file() and not ctx.log("s_c").exists()
 
 
+def test_run_many_kills_a_command_that_ignores_ctrl_c(tmp_path, monkeypatch):
+    import time
+
+    from c3f_demo import context
+
+    ctx = context.DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
+    calls, real_pause = [], context.poll_pause
+
+    def interrupt_soon():
+        calls.append(1)
+        if len(calls) == 20:
+            raise KeyboardInterrupt
+        real_pause()
+
+    monkeypatch.setattr(context, "poll_pause", interrupt_soon)
+    monkeypatch.setattr(context, "INTERRUPT_GRACE_S", 1.0)
+    deaf = ["-c", "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(60)"]
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        ctx.run_many("s", {"a": deaf})
+    assert time.monotonic() - t0 < 30  # killed after the grace, not waited out
+
+
 def test_state_refuses_a_folder_that_is_no_demo(tmp_path):
     (tmp_path / "x.txt").write_text("mine")
     with pytest.raises(InputError, match="not a demo folder"):
