@@ -211,23 +211,29 @@ def test_run_many_logs_each_command_and_returns_failures(tmp_path):
     assert "fine" in ctx.log("stage_ok").read_text() and "broken" in ctx.log("stage_bad").read_text()
 
 
+def _interrupted_demo(tmp_path, monkeypatch, polls: int = 20):
+    """A quick demo context whose run_many gets Ctrl-C at its ``polls``-th pause (after ~1 s);
+    only run_many's own pause is replaced: time.sleep itself is shared with other threads."""
+    from c3f_demo import context
+
+    calls, real_pause = [], context.poll_pause
+
+    def interrupt_soon():
+        calls.append(1)
+        if len(calls) == polls:
+            raise KeyboardInterrupt
+        real_pause()
+
+    monkeypatch.setattr(context, "poll_pause", interrupt_soon)
+    return context.DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
+
+
 def test_run_many_on_ctrl_c_stops_the_running_and_starts_no_more(tmp_path, monkeypatch):
     import time
 
     from c3f_demo import context
 
-    ctx = context.DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
-    calls, real_pause = [], context.poll_pause
-
-    # Ctrl-C arrives while the first two commands run (after ~1 s); only run_many's own pause is
-    # replaced: time.sleep itself is shared with other threads of the test process
-    def interrupt_soon():
-        calls.append(1)
-        if len(calls) == 20:
-            raise KeyboardInterrupt
-        real_pause()
-
-    monkeypatch.setattr(context, "poll_pause", interrupt_soon)
+    ctx = _interrupted_demo(tmp_path, monkeypatch)
     monkeypatch.setattr(context, "parallel_jobs", lambda: 2)
     slow = ["-c", "import time; print('started', flush=True); time.sleep(60)"]
     t0 = time.monotonic()
@@ -242,16 +248,7 @@ def test_run_many_kills_a_command_that_ignores_ctrl_c(tmp_path, monkeypatch):
 
     from c3f_demo import context
 
-    ctx = context.DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
-    calls, real_pause = [], context.poll_pause
-
-    def interrupt_soon():
-        calls.append(1)
-        if len(calls) == 20:
-            raise KeyboardInterrupt
-        real_pause()
-
-    monkeypatch.setattr(context, "poll_pause", interrupt_soon)
+    ctx = _interrupted_demo(tmp_path, monkeypatch)
     monkeypatch.setattr(context, "INTERRUPT_GRACE_S", 1.0)
     deaf = ["-c", "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(60)"]
     t0 = time.monotonic()

@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.report import Report
@@ -124,7 +125,7 @@ def match_metrics(dense: Path, heldout: list[Path]) -> dict:
     from c3f_models.contrafeat_module import ContraFeat
     from c3f_models.zoo.evaluate import descriptor_heldout
 
-    cfg = __import__("yaml").safe_load((ROOT / "zoo" / FEATURES / "config.yaml").read_text())["model"]["init_args"]
+    cfg = yaml.safe_load((ROOT / "zoo" / FEATURES / "config.yaml").read_text())["model"]["init_args"]
     model = ContraFeat(**{k: v for k, v in cfg.items() if k != "init_weights"}).eval()
     net = OnnxDescriptorNet(dense)
     model.net.forward = net  # the module keeps its attributes; its computation is the ONNX file's

@@ -18,6 +18,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.geometry import look_at
+from c3f_slam.trajectory_metrics import path_length
 from c3f_slam.view.raycast import MeshScene, render_pinhole
 from c3f_slam.view.rerender import RenderClock
 from c3f_slam.view.video import label
@@ -40,13 +41,12 @@ def smoothed_path(poses: np.ndarray, frames: int = FRAMES) -> tuple[np.ndarray, 
     """(eyes (frames, 3), ups (frames, 3), path length in metres) along the smoothed path of the
     camera-to-world ``poses``; None when the camera did not move."""
     pos = poses[:, :3, 3]
-    if len(pos) < 2 or np.linalg.norm(np.diff(pos, axis=0), axis=1).sum() <= 0:
+    if path_length(pos) <= 0:
         return None
     both = _by_arc_length(np.concatenate([pos, -poses[:, :3, 1]], axis=1), SAMPLES)  # position, camera up
     smooth = gaussian_filter1d(both, SMOOTH_SHARE * SAMPLES, axis=0, mode="nearest")
     out = _by_arc_length(smooth, frames)
-    length = float(np.linalg.norm(np.diff(out[:, :3], axis=0), axis=1).sum())
-    return out[:, :3], out[:, 3:], length
+    return out[:, :3], out[:, 3:], path_length(out[:, :3])
 
 
 def _camera_poses(eyes: np.ndarray, ups: np.ndarray) -> list[np.ndarray]:
