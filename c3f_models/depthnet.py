@@ -52,6 +52,10 @@ class DepthNet(C3FModule):
             network frozen, its batch-norm statistics too). For test-time training: the pose
             network fits the new sequence on the given depth before depth moves, so the
             photometric error of wrong poses is not absorbed by the depth (0 = off).
+        warmup_adapts_norm: during the pose warm-up the depth network's batch-norm layers run in
+            training mode: their running statistics follow the new sequence's images (an
+            appearance adaptation that needs no gradient and no ground truth) while its weights
+            stay. Off: the statistics stay too.
     """
 
     weights_hint = ("check model.network.encoder_layers, encoder_width, dcn, pose_encoder_layers and "
@@ -68,6 +72,7 @@ class DepthNet(C3FModule):
         init_weights: str | None = None,
         augment: ColorAugmentConfig = DEFAULT_AUGMENT,
         pose_warmup_steps: int = 0,
+        warmup_adapts_norm: bool = False,
     ) -> None:
         network = as_config(network, DEFAULT_NETWORK, "model.network")
         loss = as_config(loss, DEFAULT_LOSS, "model.loss")
@@ -78,7 +83,7 @@ class DepthNet(C3FModule):
             raise InputError(f"model.pose_warmup_steps must be >= 0, got {pose_warmup_steps}")
         super().__init__(optim, init_weights)
         self.save_hyperparameters()
-        self.pose_warmup_steps = pose_warmup_steps
+        self.pose_warmup_steps, self.warmup_adapts_norm = pose_warmup_steps, warmup_adapts_norm
         self.network_config, self.loss_config, self.evaluation_config = network, loss, evaluation
         self.augment_config = augment
         self.depth_net = DepthNetwork(network.encoder_layers, network.dcn, network.num_scales, network.min_depth,
@@ -184,11 +189,11 @@ class DepthNet(C3FModule):
 
     def on_train_batch_start(self, batch: dict, batch_idx: int) -> None:
         """During the pose warm-up the depth network is frozen: no gradient (the optimiser skips
-        it), batch-norm statistics in evaluation mode."""
+        it), batch-norm statistics in evaluation mode unless ``warmup_adapts_norm``."""
         if self.pose_warmup_steps > 0:
             frozen = self.global_step < self.pose_warmup_steps
             self.depth_net.requires_grad_(not frozen)
-            self.depth_net.train(not frozen)
+            self.depth_net.train(not frozen or self.warmup_adapts_norm)
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         terms, disparities = self.compute_loss(batch, step=self.global_step)

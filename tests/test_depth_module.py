@@ -385,3 +385,17 @@ def test_pose_warmup_trains_posenet_alone_first(plane_dataset, tmp_path):
     assert changed("pose_net.") and changed("depth_net.")
     with pytest.raises(InputError, match="model.pose_warmup_steps must be >= 0"):
         DepthNet(TINY, pose_warmup_steps=-1)
+
+
+def test_pose_warmup_that_adapts_norm_moves_statistics_not_weights(plane_dataset, tmp_path):
+    """model.warmup_adapts_norm: during the pose warm-up the depth network's batch-norm running
+    statistics follow the new images while its parameters stay."""
+    L.seed_everything(0)
+    model = DepthNet(TINY, LossConfig(**MONODEPTH2), pose_warmup_steps=2, warmup_adapts_norm=True)
+    params = {k: v.clone() for k, v in model.depth_net.named_parameters()}
+    buffers = {k: v.clone() for k, v in model.depth_net.named_buffers() if k.endswith("running_mean")}
+    assert buffers
+    trainer(tmp_path, max_steps=2, limit_val_batches=0).fit(model, datamodule=datamodule(plane_dataset))
+    assert all(torch.equal(v, params[k]) for k, v in model.depth_net.named_parameters())
+    now = dict(model.depth_net.named_buffers())
+    assert any(not torch.equal(now[k], v) for k, v in buffers.items())

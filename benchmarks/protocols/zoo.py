@@ -16,8 +16,8 @@ Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and r
 - ``coverage``: the seven cases of ``benchmarks.protocols.coverage_accuracy`` on zoo depth (SIFT): the
   run's unseen-wall estimate against the truth.
 - ``ttt``: test-time training from the zoo weights (the paper's objective,
-  ``configs/depthnet/ttt.yaml``, no ground truth) on a held-out sequence of a trained
-  appearance and one of the unseen appearance: Abs Rel before and after.
+  ``configs/depthnet/ttt.yaml``, no ground truth) on two held-out sequences of a trained
+  appearance and two of the unseen appearance: Abs Rel before and after.
 - ``ablation``: the paper's first claim at this scale: from the zoo weights, the same number of
   self-supervised steps on four of the zoo's training sequences with the paper's objective and
   with the Monodepth2 baseline (no supervised term, no augmentation in either), for each seed;
@@ -48,7 +48,8 @@ from c3f_models.zoo.train import REPO, simulate
 
 SECTIONS = ("depth", "matches", "slam", "coverage", "ttt", "ablation")
 ABLATION = {"c3fusion": "configs/depthnet/paper_objective.yaml", "monodepth2": "configs/depthnet/monodepth2.yaml"}
-TTT_SEQUENCES = ("seq1_s2001", "seq5_s2005")
+#: test-time training's sequences -> their appearance (seq1: trained; seq5: in no training sequence)
+TTT_SEQUENCES = {"seq1_s2001": "trained", "seq1_s2002": "trained", "seq5_s2005": "unseen", "seq5_s2006": "unseen"}
 
 
 def _cached(work: Path, name: str, redo: bool, compute) -> dict:
@@ -254,15 +255,16 @@ def coverage_lines(c: dict) -> list[str]:
 
 def ttt_lines(t: dict) -> list[str]:
     lines = [f"{t['steps']} steps of batch 4 of the paper's objective (configs/depthnet/ttt.yaml + "
-             "paper_objective.yaml: PoseNet alone for the first 30 steps, then both networks; the guard on), from "
-             "the zoo weights, no ground truth. What the other schedules do: zoo_ttt_variants.md.", "",
-             "| sequence | Abs Rel before | after | change % | δ<1.25 before | after | guard: kept step, events |",
-             "|---|---|---|---|---|---|---|"]
-    for name in TTT_SEQUENCES:
+             "paper_objective.yaml: PoseNet alone for the first 30 steps while the depth network's batch-norm "
+             "statistics follow the sequence, then both networks; the guard on), from the zoo weights, no ground "
+             "truth. What the other schedules do: zoo_ttt_variants.md.", "",
+             "| sequence | appearance | Abs Rel before | after | change % | δ<1.25 before | after | "
+             "guard: kept step, events |", "|---|---|---|---|---|---|---|---|"]
+    for name, appearance in TTT_SEQUENCES.items():
         if name in t:
             b, f, g = t[name]["before"], t[name]["after"], t[name].get("guard") or {}
             events = ", ".join(e["event"] for e in g.get("events", [])) or "none"
-            lines.append(f"| {name} | {b['abs_rel']:.4f} | {f['abs_rel']:.4f} | "
+            lines.append(f"| {name} | {appearance} | {b['abs_rel']:.4f} | {f['abs_rel']:.4f} | "
                          f"{100 * (f['abs_rel'] / b['abs_rel'] - 1):+.1f} | {b['a1']:.3f} | {f['a1']:.3f} | "
                          f"{g.get('best_step', 'n/a')}, {events} |")
     return lines
@@ -322,12 +324,13 @@ def target_lines(m: dict) -> list[str]:
             f"{100 * (1 - c / b):+.1f} %", c <= 0.85 * b)
     if "ttt" in m:
         t = m["ttt"]
-        unseen, like = t.get(TTT_SEQUENCES[1]), t.get(TTT_SEQUENCES[0])
-        if unseen and like:
-            du = unseen["after"]["abs_rel"] / unseen["before"]["abs_rel"] - 1
-            dl = like["after"]["abs_rel"] / like["before"]["abs_rel"] - 1
-            row("test-time training lowers Abs Rel on the unseen appearance, raises it <= 5 % on a trained one",
-                f"{100 * du:+.1f} % / {100 * dl:+.1f} %", du < 0 and dl <= 0.05)
+        change = {a: [t[n]["after"]["abs_rel"] / t[n]["before"]["abs_rel"] - 1 for n, k in TTT_SEQUENCES.items()
+                      if k == a and n in t] for a in ("unseen", "trained")}
+        if change["unseen"] and change["trained"]:
+            du, dl = max(change["unseen"]), max(change["trained"])
+            row("test-time training lowers Abs Rel on every sequence of the unseen appearance, raises it <= 5 % on "
+                "the trained one (largest change of each)", f"{100 * du:+.1f} % / {100 * dl:+.1f} %",
+                du < 0 and dl <= 0.05)
     return ["| target | measured | |", "|---|---|---|", *rows]
 
 

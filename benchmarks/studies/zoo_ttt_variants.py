@@ -4,8 +4,9 @@ unseen one), Abs Rel before and after, and the photometric objective at the trut
 
 - ``variants``: 60 steps of batch 4 of the paper's objective (``configs/depthnet/ttt.yaml`` +
   ``paper_objective.yaml``, the guard on) from ``zoo:c3f-depth-r18w32`` with one change each
-  (learning rate; a PoseNet-only warm-up; no learning at all, which leaves only the batch-norm
-  statistics to move). ``--variants`` picks some (keys of :data:`VARIANTS`).
+  (learning rate; a PoseNet-only warm-up with the depth network's batch-norm statistics frozen
+  or adapting; no learning at all, which leaves only the batch-norm statistics to move).
+  ``--variants`` picks some (keys of :data:`VARIANTS`).
 - ``objective``: the mean photometric term L_ph (and the whole loss) of the zoo model's
   predicted depth and poses against the simulator's true depth and poses on the first 48
   triplets of each sequence: whether the objective's minimum is near the truth, and which of
@@ -35,8 +36,13 @@ VARIANTS = {
     "lr1e-4": ("lr 1e-4, no warm-up", ["--model.pose_warmup_steps", "0"]),
     "lr1e-5": ("lr 1e-5, no warm-up", ["--model.pose_warmup_steps", "0", "--model.optim.lr", "1e-5"]),
     "lr0": ("lr 0 (batch-norm statistics only)", ["--model.pose_warmup_steps", "0", "--model.optim.lr", "0.0"]),
-    "warmup": ("lr 1e-4, PoseNet alone for 30 steps (ttt.yaml)", []),
-    "warmup_lr1e-5": ("lr 1e-5, PoseNet alone for 30 steps", ["--model.optim.lr", "1e-5"]),
+    "warmup": ("lr 1e-4, PoseNet alone for 30 steps, batch-norm statistics frozen",
+               ["--model.warmup_adapts_norm", "false"]),
+    "warmup_lr1e-5": ("lr 1e-5, PoseNet alone for 30 steps, batch-norm statistics frozen",
+                      ["--model.warmup_adapts_norm", "false", "--model.optim.lr", "1e-5"]),
+    "warmup_norm": ("lr 1e-4, PoseNet alone for 30 steps while the batch-norm statistics adapt (ttt.yaml)", []),
+    "norm_only": ("PoseNet alone for all 60 steps while the batch-norm statistics adapt",
+                  ["--model.pose_warmup_steps", "60"]),
 }
 
 
