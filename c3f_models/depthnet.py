@@ -49,9 +49,10 @@ class DepthNet(C3FModule):
         init_weights: checkpoint whose weights start ``fit`` (optimiser and epoch not resumed;
             for test-time training); ignored when resuming with ``ckpt_path``.
         pose_warmup_steps: the first optimiser steps of ``fit`` train PoseNet alone (the depth
-            network frozen, its batch-norm statistics too). For test-time training: the pose
-            network fits the new sequence on the given depth before depth moves, so the
-            photometric error of wrong poses is not absorbed by the depth (0 = off).
+            network frozen; its batch-norm statistics too unless ``warmup_adapts_norm``). For
+            test-time training: the pose network fits the new sequence on the given depth
+            before depth moves, so the photometric error of wrong poses is not absorbed by the
+            depth (0 = off).
         warmup_adapts_norm: during the pose warm-up the depth network's batch-norm layers run in
             training mode: their running statistics follow the new sequence's images (an
             appearance adaptation that needs no gradient and no ground truth) while its weights
