@@ -245,6 +245,24 @@ def test_kpf_kabsch_stage_alone_removes_outliers():
     assert res.accepted and res.kept.tolist() == list(range(40))
 
 
+def test_kpf_relative_residual_bound_keeps_depth_proportional_error():
+    """A depth error proportional to the depth (a predicted depth map's) pushes the far points'
+    residuals over the fixed 1 mm bound; the relative term keeps them, the fixed bound alone
+    drops them."""
+    rng = np.random.default_rng(8)
+    pts_i, pts_j, _ = _correspondences(rng, 40, 0)
+    far = np.argsort(pts_i[:, 2])[-10:]
+    pts_i[far] *= 1.08  # 8 % too deep in frame i: millimetres at colon depths
+    fixed = filter_matches(pts_i, pts_j, MatchFilterConfig(use_pairwise=False))
+    relative = filter_matches(pts_i, pts_j, MatchFilterConfig(use_pairwise=False, residual_relative_tolerance=0.1))
+    assert relative.accepted and set(far.tolist()) <= set(relative.kept.tolist())
+    assert not set(far.tolist()) <= set(fixed.kept.tolist())
+    bound = 1e-3 + 0.1 * pts_i[relative.kept, 2]
+    assert np.all(relative.residuals <= bound)
+    with pytest.raises(InputError, match="residual_relative_tolerance"):
+        MatchFilterConfig(residual_relative_tolerance=-0.1)
+
+
 def test_kpf_too_few_matches():
     rng = np.random.default_rng(3)
     pts_i, pts_j, _ = _correspondences(rng, 9, 0)

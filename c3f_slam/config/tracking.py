@@ -48,7 +48,9 @@ class MatchFilterConfig:
     """
 
     min_matches: int = 10  #: fewer surviving correspondences: the set is rejected
-    max_residual: float = 1.0e-3  #: metres: largest residual of a kept correspondence after the rigid fit
+    max_residual: float = 1.0e-3  #: metres: largest residual of a kept correspondence after the rigid fit ...
+    #: ... plus this share of the point's depth (its z in frame i); 0: the fixed bound alone
+    residual_relative_tolerance: float = 0.0
     pairwise_tolerance: float = 2.0e-3  #: metres: pairwise distances may differ this much between frames ...
     pairwise_relative_tolerance: float = 0.05  #: ... plus this share of the distance
     max_condition: float = 100.0  #: largest condition number of the fit (near-collinear sets fail)
@@ -62,7 +64,7 @@ class MatchFilterConfig:
               f"match_filter.min_matches must be >= 3 (a rigid fit needs 3 points), got {self.min_matches}")
         for name in ("max_residual", "pairwise_tolerance", "max_condition"):
             check(getattr(self, name) > 0, f"match_filter.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("pairwise_relative_tolerance", "min_area"):
+        for name in ("pairwise_relative_tolerance", "residual_relative_tolerance", "min_area"):
             check(getattr(self, name) >= 0, f"match_filter.{name} must be >= 0, got {getattr(self, name)}")
         at_least(self.max_matches, 3, "match_filter.max_matches", "all")
 

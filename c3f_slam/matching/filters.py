@@ -9,8 +9,10 @@ transform T_ij (p_i ~ T_ij p_j):
    candidates a, b are inconsistent when the two distances differ by more than
    ``pairwise_tolerance + pairwise_relative_tolerance * max(distance)``; the candidate with
    the most inconsistencies is dropped until none is left;
-3. Kabsch fit; the candidate with the worst residual is dropped and the fit redone until
-   every residual is below ``max_residual``;
+3. Kabsch fit; the candidate with the worst residual (relative to its bound) is dropped and the
+   fit redone until every residual is below its bound, ``max_residual +
+   residual_relative_tolerance * z`` (z: the point's depth in frame i; predicted depth errs in
+   proportion to the depth);
 4. accept only with >= ``min_matches`` survivors and a condition number below
    ``max_condition`` (as BundleFusion: the largest of the ratios sigma_1/sigma_2 of the
    Kabsch cross-covariance and lambda_1/lambda_2 of each point set's covariance; near-
@@ -175,12 +177,13 @@ def filter_matches(
         idx = idx[sub]
         if len(idx) < cfg.min_matches:
             return reject(idx, f"too few pairwise-consistent matches ({len(idx)} < {cfg.min_matches})")
-    # Kabsch, dropping the worst residual until all are below the threshold
+    # Kabsch, dropping the worst residual (over its bound) until all are below their bounds
+    bound = cfg.max_residual + cfg.residual_relative_tolerance * np.abs(pts_i[:, 2])
     while True:
         T, sv = kabsch(pts_j[idx], pts_i[idx], return_singular_values=True)
         res = residuals(T, pts_j[idx], pts_i[idx])
-        worst = int(np.argmax(res))
-        if res[worst] <= cfg.max_residual:
+        worst = int(np.argmax(res / bound[idx]))
+        if res[worst] <= bound[idx][worst]:
             break
         if len(idx) - 1 < cfg.min_matches:
             return reject(idx, f"too few matches under the residual threshold (< {cfg.min_matches})", T, res)
