@@ -182,8 +182,9 @@ def filter_matches(
     while True:
         T, sv = kabsch(pts_j[idx], pts_i[idx], return_singular_values=True)
         res = residuals(T, pts_j[idx], pts_i[idx])
-        worst = int(np.argmax(res / bound[idx]))
-        if res[worst] <= bound[idx][worst]:
+        allowed = bound[idx]
+        worst = int(np.argmax(res / allowed))
+        if res[worst] <= allowed[worst]:
             break
         if len(idx) - 1 < cfg.min_matches:
             return reject(idx, f"too few matches under the residual threshold (< {cfg.min_matches})", T, res)
