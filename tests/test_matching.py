@@ -7,7 +7,7 @@ import pytest
 
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.config import PRESETS
+from c3f_slam.config import PREDICTED_DEPTH_RESIDUAL_SHARE, PRESETS, SlamConfig
 from c3f_slam.errors import InputError
 from c3f_slam.matching import (
     MatchFilterConfig,
@@ -261,6 +261,19 @@ def test_kpf_relative_residual_bound_keeps_depth_proportional_error():
     assert np.all(relative.residuals <= bound)
     with pytest.raises(InputError, match="residual_relative_tolerance"):
         MatchFilterConfig(residual_relative_tolerance=-0.1)
+
+
+def test_residual_share_follows_the_depth_source():
+    """Unset (None), the residual bound's share of the depth is 3 % on predicted depth and 0 on
+    depth files; a value given stays; unresolved, the filter takes 0 (depth taken as exact)."""
+    cfg = SlamConfig()
+    assert cfg.match_filter.residual_relative_tolerance is None and cfg.match_filter.residual_share == 0.0
+    model = cfg.for_depth_source("model").match_filter
+    assert model.residual_relative_tolerance == PREDICTED_DEPTH_RESIDUAL_SHARE == 0.03
+    assert cfg.for_depth_source("files").match_filter.residual_relative_tolerance == 0.0
+    given = cfg.with_(match_filter={"residual_relative_tolerance": 0.01})
+    assert given.for_depth_source("model").match_filter.residual_relative_tolerance == 0.01
+    assert given.for_depth_source("files").match_filter.residual_share == 0.01
 
 
 def test_kpf_too_few_matches():

@@ -19,6 +19,7 @@ from scipy.ndimage import map_coordinates
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.cli import main
+from c3f_slam.config import PREDICTED_DEPTH_RESIDUAL_SHARE
 from c3f_slam.errors import InputError
 from c3f_slam.models import DepthModel, DescriptorModel, ModelMetadata, OnnxModel, PoseModel
 from c3f_slam.pipeline.frontend import ModelDepth
@@ -297,6 +298,7 @@ def test_slam_with_contrafeat_descriptors(tiny_sequence, models, tmp_path):
     assert (out / "trajectory.txt").is_file()
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "ok" and s["descriptors"] == "contrafeat" and s["depth_source"] == "files"
+    assert s["config"]["match_filter"]["residual_relative_tolerance"] == 0.0  # depth files: the fixed bound
     assert s["models"]["descriptors"]["file"].endswith("feat.onnx")
 
 
@@ -317,6 +319,7 @@ def test_slam_model_depth_without_depth_folder(tiny_sequence, models, tmp_path):
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "ok" and s["depth_source"] == "model" and s["descriptors"] == "sift"
     assert s["depth_scale"] == {"factor": 1.5, "source": "option"}
+    assert s["config"]["match_filter"]["residual_relative_tolerance"] == PREDICTED_DEPTH_RESIDUAL_SHARE
     assert s["frames"] == 8 and s["registered_frames"] >= 1 and (out / "trajectory.txt").is_file()
     assert not (out / CACHE_DIR).exists()
 

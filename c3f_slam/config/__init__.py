@@ -27,6 +27,7 @@ from c3f_slam.config.presets import PAPER_RULES, PRESETS, config_from_dict, pres
 from c3f_slam.config.tracking import (
     PAPER_FRAME_PIXELS,
     PAPER_MIN_CORRESPONDENCES,
+    PREDICTED_DEPTH_RESIDUAL_SHARE,
     FallbackConfig,
     FragmentConfig,
     FrontendConfig,
@@ -36,7 +37,8 @@ from c3f_slam.config.tracking import (
 from c3f_slam.config.tree import MODES, PRESET_NAMES, SECTIONS, FramesConfig, SlamConfig
 
 __all__ = [
-    "MODES", "PAPER_FRAME_PIXELS", "PAPER_MIN_CORRESPONDENCES", "PAPER_RULES", "PRESETS", "PRESET_NAMES",
+    "MODES", "PAPER_FRAME_PIXELS", "PAPER_MIN_CORRESPONDENCES", "PAPER_RULES", "PREDICTED_DEPTH_RESIDUAL_SHARE",
+    "PRESETS", "PRESET_NAMES",
     "SECTIONS", "CandidateConfig", "ComponentConfig", "CoverageConfig", "FallbackConfig", "FragmentConfig",
     "FramesConfig", "FrontendConfig", "FusionConfig", "KeyframeConfig", "MatchFilterConfig", "OptimizationConfig",
     "PoseGraphConfig", "RefineConfig", "RejoinConfig", "SlamConfig", "TSDFConfig", "config_from_dict", "preset",

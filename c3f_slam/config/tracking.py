@@ -12,6 +12,9 @@ from c3f_slam.config.checks import at_least, check
 
 #: the paper's new-fragment rule (docs/design.md, Fragments and keyframes) is for 512 x 512 frames
 PAPER_MIN_CORRESPONDENCES, PAPER_FRAME_PIXELS = 100, 512 * 512
+#: the residual bound's share of the depth on predicted depth (``match_filter.residual_relative_tolerance``
+#: None with ``--depth-source model``); depth files (sensor or ground truth) take 0
+PREDICTED_DEPTH_RESIDUAL_SHARE = 0.03
 
 
 @dataclass(frozen=True)
@@ -44,13 +47,17 @@ class MatchFilterConfig:
       ``max_residual``; the relative part absorbs predicted-depth scale error.
     - ``min_area`` 1e-5 m^2 (10 mm^2, e.g. 3x3 mm): BundleFusion's 0.032 m^2 scaled by
       (1/50)^2 (2 m room viewing distance vs about 3-4 cm in the colon).
+    - ``residual_relative_tolerance`` None: 3 % of the point's depth on predicted depth (a
+      network's depth errs in proportion to the depth, about 9 % on the zoo's held-out
+      sequences), 0 on depth files; resolved by :meth:`for_depth_source` when a run starts.
     - ``max_condition`` 100 and ``min_matches`` 10: BundleFusion / the paper (scale-free).
     """
 
     min_matches: int = 10  #: fewer surviving correspondences: the set is rejected
     max_residual: float = 1.0e-3  #: metres: largest residual of a kept correspondence after the rigid fit ...
-    #: ... plus this share of the point's depth (its z in frame i); 0: the fixed bound alone
-    residual_relative_tolerance: float = 0.0
+    #: ... plus this share of the point's depth (its z in frame i); 0: the fixed bound alone.
+    #: None: from the depth source (:meth:`for_depth_source`: 0.03 on predicted depth, 0 on files)
+    residual_relative_tolerance: float | None = None
     pairwise_tolerance: float = 2.0e-3  #: metres: pairwise distances may differ this much between frames ...
     pairwise_relative_tolerance: float = 0.05  #: ... plus this share of the distance
     max_condition: float = 100.0  #: largest condition number of the fit (near-collinear sets fail)
@@ -64,9 +71,25 @@ class MatchFilterConfig:
               f"match_filter.min_matches must be >= 3 (a rigid fit needs 3 points), got {self.min_matches}")
         for name in ("max_residual", "pairwise_tolerance", "max_condition"):
             check(getattr(self, name) > 0, f"match_filter.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("pairwise_relative_tolerance", "residual_relative_tolerance", "min_area"):
+        for name in ("pairwise_relative_tolerance", "min_area"):
             check(getattr(self, name) >= 0, f"match_filter.{name} must be >= 0, got {getattr(self, name)}")
+        at_least(self.residual_relative_tolerance, 0, "match_filter.residual_relative_tolerance",
+                 "from the depth source")
         at_least(self.max_matches, 3, "match_filter.max_matches", "all")
+
+    @property
+    def residual_share(self) -> float:
+        """The residual bound's share of the depth in use: ``residual_relative_tolerance``, 0
+        while unresolved (None outside a run: depth taken as exact, as from files)."""
+        return self.residual_relative_tolerance or 0.0
+
+    def for_depth_source(self, depth_source: str) -> MatchFilterConfig:
+        """This filter with ``residual_relative_tolerance`` resolved for ``depth_source``
+        (``model``: :data:`PREDICTED_DEPTH_RESIDUAL_SHARE`; ``files``: 0); a given value stays."""
+        if self.residual_relative_tolerance is not None:
+            return self
+        share = PREDICTED_DEPTH_RESIDUAL_SHARE if depth_source == "model" else 0.0
+        return replace(self, residual_relative_tolerance=share)
 
     def scaled(self, factor: float) -> MatchFilterConfig:
         """The same filter for a scene ``factor`` times larger (lengths x f, areas x f^2)."""

@@ -102,6 +102,12 @@ class SlamConfig:
         n = self.fragments.correspondences_for(width, height, self.match_filter.min_matches)
         return replace(self, fragments=replace(self.fragments, min_correspondences=n))
 
+    def for_depth_source(self, depth_source: str) -> SlamConfig:
+        """This config with the thresholds that derive from the depth source (``files`` |
+        ``model``) resolved (``match_filter.residual_relative_tolerance``:
+        :meth:`MatchFilterConfig.for_depth_source`)."""
+        return replace(self, match_filter=self.match_filter.for_depth_source(depth_source))
+
     def as_dict(self) -> dict:
         """The tree as nested plain dicts (summary.json's ``config``; ``config_from_dict`` reads it back)."""
         return tree_as_mapping(self)

@@ -12,7 +12,7 @@ transform T_ij (p_i ~ T_ij p_j):
 3. Kabsch fit; the candidate with the worst residual (relative to its bound) is dropped and the
    fit redone until every residual is below its bound, ``max_residual +
    residual_relative_tolerance * z`` (z: the point's depth in frame i; predicted depth errs in
-   proportion to the depth);
+   proportion to the depth, so a run on model depth takes 3 % and one on depth files 0);
 4. accept only with >= ``min_matches`` survivors and a condition number below
    ``max_condition`` (as BundleFusion: the largest of the ratios sigma_1/sigma_2 of the
    Kabsch cross-covariance and lambda_1/lambda_2 of each point set's covariance; near-
@@ -178,7 +178,7 @@ def filter_matches(
         if len(idx) < cfg.min_matches:
             return reject(idx, f"too few pairwise-consistent matches ({len(idx)} < {cfg.min_matches})")
     # Kabsch, dropping the worst residual (over its bound) until all are below their bounds
-    bound = cfg.max_residual + cfg.residual_relative_tolerance * np.abs(pts_i[:, 2])
+    bound = cfg.max_residual + cfg.residual_share * np.abs(pts_i[:, 2])
     while True:
         T, sv = kabsch(pts_j[idx], pts_i[idx], return_singular_values=True)
         res = residuals(T, pts_j[idx], pts_i[idx])

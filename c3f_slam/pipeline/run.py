@@ -244,8 +244,8 @@ def run_slam(
         summary.update(descriptors=inputs.descriptors, depth_source=inputs.depth_source)
         sources = open_sources(sequence, inputs, cfg.frames.stride, cfg.frames.max_frames)
         summary.update(sources.summary())
-        cfg = cfg.for_frame_size(sources.camera.width, sources.camera.height)
-        summary["config"] = cfg.as_dict()  # with the thresholds derived from the frame size
+        cfg = cfg.for_frame_size(sources.camera.width, sources.camera.height).for_depth_source(inputs.depth_source)
+        summary["config"] = cfg.as_dict()  # with the thresholds derived from the frame size and depth source
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
         with SlamRun(cfg, sources, outputs, timings, factory, progress) as run:
             mesh = run.run()
