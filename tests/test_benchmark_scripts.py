@@ -374,3 +374,33 @@ def test_trajectory_identity_mesh_fingerprint_ignores_triangle_order(tmp_path):
     assert mesh_fingerprint(write("c.ply", moved, t)) != ref
     assert mesh_fingerprint(write("d.ply", v, t[:, ::-1])) != ref  # the winding counts
     assert mesh_fingerprint(tmp_path / "none.ply") is None
+
+
+def test_zoo_ablation_runs_in_chunks(tmp_path, monkeypatch):
+    """The zoo protocol's ablation fits continue after an interruption: a finished fit with the
+    same settings is read back (nothing runs), an interrupted one resumes from its last
+    checkpoint, and one made with other settings is started again from an empty folder."""
+    import json
+
+    import c3f_models.zoo.evaluate as evaluate
+    from benchmarks.protocols import zoo
+
+    calls: list[list[str]] = []
+    monkeypatch.setattr(zoo, "_cli", lambda args, what, ok=(0,): calls.append(args))
+    monkeypatch.setattr(evaluate, "depth_heldout", lambda path, seqs: {"mean": {"sq_rel": 0.5}})
+    run, settings = tmp_path / "c3fusion_s1", {"seed_everything": 1, "trainer": {"max_steps": 3}}
+    assert zoo._ablation_run(run, settings, ["a.yaml"], [], "x") == {"sq_rel": 0.5}
+    assert "--ckpt_path" not in calls[0] and calls[1][2] == "export"
+    calls.clear()
+    assert zoo._ablation_run(run, settings, ["a.yaml"], [], "x") == {"sq_rel": 0.5} and not calls  # read back
+    (run / "result.json").unlink()  # interrupted after its checkpoint
+    ckpt = run / "tb" / "version_0" / "checkpoints" / "last.ckpt"
+    ckpt.parent.mkdir(parents=True)
+    ckpt.write_bytes(b"")
+    zoo._ablation_run(run, settings, ["a.yaml"], [], "x")
+    assert calls[0][-2:] == ["--ckpt_path", str(ckpt)]
+    calls.clear()
+    other = {"seed_everything": 1, "trainer": {"max_steps": 5}}
+    zoo._ablation_run(run, other, ["a.yaml"], [], "x")
+    assert "--ckpt_path" not in calls[0] and not ckpt.exists()
+    assert json.loads((run / "result.json").read_text())["settings"] == other

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -158,9 +159,7 @@ def ttt_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
 
 
 def ablation_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
-    import yaml
 
-    from c3f_models.zoo.evaluate import depth_heldout
     from c3f_slam import zoo
 
     entry = zoo.entry(a.depth, "--depth")
@@ -181,15 +180,39 @@ def ablation_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
                 "data": {"init_args": {"data_dir": str(train[0].parent), "split": {
                     "train": [p.name for p in train], "val": [], "test": [], "val_fraction": 0.0,
                     "test_fraction": 0.0}}}}
-            run.mkdir(parents=True, exist_ok=True)
-            (run / "last.yaml").write_text(yaml.safe_dump(last, sort_keys=False))
-            _cli(["-m", "c3f_models", "fit", "--config", str(entry.folder / "config.yaml"), "--config", config,
-                  "--config", str(run / "last.yaml")], f"ablation fit {variant} seed {seed}")
-            _cli(["-m", "c3f_models", "export", "--config", str(run / "tb" / "version_0" / "config.yaml"),
-                  "--ckpt_path", str(run / "tb" / "version_0" / "checkpoints" / "last.ckpt"), "--output_dir",
-                  str(run / "onnx"), "--graphs", "[depth]", "--metric_scale", "1.0"], f"ablation export {variant}")
-            out.setdefault(variant, {})[str(seed)] = depth_heldout(run / "onnx" / "depthnet.onnx", seqs)["mean"]
+            out.setdefault(variant, {})[str(seed)] = _ablation_run(run, last, [entry.folder / "config.yaml", config],
+                                                                   seqs, f"{variant} seed {seed}")
     return out
+
+
+def _ablation_run(run: Path, last: dict, configs: list, seqs: list[Path], what: str) -> dict:
+    """One fit of the ablation in ``run``: fit (continued from its last checkpoint after an
+    interruption), export, held-out depth metrics; a finished run with the same settings
+    (``result.json``) is read back instead, so the section can run in chunks."""
+    import yaml
+
+    from c3f_models.zoo.evaluate import depth_heldout
+
+    done = run / "result.json"
+    if done.is_file():
+        saved = json.loads(done.read_text())
+        if saved.get("settings") == last:
+            return saved["mean"]
+    ckpt = run / "tb" / "version_0" / "checkpoints" / "last.ckpt"
+    resume = ["--ckpt_path", str(ckpt)] if ckpt.is_file() and (run / "last.yaml").is_file() and \
+        yaml.safe_load((run / "last.yaml").read_text()) == last else []
+    if not resume:
+        shutil.rmtree(run, ignore_errors=True)
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "last.yaml").write_text(yaml.safe_dump(last, sort_keys=False))
+    _cli(["-m", "c3f_models", "fit", *(a for c in configs for a in ("--config", str(c))),
+          "--config", str(run / "last.yaml"), *resume], f"ablation fit {what}")
+    _cli(["-m", "c3f_models", "export", "--config", str(run / "tb" / "version_0" / "config.yaml"),
+          "--ckpt_path", str(ckpt), "--output_dir", str(run / "onnx"), "--graphs", "[depth]", "--metric_scale", "1.0"],
+         f"ablation export {what}")
+    mean = depth_heldout(run / "onnx" / "depthnet.onnx", seqs)["mean"]
+    done.write_text(json.dumps({"settings": last, "mean": mean}, indent=1))
+    return mean
 
 
 def ablation_lines(t: dict) -> list[str]:

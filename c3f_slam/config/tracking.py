@@ -50,6 +50,8 @@ class MatchFilterConfig:
     - ``residual_relative_tolerance`` None: 3 % of the point's depth on predicted depth (a
       network's depth errs in proportion to the depth, about 9 % on the zoo's held-out
       sequences), 0 on depth files; resolved by :meth:`for_depth_source` when a run starts.
+      With it, ``weighted_fit`` (off by default) refits the accepted transform weighting each
+      point by 1 / bound^2, so near points (smaller absolute depth error) count more.
     - ``max_condition`` 100 and ``min_matches`` 10: BundleFusion / the paper (scale-free).
     """
 
@@ -58,6 +60,10 @@ class MatchFilterConfig:
     #: ... plus this share of the point's depth (its z in frame i); 0: the fixed bound alone.
     #: None: from the depth source (:meth:`for_depth_source`: 0.03 on predicted depth, 0 on files)
     residual_relative_tolerance: float | None = None
+    #: with a depth-relative bound, refit the survivors' transform weighting each by 1 / bound^2
+    #: (the inverse variance of a depth-proportional error); no effect with the fixed bound alone.
+    #: Off: on the zoo's depth it lowers ATE but moves the unseen-wall estimate (docs/design.md)
+    weighted_fit: bool = False
     pairwise_tolerance: float = 2.0e-3  #: metres: pairwise distances may differ this much between frames ...
     pairwise_relative_tolerance: float = 0.05  #: ... plus this share of the distance
     max_condition: float = 100.0  #: largest condition number of the fit (near-collinear sets fail)

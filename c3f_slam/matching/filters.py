@@ -12,7 +12,9 @@ transform T_ij (p_i ~ T_ij p_j):
 3. Kabsch fit; the candidate with the worst residual (relative to its bound) is dropped and the
    fit redone until every residual is below its bound, ``max_residual +
    residual_relative_tolerance * z`` (z: the point's depth in frame i; predicted depth errs in
-   proportion to the depth, so a run on model depth takes 3 % and one on depth files 0);
+   proportion to the depth, so a run on model depth takes 3 % and one on depth files 0); with a
+   depth-relative bound and ``weighted_fit`` the survivors' transform is then refitted with
+   weights 1 / bound^2 (the inverse variance of that error: near points count more);
 4. accept only with >= ``min_matches`` survivors and a condition number below
    ``max_condition`` (as BundleFusion: the largest of the ratios sigma_1/sigma_2 of the
    Kabsch cross-covariance and lambda_1/lambda_2 of each point set's covariance; near-
@@ -45,7 +47,8 @@ class FilterResult:
         inlier_indices: (K,) int64 indices into the candidate arrays that survived (also
             when the set is rejected, for diagnostics; use :attr:`kept` for the output).
         T_ij: 4x4 rigid transform (p_i ~ T_ij p_j) fitted to the survivors, or None.
-        residuals: (K,) metres, |T_ij p_j - p_i| of the survivors.
+        residuals: (K,) metres, |T_ij p_j - p_i| of the survivors (after the weighted refit,
+            a survivor may exceed its bound by a little).
         condition_number: condition number of the fit (inf when undefined).
         area: m^2, the larger of the two frames' spanned areas (0 when not computed).
         accepted: the set passed every test.
@@ -189,6 +192,9 @@ def filter_matches(
         if len(idx) - 1 < cfg.min_matches:
             return reject(idx, f"too few matches under the residual threshold (< {cfg.min_matches})", T, res)
         idx = np.delete(idx, worst)
+    if cfg.weighted_fit and cfg.residual_share > 0:  # inverse variance of a depth-proportional error
+        T = kabsch(pts_j[idx], pts_i[idx], weights=1.0 / bound[idx] ** 2)
+        res = residuals(T, pts_j[idx], pts_i[idx])
     cn = condition_number(pts_i[idx], pts_j[idx], sv)
     if not cn < cfg.max_condition:
         return reject(idx, f"degenerate configuration (condition number {cn:.3g} >= {cfg.max_condition:g})", T, res, cn)
