@@ -96,10 +96,14 @@ class Simulate(Stage):
 
 
 def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: dict, data_args: dict,
-              data_dir: Path | None = None) -> Path:
+              data_dir: Path | None = None, callbacks_of: Path | None = None) -> Path:
     """The demo's last config file of a ``fit``: trainer length, logging into DIR/runs/MODEL, data
-    (``data_dir``: default the training sequences)."""
+    (``data_dir``: default the training sequences). Its callbacks replace the earlier configs'
+    (a list is not merged): a last checkpoint and the demo's progress file, after the callbacks of
+    the config ``callbacks_of`` (e.g. ``ttt.yaml``'s test-time training guard) when given."""
     run = ctx.run_dir(model)
+    kept = yaml.safe_load(callbacks_of.read_text())["trainer"]["callbacks"] if callbacks_of else [
+        {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint", "init_args": {"save_last": True}}]
     cfg = {
         "seed_everything": seed,
         "trainer": {
@@ -108,7 +112,7 @@ def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: d
             "logger": {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
                        "init_args": {"save_dir": str(run), "name": "tb"}},
             "callbacks": [
-                {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint", "init_args": {"save_last": True}},
+                *kept,
                 {"class_path": "c3f_demo.progress_callback.ProgressFile",
                  "init_args": {"path": str(run / "progress.txt")}},
             ],
@@ -239,8 +243,10 @@ class TestTimeTrain(_Training):
         model_args = {"init_weights": str(_last_ckpt(ctx, "depthnet")), "loss": {"lambda_gt_depth": 0.0},
                       "optim": {"lr": t.lr}, "pose_warmup_steps": t.pose_warmup_steps}
         data_args = {"frames": {"size": [d.size, d.size]}, "loader": {"batch_size": t.batch_size, "num_workers": 0}}
-        mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq)
-        configs = [*_depth_model_configs(ctx.cfg), CONFIGS / "depthnet" / "ttt.yaml", mine]
+        ttt = CONFIGS / "depthnet" / "ttt.yaml"
+        mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq,
+                         callbacks_of=ttt)
+        configs = [*_depth_model_configs(ctx.cfg), ttt, mine]
         ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
         return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, self.model))}
 
@@ -253,9 +259,11 @@ class TestTimeTrain(_Training):
         t, name = ctx.cfg.ttt, ctx.cfg.zoo.depth
         model_args = {"init_weights": f"zoo:{name}", "optim": {"lr": t.lr}, "pose_warmup_steps": t.pose_warmup_steps}
         data_args = {"loader": {"batch_size": t.batch_size, "num_workers": 0}}
-        mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq)
-        configs = [zoo.entry(name, "demo").folder / "config.yaml", CONFIGS / "depthnet" / "ttt.yaml",
-                   CONFIGS / "depthnet" / "paper_objective.yaml", mine]
+        ttt = CONFIGS / "depthnet" / "ttt.yaml"
+        mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq,
+                         callbacks_of=ttt)
+        configs = [zoo.entry(name, "demo").folder / "config.yaml", ttt, CONFIGS / "depthnet" / "paper_objective.yaml",
+                   mine]
         ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
         guard = ctx.version_dir(self.model) / "checkpoints" / "guard.json"
         return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, self.model)),

@@ -310,6 +310,7 @@ def test_quick_demo_end_to_end(quick_demo):
                                    "runs/contrafeat/tb/version_0/checkpoints/last.ckpt"]
     for f in ("report.html", "demo_state.json", "models/depthnet/depthnet.onnx", "models/contrafeat/contrafeat.onnx",
               *trained, "runs/depthnet_ttt/tb/version_0/checkpoints/last.ckpt",
+              "runs/depthnet_ttt/tb/version_0/checkpoints/guard.json",  # test-time training ran under its guard
               "models/depthnet_pretrained/depthnet.onnx", "slam/gt_sift/trajectory.txt",
               "slam/gt_sift/mesh.ply", "metrics/depth.json", "metrics/matches.json", "figures/matches.png",
               "figures/depth_samples.png"):
