@@ -159,7 +159,6 @@ def ttt_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
 
 
 def ablation_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
-
     from c3f_slam import zoo
 
     entry = zoo.entry(a.depth, "--depth")
@@ -366,8 +365,11 @@ def target_lines(m: dict) -> list[str]:
     return ["| target | measured | |", "|---|---|---|", *rows]
 
 
-RENDER = {"depth": depth_lines, "matches": matches_lines, "slam": slam_lines, "coverage": coverage_lines,
-          "ttt": ttt_lines, "ablation": ablation_lines}
+#: each section's Markdown from (its result, every section's result: the ablation shows the depth section's start)
+RENDER = {"depth": lambda d, m: depth_lines(d), "matches": lambda d, m: matches_lines(d),
+          "slam": lambda d, m: slam_lines(d), "coverage": lambda d, m: coverage_lines(d),
+          "ttt": lambda d, m: ttt_lines(d),
+          "ablation": lambda d, m: ablation_lines(d, m.get("depth", {}).get("mean"))}
 TITLES = {"depth": "Depth (held-out)", "matches": "Matches (held-out pairs)", "slam": "SLAM at default settings",
           "coverage": "Unseen wall on zoo depth (coverage_accuracy cases, SIFT)", "ttt": "Test-time training",
           "ablation": "The paper's objective against the Monodepth2 baseline (same start, same budget)"}
@@ -406,9 +408,7 @@ def main(argv: list[str] | None = None) -> None:
             f"Numbers also in `{json_path.name}`.", "", "## Targets", "", *target_lines(merged), ""]
     for name in SECTIONS:
         if name in merged:
-            lines = (ablation_lines(merged[name], merged.get("depth", {}).get("mean")) if name == "ablation"
-                     else RENDER[name](merged[name]))
-            body += [f"## {TITLES[name]}", "", *lines,
+            body += [f"## {TITLES[name]}", "", *RENDER[name](merged[name], merged),
                      "", f"({merged[name].get('wall_s', 'n/a')} s)", ""]
     rep = Report(__file__, "The zoo models on held-out simulator sequences")
     rep.publish(a.report, body, a, data={"depth_model": a.depth, "features_model": a.features,
