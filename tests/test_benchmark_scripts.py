@@ -404,3 +404,31 @@ def test_zoo_ablation_runs_in_chunks(tmp_path, monkeypatch):
     zoo._ablation_run(run, other, ["a.yaml"], [], "x")
     assert "--ckpt_path" not in calls[0] and not ckpt.exists()
     assert json.loads((run / "result.json").read_text())["settings"] == other
+
+
+def test_zoo_slam_settings_reach_every_run_and_the_cache(tmp_path, monkeypatch):
+    """``--set`` goes to every SLAM run of the slam and coverage sections, is kept with the
+    section, shown in its Markdown, and a section kept with other settings is computed again."""
+    from benchmarks.protocols import zoo
+
+    commands: list[list[str]] = []
+    monkeypatch.setattr(zoo, "_slam_one", lambda seq, out, options: commands.append(options) or {
+        "status": "ok", "registered_share": 1.0, "ate_cm": 0.1, "path_cm": 10.0, "ate_share_of_path": 0.01,
+        "sim3_scale": 1.0})
+    a = argparse.Namespace(depth="zoo:d", features="zoo:f", slam_set=["match_filter.reprojection_refit=true"],
+                           work=tmp_path)
+    seqs = [Path("seq1_s2001")]
+    s = zoo._cached(tmp_path, "slam", False, lambda: zoo.slam_section(a, seqs), a.slam_set)
+    assert all(c[-2:] == ["--set", "match_filter.reprojection_refit=true"] for c in commands) and len(commands) == 2
+    assert s["settings"] == a.slam_set and set(s) == {"contrafeat", "sift", "settings", "wall_s"}
+    text = "\n".join(zoo.slam_lines(s))
+    assert "`--set match_filter.reprojection_refit=true`" in text and text.count("| seq1_s2001 |") == 2
+    commands.clear()
+    assert zoo._cached(tmp_path, "slam", False, lambda: zoo.slam_section(a, seqs), a.slam_set) == s
+    assert not commands  # same settings: read back
+    a.slam_set = []
+    again = zoo._cached(tmp_path, "slam", False, lambda: zoo.slam_section(a, seqs), a.slam_set)
+    assert len(commands) == 2 and again["settings"] == [] and "Not the defaults" not in "\n".join(zoo.slam_lines(again))
+    from benchmarks.protocols.coverage_accuracy import slam_command
+
+    assert slam_command(Path("s"), Path("o"), None, ("--set", "k=v"))[-2:] == ["--set", "k=v"]

@@ -320,6 +320,7 @@ def test_slam_model_depth_without_depth_folder(tiny_sequence, models, tmp_path):
     assert s["status"] == "ok" and s["depth_source"] == "model" and s["descriptors"] == "sift"
     assert s["depth_scale"] == {"factor": 1.5, "source": "option"}
     assert s["config"]["match_filter"]["residual_relative_tolerance"] == PREDICTED_DEPTH_RESIDUAL_SHARE
+    assert s["config"]["match_filter"]["reprojection_refit"] is False  # off by default
     assert s["frames"] == 8 and s["registered_frames"] >= 1 and (out / "trajectory.txt").is_file()
     assert not (out / CACHE_DIR).exists()
 

@@ -55,19 +55,21 @@ def case_sequence(case: Case, preset: str = PRESET, seed: int = SEED, frames: in
     return SimSequence(preset, seed, frames, size, case.overrides)
 
 
-def slam_command(seq: Path, out: Path, depth_model: Path | None = None) -> list[str]:
+def slam_command(seq: Path, out: Path, depth_model: Path | None = None, options: tuple[str, ...] = ()) -> list[str]:
     """The SLAM run of a case on ``seq`` into ``out`` (replaced): ground-truth depth (or
-    ``depth_model``'s), SIFT, default settings, mesh and coverage on."""
+    ``depth_model``'s), SIFT, default settings (plus ``options``, e.g. ``--set K=V``), mesh and
+    coverage on."""
     depth = ["--depth-model", str(depth_model)] if depth_model else ["--depth-source", "files"]
     return [sys.executable, "-m", "c3f_slam", "run", str(seq), *depth, "--descriptors", "sift", "--quiet",
-            "--overwrite", "--out", str(out)]
+            "--overwrite", "--out", str(out), *options]
 
 
 def run_case(case: Case, a: argparse.Namespace) -> dict:
     """Generate, run, evaluate one case; returns evaluation.json's ``unseen`` plus the run's registered share."""
     seq = ensure_sequence(case_sequence(case, a.preset, a.seed, a.frames, a.size), a.work / case.name)
     out = a.work / "runs" / case.name
-    run = subprocess.run(slam_command(seq, out, a.depth_model), cwd=ROOT, capture_output=True, text=True)
+    run = subprocess.run(slam_command(seq, out, a.depth_model, tuple(getattr(a, "slam_options", ()))), cwd=ROOT,
+                         capture_output=True, text=True)
     if run.returncode != 0:
         return {"status": f"run failed: {run.stderr.strip()[-200:]}"}
     ev = subprocess.run([sys.executable, "-m", "c3f_slam", "evaluate", str(out), "--gt", str(seq)], cwd=ROOT,

@@ -15,6 +15,9 @@ Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and r
   after a Sim(3) alignment (cm and % of the path) and the alignment's scale.
 - ``coverage``: the seven cases of ``benchmarks.protocols.coverage_accuracy`` on zoo depth (SIFT): the
   run's unseen-wall estimate against the truth.
+- ``--set KEY=VALUE`` (repeatable) is given to every SLAM run of ``slam`` and ``coverage`` (a
+  variant of the defaults; recorded with the numbers, and a section kept in WORK with other
+  settings is computed again).
 - ``ttt``: test-time training from the zoo weights (the paper's objective,
   ``configs/depthnet/ttt.yaml``, no ground truth) on two held-out sequences of a trained
   appearance and two of the unseen appearance: Abs Rel before and after.
@@ -53,12 +56,22 @@ ABLATION = {"c3fusion": "configs/depthnet/paper_objective.yaml", "monodepth2": "
 TTT_SEQUENCES = {"seq1_s2001": "trained", "seq1_s2002": "trained", "seq5_s2005": "unseen", "seq5_s2006": "unseen"}
 
 
-def _cached(work: Path, name: str, redo: bool, compute) -> dict:
+#: keys of a section's result that are not per-sequence or per-case rows
+META_KEYS = ("wall_s", "settings")
+
+
+def _cached(work: Path, name: str, redo: bool, compute, settings: list[str] | None = None) -> dict:
+    """The section's result from ``WORK/NAME.json`` if there (computed with the same SLAM
+    ``settings``, where given) and not ``redo``, else computed and kept there."""
     path = work / f"{name}.json"
     if path.is_file() and not redo:
-        return json.loads(path.read_text())
+        kept = json.loads(path.read_text())
+        if settings is None or kept.get("settings", []) == settings:
+            return kept
     t0 = time.time()
     out = compute()
+    if settings is not None:
+        out["settings"] = settings
     out["wall_s"] = round(time.time() - t0, 1)
     path.write_text(json.dumps(out, indent=2) + "\n")
     return out
@@ -109,9 +122,14 @@ def _slam_one(seq: Path, out: Path, options: list[str]) -> dict:
             "sim3_scale": ate.get("scale"), "frames_per_s": fps}
 
 
+def _set_options(settings: list[str]) -> list[str]:
+    return [x for kv in settings for x in ("--set", kv)]
+
+
 def slam_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
-    configs = {"contrafeat": ["--depth-model", a.depth, "--feature-model", a.features],
-               "sift": ["--depth-model", a.depth, "--descriptors", "sift"]}
+    extra = _set_options(a.slam_set)
+    configs = {"contrafeat": ["--depth-model", a.depth, "--feature-model", a.features, *extra],
+               "sift": ["--depth-model", a.depth, "--descriptors", "sift", *extra]}
     return {name: {seq.name: _slam_one(seq, a.work / "slam" / name / seq.name, opts) for seq in seqs}
             for name, opts in configs.items()}
 
@@ -119,7 +137,8 @@ def slam_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
 def coverage_section(a: argparse.Namespace) -> dict:
     from benchmarks.protocols.coverage_accuracy import CASES, run_case
 
-    ns = argparse.Namespace(preset="seq1", seed=7, frames=300, size=128, depth_model=a.depth, work=a.work / "coverage")
+    ns = argparse.Namespace(preset="seq1", seed=7, frames=300, size=128, depth_model=a.depth, work=a.work / "coverage",
+                            slam_options=_set_options(a.slam_set))
     return {c.name: run_case(c, ns) for c in CASES}
 
 
@@ -256,11 +275,17 @@ def matches_lines(m: dict) -> list[str]:
     return _match_table({"descriptors": m})
 
 
+def _settings_lines(section: dict) -> list[str]:
+    given = section.get("settings") or []
+    return [f"Not the defaults: every run with `{' '.join(_set_options(given))}`.", ""] if given else []
+
+
 def slam_lines(s: dict) -> list[str]:
-    lines = ["| sequence | descriptors | in the main map % | ATE Sim(3) cm | path cm | ATE % of path | Sim(3) scale |",
+    lines = [*_settings_lines(s),
+             "| sequence | descriptors | in the main map % | ATE Sim(3) cm | path cm | ATE % of path | Sim(3) scale |",
              "|---|---|---|---|---|---|---|"]
     for name, runs in s.items():
-        if name == "wall_s":
+        if name in META_KEYS:
             continue
         for seq, r in runs.items():
             if r["status"] != "ok":
@@ -272,9 +297,10 @@ def slam_lines(s: dict) -> list[str]:
 
 
 def coverage_lines(c: dict) -> list[str]:
-    lines = ["| case | registered % | truth unseen % | estimate % | error pp |", "|---|---|---|---|---|"]
+    lines = [*_settings_lines(c), "| case | registered % | truth unseen % | estimate % | error pp |",
+             "|---|---|---|---|---|"]
     for name, u in c.items():
-        if name == "wall_s":
+        if name in META_KEYS:
             continue
         if u.get("status") != "ok":
             lines.append(f"| {name} | {u.get('status')} | | | |")
@@ -325,7 +351,7 @@ def target_lines(m: dict) -> list[str]:
             f"{100 * mm['cdf_kpf_recall']:.1f} / {100 * mm['cdf_kpf_precision']:.1f} %",
             mm["cdf_kpf_recall"] >= 0.75 and mm["cdf_kpf_precision"] >= 0.995)
     if "slam" in m:
-        s, n = m["slam"], max(len(v) for k, v in m["slam"].items() if k != "wall_s")
+        s, n = m["slam"], max(len(v) for k, v in m["slam"].items() if k not in META_KEYS)
         for name in ("contrafeat", "sift"):
             ok = _slam_ok(s, name)
             reg = [r["registered_share"] for r in ok]
@@ -342,7 +368,7 @@ def target_lines(m: dict) -> list[str]:
             row("ContraFeat's ATE no worse than SIFT's (same predicted depth; mean over sequences)",
                 f"{a:.3f} vs {b:.3f} cm", len(cf) == len(sift) and a <= b)
     if "coverage" in m:
-        cases = [u for k, u in m["coverage"].items() if k != "wall_s"]
+        cases = [u for k, u in m["coverage"].items() if k not in META_KEYS]
         ok = [u for u in cases if u.get("status") == "ok"]
         errs = [abs(u["error_pp"]) for u in ok]
         row("unseen-wall estimate within 5 points of the truth on the 7 coverage cases",
@@ -381,6 +407,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--depth", default="zoo:c3f-depth-r18w32", help="depth model (zoo:NAME)")
     ap.add_argument("--features", default="zoo:c3f-features-r18w32", help="descriptor model (zoo:NAME)")
     ap.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS))
+    ap.add_argument("--set", dest="slam_set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a setting of every SLAM run of the slam and coverage sections (c3f_slam run --set)")
     ap.add_argument("--redo", action="store_true", help="recompute sections whose JSON is in --work")
     ap.add_argument("--ttt-steps", type=int, default=60, help="as the demo (ZOO_TTT_STEPS)")
     ap.add_argument("--ablation-steps", type=int, default=300)
@@ -398,7 +426,8 @@ def main(argv: list[str] | None = None) -> None:
     compute = {"depth": lambda: depth_section(a, seqs), "matches": lambda: matches_section(a, seqs),
                "slam": lambda: slam_section(a, seqs), "coverage": lambda: coverage_section(a),
                "ttt": lambda: ttt_section(a, seqs), "ablation": lambda: ablation_section(a, seqs)}
-    results = {name: _cached(a.work, name, a.redo, compute[name]) for name in SECTIONS if name in a.only}
+    results = {name: _cached(a.work, name, a.redo, compute[name], a.slam_set if name in ("slam", "coverage") else None)
+               for name in SECTIONS if name in a.only}
     json_path = json_beside(a.report)
     old = json.loads(json_path.read_text()) if json_path.is_file() else {}
     merged = {**old.get("data", old).get("sections", {}), **results}  # (a file of before Report.publish: no "data")
@@ -408,7 +437,8 @@ def main(argv: list[str] | None = None) -> None:
             f"Numbers also in `{json_path.name}`.", "", "## Targets", "", *target_lines(merged), ""]
     for name in SECTIONS:
         if name in merged:
-            body += [f"## {TITLES[name]}", "", *RENDER[name](merged[name], merged),
+            title = "SLAM" if name == "slam" and merged[name].get("settings") else TITLES[name]
+            body += [f"## {title}", "", *RENDER[name](merged[name], merged),
                      "", f"({merged[name].get('wall_s', 'n/a')} s)", ""]
     rep = Report(__file__, "The zoo models on held-out simulator sequences")
     rep.publish(a.report, body, a, data={"depth_model": a.depth, "features_model": a.features,

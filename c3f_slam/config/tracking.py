@@ -52,6 +52,12 @@ class MatchFilterConfig:
       sequences), 0 on depth files; resolved by :meth:`for_depth_source` when a run starts.
       With it, ``weighted_fit`` (off by default) refits the accepted transform weighting each
       point by 1 / bound^2, so near points (smaller absolute depth error) count more.
+    - ``reprojection_refit`` (off by default): the accepted transform is refitted to the
+      survivors' symmetric reprojection error
+      (:func:`c3f_slam.matching.reprojection.refine_by_reprojection`, Huber
+      ``reprojection_huber_px``), which trusts the keypoints' pixels more than the depth. On
+      the zoo's depth it halves the ATE of most held-out sequences but moves the unseen-wall
+      estimate (docs/design.md).
     - ``max_condition`` 100 and ``min_matches`` 10: BundleFusion / the paper (scale-free).
     """
 
@@ -64,6 +70,11 @@ class MatchFilterConfig:
     #: (the inverse variance of a depth-proportional error); no effect with the fixed bound alone.
     #: Off: on the zoo's depth it lowers ATE but moves the unseen-wall estimate (docs/design.md)
     weighted_fit: bool = False
+    #: refit the accepted transform to the survivors' symmetric reprojection error (pixels
+    #: trusted, depth only for the translation's length). Off: on the zoo's depth it lowers the
+    #: ATE of most sequences but moves the unseen-wall estimate (docs/design.md)
+    reprojection_refit: bool = False
+    reprojection_huber_px: float = 1.0  #: pixels: Huber threshold of the reprojection refit
     pairwise_tolerance: float = 2.0e-3  #: metres: pairwise distances may differ this much between frames ...
     pairwise_relative_tolerance: float = 0.05  #: ... plus this share of the distance
     max_condition: float = 100.0  #: largest condition number of the fit (near-collinear sets fail)
@@ -75,7 +86,7 @@ class MatchFilterConfig:
     def __post_init__(self) -> None:
         check(self.min_matches >= 3,
               f"match_filter.min_matches must be >= 3 (a rigid fit needs 3 points), got {self.min_matches}")
-        for name in ("max_residual", "pairwise_tolerance", "max_condition"):
+        for name in ("max_residual", "pairwise_tolerance", "max_condition", "reprojection_huber_px"):
             check(getattr(self, name) > 0, f"match_filter.{name} must be > 0, got {getattr(self, name)}")
         for name in ("pairwise_relative_tolerance", "min_area"):
             check(getattr(self, name) >= 0, f"match_filter.{name} must be >= 0, got {getattr(self, name)}")

@@ -33,6 +33,7 @@ from c3f_slam.matching import (
     mutual_nearest_neighbours,
     to_gray_uint8,
 )
+from c3f_slam.matching.reprojection import refine_by_reprojection
 from c3f_slam.models import DepthModel, DescriptorModel, NetworkView
 from c3f_slam.preprocess import SPECULAR_DILATION_PX, specular_mask
 from c3f_slam.stream import StreamFrame
@@ -270,10 +271,13 @@ def explain_match(
     metric: str = "l2",
     ratio: float | None = 0.9,
     allowed: np.ndarray | None = None,
+    K: np.ndarray | None = None,
 ) -> MatchAttempt:
     """Mutual NN (+ ratio test; among the ``allowed`` pairs only, if given:
     :func:`projection_mask`) then :func:`filter_matches`, with the outcome of each step
-    (the runtime's pair matching; :func:`match_frames` returns its result only)."""
+    (the runtime's pair matching; :func:`match_frames` returns its result only). With the
+    intrinsics ``K`` and ``cfg.reprojection_refit`` the accepted transform is refitted by
+    :func:`refine_by_reprojection`."""
     if len(fi) < cfg.min_matches or len(fj) < cfg.min_matches:
         return MatchAttempt(0, 0, None, f"too few keypoints ({len(fi)}, {len(fj)} < {cfg.min_matches})")
     m, dist = mutual_nearest_neighbours(
@@ -286,7 +290,10 @@ def explain_match(
     if not res.accepted:
         return MatchAttempt(len(m), len(res.inlier_indices), None, res.reason)
     kept = res.kept
-    return MatchAttempt(len(m), len(kept), PairMatch(res.T_ij, pj[kept], len(kept)), "")
+    T_ij = res.T_ij
+    if K is not None and cfg.reprojection_refit:
+        T_ij = refine_by_reprojection(T_ij, pi[kept], pj[kept], K, cfg.reprojection_huber_px)
+    return MatchAttempt(len(m), len(kept), PairMatch(T_ij, pj[kept], len(kept)), "")
 
 
 def match_frames(
@@ -295,9 +302,11 @@ def match_frames(
     cfg: MatchFilterConfig,
     metric: str = "l2",
     ratio: float | None = 0.9,
+    K: np.ndarray | None = None,
 ) -> tuple[PairMatch | None, int]:
-    """Mutual NN + :func:`filter_matches`; returns (match or None, number of inliers)."""
-    a = explain_match(fi, fj, cfg, metric, ratio)
+    """Mutual NN + :func:`filter_matches` (+ the reprojection refit, given ``K``); returns
+    (match or None, number of inliers)."""
+    a = explain_match(fi, fj, cfg, metric, ratio, K=K)
     return a.match, (a.match.n if a.match is not None else 0)
 
 
@@ -305,9 +314,11 @@ def match_frames(
 Matcher = Callable[[FrameFeatures, FrameFeatures], "tuple[PairMatch | None, int]"]
 
 
-def frame_matcher(cfg: SlamConfig, metric: str = "l2") -> Matcher:
-    """:func:`match_frames` with the run's match filter and ratio test."""
-    return lambda a, b: match_frames(a, b, cfg.match_filter, metric, cfg.frontend.ratio)
+def frame_matcher(cfg: SlamConfig, metric: str = "l2", K: np.ndarray | None = None) -> Matcher:
+    """:func:`match_frames` with the run's match filter and ratio test (and the frames'
+    intrinsics ``K``, for the reprojection refit)."""
+    K = None if K is None else np.asarray(K, dtype=np.float64)
+    return lambda a, b: match_frames(a, b, cfg.match_filter, metric, cfg.frontend.ratio, K)
 
 
 #: matches frames i and j near where a motion prior T_ij (p_i = T_ij p_j) puts them, within a
@@ -321,7 +332,7 @@ def guided_matcher(cfg: SlamConfig, K: np.ndarray, metric: str = "l2") -> Guided
 
     def match(fi: FrameFeatures, fj: FrameFeatures, T_ij: np.ndarray, radius_px: float):
         a = explain_match(fi, fj, cfg.match_filter, metric, cfg.frontend.ratio,
-                          allowed=projection_mask(fi, fj, T_ij, K, radius_px))
+                          allowed=projection_mask(fi, fj, T_ij, K, radius_px), K=K)
         return a.match, (a.match.n if a.match is not None else 0)
 
     return match

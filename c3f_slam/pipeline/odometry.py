@@ -86,15 +86,16 @@ class OdometrySlam:
 
     def __init__(self, cfg: SlamConfig, K: np.ndarray, metric: str = "l2", timings: Timings | None = None,
                  keyframe_cache: str | Path | None = None, chunk: int = 30) -> None:
-        """``K`` and ``keyframe_cache`` are accepted for the back-ends' common signature and
-        unused (the baseline stores no keyframes); ``chunk``: log rows per fusion fragment."""
+        """``K``: 3x3 intrinsics (px; the reprojection refit); ``keyframe_cache`` is accepted for
+        the back-ends' common signature and unused (the baseline stores no keyframes);
+        ``chunk``: log rows per fusion fragment."""
         self.cfg = cfg
         self.t = timings or Timings()
         self.map = OdometryMap(chunk)
         self.last: FrameFeatures | None = None
         self.T_last = np.eye(4)
         self.n_lost = 0
-        self.match: Matcher = frame_matcher(cfg, metric)
+        self.match: Matcher = frame_matcher(cfg, metric, K)
 
     def skip(self, index: int, stamp: float) -> None:
         self.map.append(index, stamp, None)

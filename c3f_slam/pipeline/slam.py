@@ -68,8 +68,9 @@ class FragmentSlam:
         self.map = FragmentMap(cfg, keyframe_cache)
         self.prev: FrameFeatures | None = None  # last placed frame (in the active fragment)
         self.gap = True  # the previous streamed frame was skipped / unusable
-        self.match: Matcher = frame_matcher(cfg, metric)
-        relaxed = (frame_matcher(cfg.with_(match_filter={"min_matches": cfg.rejoin.relaxed_min_matches}), metric)
+        self.match: Matcher = frame_matcher(cfg, metric, self.K)
+        relaxed = (frame_matcher(cfg.with_(match_filter={"min_matches": cfg.rejoin.relaxed_min_matches}), metric,
+                                 self.K)
                    if cfg.rejoin.relaxed_min_matches else None)
         self.rejoin = BreakTails(cfg.rejoin, lambda a, b: self.match(a, b), relaxed)  # self.match: tests replace it
         self.recovery = LinkRecovery(cfg, self.K, metric)  # guided matching, dense fallback
