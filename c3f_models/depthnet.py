@@ -19,7 +19,7 @@ from c3f_models.config import OptimConfig
 from c3f_models.depth.augment import ColorAugmentConfig, color_augment
 from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
 from c3f_models.depth.graphs import DepthGraph, PoseGraph
-from c3f_models.depth.losses import log_depth_l1
+from c3f_models.depth.losses import log_depth_l1, log_gradient_matching
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
 from c3f_models.depth.objective import LossConfig, LossTerms, SelfSupervisedLoss, compose_triplet_poses
 from c3f_models.depth.visual import colorize_depth, mask_to_rgb, panel
@@ -148,29 +148,43 @@ class DepthNet(C3FModule):
             images = [im.float() for im in images]
             poses = compose_triplet_poses(T[:b].float(), T[b:].float())  # T_10 (t-1 -> t), T_21 (t -> t+1)
             terms = self.objective(images, specular, disparities, self.depth_net.to_depth, poses, K.float(), step)
-            if self.loss_config.lambda_gt_depth > 0:
+            if self.loss_config.lambda_gt_depth > 0 or self.loss_config.lambda_gt_gradient > 0:
                 self._add_supervised_term(terms, batch, disparities[1])
         return terms, disparities
 
     def _add_supervised_term(self, terms: LossTerms, batch: dict, disparities_t: list[torch.Tensor]) -> None:
-        """Add ``lambda_gt_depth`` x mean over scales of :func:`log_depth_l1` on frame t (in place)."""
+        """Add ``lambda_gt_depth`` x :func:`log_depth_l1` (``terms.gt``) and ``lambda_gt_gradient``
+        x :func:`log_gradient_matching` (``terms.gt_gradient``), each the mean over scales, on
+        frame t (in place; the terms are those switched on, unweighted)."""
+        cfg = self.loss_config
         if "depth" not in batch:
-            raise InputError("model.loss.lambda_gt_depth > 0 needs ground-truth depth in every training sequence")
+            raise InputError("model.loss.lambda_gt_depth or lambda_gt_gradient > 0 needs ground-truth depth in every "
+                             "training sequence")
         gt = batch["depth"][:, 1].float()
-        errors = []
+        l1, grad = [], []
         for d in disparities_t:
             if d.shape[-2:] != gt.shape[-2:]:
                 d = F.interpolate(d, size=gt.shape[-2:], mode="bilinear", align_corners=False)
-            errors.append(log_depth_l1(self.depth_net.to_depth(d), gt))
-        terms.gt = torch.stack(errors).mean()
-        weighted = self.loss_config.lambda_gt_depth * terms.gt
+            depth = self.depth_net.to_depth(d)
+            if cfg.lambda_gt_depth > 0:
+                l1.append(log_depth_l1(depth, gt))
+            if cfg.lambda_gt_gradient > 0:
+                grad.append(log_gradient_matching(depth, gt))
+        weighted = 0.0
+        if l1:
+            terms.gt = torch.stack(l1).mean()
+            weighted = weighted + cfg.lambda_gt_depth * terms.gt
+        if grad:
+            terms.gt_gradient = torch.stack(grad).mean()
+            weighted = weighted + cfg.lambda_gt_gradient * terms.gt_gradient
         same = terms.training_loss is terms.loss
         terms.loss = terms.loss + weighted
         terms.training_loss = terms.loss if same else terms.training_loss + weighted
 
     def _log_terms(self, stage: str, terms: LossTerms, batch_size: int) -> None:
         on_step = stage == "train"
-        values = {"loss": terms.loss, "ph": terms.ph, "ph_extra": terms.ph_extra, "dc": terms.dc, "gt_depth": terms.gt}
+        values = {"loss": terms.loss, "ph": terms.ph, "ph_extra": terms.ph_extra, "dc": terms.dc, "gt_depth": terms.gt,
+                  "gt_gradient": terms.gt_gradient}
         for name, value in values.items():
             if value is not None:
                 self.log(f"{stage}/{name}", value.detach(), on_step=on_step, on_epoch=not on_step,

@@ -432,3 +432,20 @@ def test_zoo_slam_settings_reach_every_run_and_the_cache(tmp_path, monkeypatch):
     from benchmarks.protocols.coverage_accuracy import slam_command
 
     assert slam_command(Path("s"), Path("o"), None, ("--set", "k=v"))[-2:] == ["--set", "k=v"]
+
+
+def test_depth_edges_measures_a_step_and_its_blur():
+    """benchmarks/studies/depth_edges.py: a fold crest in front of the wall (a 50 % depth step)
+    is found; the truth keeps all of it, a prediction blurred over 16 px keeps little."""
+    import numpy as np
+
+    edges = _import_benchmark("depth_edges")
+    true = np.full((48, 48), 0.03)
+    true[:, 24:] = 0.045  # log step 0.405
+    ramp = np.interp(np.arange(48), [16, 32], [np.log(0.03), np.log(0.045)])
+    blurred = np.exp(np.tile(ramp, (48, 1)))
+    same = edges.edge_measures(true, true, 0.25)
+    assert same["true_step"] == pytest.approx(np.log(1.5)) and same["kept"] == 1.0 and same["range"] == 1.0
+    soft = edges.edge_measures(true, blurred, 0.25)
+    assert soft["pred_step"] < 0.15 and soft["kept"] == 0.0 and soft["pixels"] == same["pixels"]
+    assert edges.edge_measures(np.full((48, 48), 0.03), true, 0.25) is None  # no true edge

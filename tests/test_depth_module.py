@@ -151,6 +151,50 @@ def test_supervised_depth_term(plane_dataset):
         LossConfig(lambda_gt_depth=-1.0)
 
 
+def test_log_gradient_matching_wants_the_steps_of_the_truth():
+    """0 for the truth at any global scale; positive for a blurred step; no ground truth, no
+    pairs: 0 with a gradient."""
+    from c3f_models.depth.losses import log_gradient_matching
+
+    gt = torch.full((2, 1, 32, 32), 0.03)
+    gt[..., 16:] = 0.045  # a fold's crest against the wall behind it
+    assert float(log_gradient_matching(gt, gt)) == 0.0
+    assert float(log_gradient_matching(1.7 * gt, gt)) == pytest.approx(0.0, abs=1e-6)
+    ramp = torch.exp(torch.linspace(math.log(0.03), math.log(0.045), 32)).expand(2, 1, 32, 32)
+    blurred = ramp.clone().requires_grad_(True)
+    loss = log_gradient_matching(blurred, gt)
+    loss.backward()
+    assert float(loss) > 0.01 and blurred.grad.abs().sum() > 0
+    nothing = torch.zeros_like(gt)
+    x = gt.clone().requires_grad_(True)
+    zero = log_gradient_matching(x, nothing)
+    zero.backward()
+    assert float(zero) == 0.0 and x.grad is not None
+
+
+def test_supervised_gradient_term_joins_the_loss(plane_dataset):
+    """loss.lambda_gt_gradient adds lambda x the gradient-matching term of frame t (logged apart
+    from the per-pixel term); it needs true depth and lambda >= 0."""
+    dm = datamodule(plane_dataset, size=32, batch_size=2)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    torch.manual_seed(0)
+    plain = DepthNet(TINY)
+    torch.manual_seed(0)
+    model = DepthNet(TINY, LossConfig(lambda_gt_depth=0.5, lambda_gt_gradient=2.0))
+    torch.manual_seed(1)
+    base, _ = plain.compute_loss(batch)
+    torch.manual_seed(1)
+    terms, _ = model.compute_loss(batch)
+    assert base.gt_gradient is None and float(terms.gt_gradient) >= 0 and float(terms.gt) > 0
+    assert float(terms.loss) == pytest.approx(float(base.loss + 0.5 * terms.gt + 2.0 * terms.gt_gradient), rel=1e-5)
+    no_depth = {k: v for k, v in batch.items() if k != "depth"}
+    with pytest.raises(InputError, match="lambda_gt_gradient"):
+        DepthNet(TINY, LossConfig(lambda_gt_gradient=1.0)).compute_loss(no_depth)
+    with pytest.raises(InputError, match="lambda_gt_gradient"):
+        LossConfig(lambda_gt_gradient=-1.0)
+
+
 @pytest.mark.parametrize("step", [0, 2, 4])
 def test_warmup_inside_the_objective_matches_subtracting_afterwards(plane_dataset, step):
     """The warm-up weight inside the objective gives the loss and gradients of the former way:

@@ -71,6 +71,10 @@ class LossConfig:
             self-supervised: 0 = off, the default; > 0 needs training data with depth, e.g. the
             simulator's, and is a deviation to report). Used by the demo (``c3f_demo``) so
             depth is usable within a CPU budget.
+        lambda_gt_gradient: weight of a supervised gradient-matching term on ground-truth depth
+            (:func:`~c3f_models.depth.losses.log_gradient_matching`, frame t, every scale): the
+            depth steps where the true depth steps (fold crests). 0 = off (default); > 0 needs
+            training data with depth; a deviation to report, like ``lambda_gt_depth``.
     """
 
     use_automask: bool = True
@@ -84,14 +88,16 @@ class LossConfig:
     ssim_alpha: float = 0.85
     outlier_percentile: float = 0.8
     lambda_gt_depth: float = 0.0
+    lambda_gt_gradient: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0 < self.outlier_percentile <= 1:
             raise InputError(f"model.loss.outlier_percentile must be in (0, 1], got {self.outlier_percentile}")
         if self.lambda_dc_warmup_steps < 0:
             raise InputError(f"model.loss.lambda_dc_warmup_steps must be >= 0, got {self.lambda_dc_warmup_steps}")
-        if self.lambda_gt_depth < 0:
-            raise InputError(f"model.loss.lambda_gt_depth must be >= 0, got {self.lambda_gt_depth}")
+        for name in ("lambda_gt_depth", "lambda_gt_gradient"):
+            if getattr(self, name) < 0:
+                raise InputError(f"model.loss.{name} must be >= 0, got {getattr(self, name)}")
 
     @property
     def needs_source_depth(self) -> bool:
@@ -120,7 +126,9 @@ class LossTerms:
     ``automask``: (B, 1, H, W) bool, the auto-mask mu of frame t at the finest scale: pixels
     where a warped source beat the unwarped ones and that survived the specular and outlier
     masks (the pixels whose L_ph drives depth and pose). ``gt``: the supervised term
-    (``LossConfig.lambda_gt_depth``; None when off), already weighted into both losses.
+    (``LossConfig.lambda_gt_depth``; None when off) and ``gt_gradient`` the supervised
+    gradient-matching term (``LossConfig.lambda_gt_gradient``; None when off), unweighted here,
+    already weighted into both losses.
     """
 
     loss: torch.Tensor
@@ -130,6 +138,7 @@ class LossTerms:
     automask: torch.Tensor
     training_loss: torch.Tensor
     gt: torch.Tensor | None = None
+    gt_gradient: torch.Tensor | None = None
 
 
 def compose_triplet_poses(T_10: torch.Tensor, T_21: torch.Tensor) -> dict[tuple[int, int], torch.Tensor]:
