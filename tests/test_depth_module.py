@@ -117,21 +117,28 @@ def test_depth_consistency_warmup(plane_dataset, tmp_path):
     assert float(tr.callback_metrics["train/lambda_dc"]) == pytest.approx(0.05)
 
 
-@pytest.mark.e2e
-def test_supervised_depth_term(plane_dataset):
-    """loss.lambda_gt_depth adds lambda x mean |log D - log D_gt| of frame t to both losses (off by
-    default); a few steps on it lower the log-depth error; it needs true depth and lambda >= 0."""
+def _without_and_with(plane_dataset, loss: LossConfig):
+    """A training batch, the DepthNet with ``loss``, and the loss terms of the same network
+    without the supervised terms and with them (same initial weights, same augmentation)."""
     dm = datamodule(plane_dataset, size=32, batch_size=2)
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
     torch.manual_seed(0)
     plain = DepthNet(TINY)
     torch.manual_seed(0)
-    model = DepthNet(TINY, LossConfig(lambda_gt_depth=0.5))
+    model = DepthNet(TINY, loss)
     torch.manual_seed(1)
     base, _ = plain.compute_loss(batch)
     torch.manual_seed(1)
     terms, _ = model.compute_loss(batch)
+    return batch, model, base, terms
+
+
+@pytest.mark.e2e
+def test_supervised_depth_term(plane_dataset):
+    """loss.lambda_gt_depth adds lambda x mean |log D - log D_gt| of frame t to both losses (off by
+    default); a few steps on it lower the log-depth error; it needs true depth and lambda >= 0."""
+    batch, model, base, terms = _without_and_with(plane_dataset, LossConfig(lambda_gt_depth=0.5))
     assert base.gt is None and float(terms.gt) > 0
     assert float(terms.loss) == pytest.approx(float(base.loss + 0.5 * terms.gt), rel=1e-5)
     assert terms.training_loss is terms.loss
@@ -175,18 +182,8 @@ def test_log_gradient_matching_wants_the_steps_of_the_truth():
 def test_supervised_gradient_term_joins_the_loss(plane_dataset):
     """loss.lambda_gt_gradient adds lambda x the gradient-matching term of frame t (logged apart
     from the per-pixel term); it needs true depth and lambda >= 0."""
-    dm = datamodule(plane_dataset, size=32, batch_size=2)
-    dm.setup("fit")
-    batch = next(iter(dm.train_dataloader()))
-    torch.manual_seed(0)
-    plain = DepthNet(TINY)
-    torch.manual_seed(0)
-    model = DepthNet(TINY, LossConfig(lambda_gt_depth=0.5, lambda_gt_gradient=2.0))
-    torch.manual_seed(1)
-    base, _ = plain.compute_loss(batch)
-    torch.manual_seed(1)
-    terms, _ = model.compute_loss(batch)
-    assert base.gt_gradient is None and float(terms.gt_gradient) >= 0 and float(terms.gt) > 0
+    batch, _, base, terms = _without_and_with(plane_dataset, LossConfig(lambda_gt_depth=0.5, lambda_gt_gradient=2.0))
+    assert base.gt_gradient is None and float(terms.gt_gradient) > 0 and float(terms.gt) > 0
     assert float(terms.loss) == pytest.approx(float(base.loss + 0.5 * terms.gt + 2.0 * terms.gt_gradient), rel=1e-5)
     no_depth = {k: v for k, v in batch.items() if k != "depth"}
     with pytest.raises(InputError, match="lambda_gt_gradient"):

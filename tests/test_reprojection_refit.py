@@ -17,16 +17,10 @@ from c3f_slam.matching.reprojection import refine_by_reprojection
 K = np.array([[60.0, 0, 64], [0, 60.0, 64], [0, 0, 1]])  # 128 px, about 93 deg
 
 
-def _rotation(v: np.ndarray) -> np.ndarray:
-    angle = np.linalg.norm(v)
-    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]]) / angle
-    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
-
-
 def _pair(rng, n: int = 40):
     """Frame j's points on a tube-like depth range and a small camera motion T_ij (p_i = T_ij p_j)."""
     T = np.eye(4)
-    T[:3, :3] = _rotation(rng.normal(size=3) * 0.02)
+    T[:3, :3] = g.axis_angle_to_matrix(rng.normal(size=3) * 0.02)
     T[:3, 3] = rng.normal(size=3) * 1e-3 + [0, 0, -1e-3]
     uv = rng.uniform(10, 118, (n, 2))
     z = rng.uniform(0.01, 0.06, n)
@@ -53,7 +47,7 @@ def test_refit_recovers_an_exact_transform_from_a_wrong_start():
     rng = np.random.default_rng(0)
     T, p_j, p_i = _pair(rng)
     start = T.copy()
-    start[:3, :3] = _rotation(np.array([0.01, -0.02, 0.015])) @ T[:3, :3]
+    start[:3, :3] = g.axis_angle_to_matrix(np.array([0.01, -0.02, 0.015])) @ T[:3, :3]
     start[:3, 3] += [5e-4, -3e-4, 4e-4]
     np.testing.assert_allclose(refine_by_reprojection(start, p_i, p_j, K), T, atol=1e-7)
 

@@ -23,26 +23,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from c3f_slam.geometry import axis_angle_to_matrix, project
+
 
 def _skew(v: np.ndarray) -> np.ndarray:
-    """(N, 3) -> (N, 3, 3) cross-product matrices."""
+    """(N, 3) -> (N, 3, 3) cross-product matrices (a batch of :mod:`c3f_slam.geometry`'s)."""
     z = np.zeros(len(v))
     return np.stack([np.stack([z, -v[:, 2], v[:, 1]], 1),
                      np.stack([v[:, 2], z, -v[:, 0]], 1),
                      np.stack([-v[:, 1], v[:, 0], z], 1)], 1)
 
 
-def _rotation(phi: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation vector (3,) -> 3x3."""
-    angle = float(np.linalg.norm(phi))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = _skew((phi / angle)[None])[0]
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
-
-
 def _project(q: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (N, 2) of camera points (N, 3) and d(pixel)/d(point) (N, 2, 3)."""
+    """Pixels (N, 2) of camera points (N, 3) and d(pixel)/d(point) (N, 2, 3); unlike
+    :func:`c3f_slam.geometry.project`, finite behind the camera too (those points are weighted
+    out, and a NaN would spread through the normal equations)."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     x, y, z = q[:, 0], q[:, 1], q[:, 2]
     iz = 1.0 / z
@@ -97,8 +92,8 @@ def refine_by_reprojection(
     p_i, p_j = p_i[good], p_j[good]
     if len(p_i) < 3:
         return T0
-    x_i, _ = _project(p_i, K)
-    x_j, _ = _project(p_j, K)
+    x_i, _ = project(p_i, K)  # the keypoints the points were lifted from
+    x_j, _ = project(p_j, K)
     R, t = T0[:3, :3].copy(), T0[:3, 3].copy()
     r, J, ok = _terms(R, t, p_i, p_j, K, x_i, x_j, huber_px)
     start = best = _robust_cost(r, ok)
@@ -113,7 +108,7 @@ def refine_by_reprojection(
             xi = -np.linalg.solve(H, g)
         except np.linalg.LinAlgError:
             break
-        dR = _rotation(xi[3:])
+        dR = axis_angle_to_matrix(xi[3:])
         R, t = dR @ R, dR @ t + xi[:3]
         r, J, ok = _terms(R, t, p_i, p_j, K, x_i, x_j, huber_px)
         cost = _robust_cost(r, ok)
