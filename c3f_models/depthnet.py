@@ -169,7 +169,7 @@ class DepthNet(C3FModule):
             if cfg.lambda_gt_depth > 0:
                 l1.append(log_depth_l1(depth, gt))
             if cfg.lambda_gt_gradient > 0:
-                grad.append(log_gradient_matching(depth, gt))
+                grad.append(log_gradient_matching(depth, gt, edge=cfg.gt_gradient_edge))
         weighted = 0.0
         if l1:
             terms.gt = torch.stack(l1).mean()

@@ -179,6 +179,26 @@ def test_log_gradient_matching_wants_the_steps_of_the_truth():
     assert float(zero) == 0.0 and x.grad is not None
 
 
+def test_log_gradient_matching_at_the_edges_only():
+    """edge > 0 averages over the pairs where the truth steps: errors on the flat wall do not
+    count, a halved step counts in full instead of being diluted by every flat pair."""
+    from c3f_models.depth.losses import log_gradient_matching
+
+    gt = torch.full((1, 1, 32, 32), 0.03)
+    gt[..., 16:] = 0.045
+    noisy_wall = gt * (1 + 0.02 * torch.randn(gt.shape, generator=torch.Generator().manual_seed(0)))
+    noisy_wall[..., 8:24] = gt[..., 8:24]  # exact across the step at every stride (1-8)
+    assert float(log_gradient_matching(noisy_wall, gt)) > 0.005
+    assert float(log_gradient_matching(noisy_wall, gt, edge=0.05)) == pytest.approx(0.0, abs=1e-6)
+    halved = gt.clone()
+    halved[..., 16:] = 0.03 * 1.5**0.5
+    everywhere, at_edges = log_gradient_matching(halved, gt), log_gradient_matching(halved, gt, edge=0.05)
+    assert float(at_edges) == pytest.approx(0.5 * math.log(1.5), rel=1e-4)  # the missing half of the step
+    assert float(at_edges) > 10 * float(everywhere)
+    with pytest.raises(InputError, match="gt_gradient_edge"):
+        LossConfig(gt_gradient_edge=-0.1)
+
+
 def test_supervised_gradient_term_joins_the_loss(plane_dataset):
     """loss.lambda_gt_gradient adds lambda x the gradient-matching term of frame t (logged apart
     from the per-pixel term); it needs true depth and lambda >= 0."""

@@ -101,7 +101,7 @@ def log_depth_l1(pred: torch.Tensor, gt: torch.Tensor, min_depth: float = 1e-6) 
 
 
 def log_gradient_matching(
-    pred: torch.Tensor, gt: torch.Tensor, scales: int = 4, min_depth: float = 1e-6
+    pred: torch.Tensor, gt: torch.Tensor, scales: int = 4, min_depth: float = 1e-6, edge: float = 0.0
 ) -> torch.Tensor:
     """Gradient matching of log depth (MegaDepth's / MiDaS's term, on log depth): with
     R = log pred - log gt, the mean |R(x+1) - R(x)| over horizontal and vertical neighbours that
@@ -109,21 +109,27 @@ def log_gradient_matching(
 
     Blind to a global scale (R's constant part cancels), it asks the depth to step where the
     truth steps, e.g. at a fold's crest in front of the wall behind it, which the per-pixel
-    :func:`log_depth_l1` lets the network blur. Depths in metres, (B, 1, H, W); 0 (with
-    gradient) when no neighbour pair has ground truth.
+    :func:`log_depth_l1` lets the network blur. ``edge`` > 0 keeps only the neighbour pairs whose
+    true log depth differs by more than ``edge`` (0.05 = a 5 % step): the mean is then over the
+    true edges alone, which a mean over every pair drowns. Depths in metres, (B, 1, H, W); 0
+    (with gradient) when no neighbour pair qualifies.
     """
     valid = gt > min_depth
-    r = torch.log(pred.clamp(min=min_depth)) - torch.log(gt.clamp(min=min_depth))
+    log_gt = torch.log(gt.clamp(min=min_depth))
+    r = torch.log(pred.clamp(min=min_depth)) - log_gt
     r = torch.where(valid, r, torch.zeros_like(r))
     terms = []
     for k in range(scales):
         step = 2**k
-        rs, vs = r[..., ::step, ::step], valid[..., ::step, ::step]
+        rs, vs, ls = r[..., ::step, ::step], valid[..., ::step, ::step], log_gt[..., ::step, ::step]
         if rs.shape[-1] < 2 or rs.shape[-2] < 2:
             break
         gx = (rs[..., :, 1:] - rs[..., :, :-1]).abs()
         gy = (rs[..., 1:, :] - rs[..., :-1, :]).abs()
         mx, my = vs[..., :, 1:] & vs[..., :, :-1], vs[..., 1:, :] & vs[..., :-1, :]
+        if edge > 0:
+            mx = mx & ((ls[..., :, 1:] - ls[..., :, :-1]).abs() > edge)
+            my = my & ((ls[..., 1:, :] - ls[..., :-1, :]).abs() > edge)
         n = (mx.sum() + my.sum()).clamp(min=1)
         terms.append((torch.where(mx, gx, torch.zeros_like(gx)).sum() + torch.where(my, gy, torch.zeros_like(gy)).sum())
                      / n)

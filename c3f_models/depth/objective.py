@@ -75,6 +75,9 @@ class LossConfig:
             (:func:`~c3f_models.depth.losses.log_gradient_matching`, frame t, every scale): the
             depth steps where the true depth steps (fold crests). 0 = off (default); > 0 needs
             training data with depth; a deviation to report, like ``lambda_gt_depth``.
+        gt_gradient_edge: the gradient term's edge threshold in true log depth between
+            neighbours (0 = every pair of neighbours; 0.05 = only where the truth steps by more
+            than 5 %, so that the few fold-crest pixels are not averaged away).
     """
 
     use_automask: bool = True
@@ -89,13 +92,14 @@ class LossConfig:
     outlier_percentile: float = 0.8
     lambda_gt_depth: float = 0.0
     lambda_gt_gradient: float = 0.0
+    gt_gradient_edge: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0 < self.outlier_percentile <= 1:
             raise InputError(f"model.loss.outlier_percentile must be in (0, 1], got {self.outlier_percentile}")
         if self.lambda_dc_warmup_steps < 0:
             raise InputError(f"model.loss.lambda_dc_warmup_steps must be >= 0, got {self.lambda_dc_warmup_steps}")
-        for name in ("lambda_gt_depth", "lambda_gt_gradient"):
+        for name in ("lambda_gt_depth", "lambda_gt_gradient", "gt_gradient_edge"):
             if getattr(self, name) < 0:
                 raise InputError(f"model.loss.{name} must be >= 0, got {getattr(self, name)}")
 
