@@ -449,3 +449,24 @@ def test_depth_edges_measures_a_step_and_its_blur():
     soft = edges.edge_measures(true, blurred, 0.25)
     assert soft["pred_step"] < 0.15 and soft["kept"] == 0.0 and soft["pixels"] == same["pixels"]
     assert edges.edge_measures(np.full((48, 48), 0.03), true, 0.25) is None  # no true edge
+
+
+def test_depth_scale_wobble_finds_a_scale_that_moves_more_than_the_camera():
+    """benchmarks/studies/depth_scale_wobble.py: a prediction with the true scale has no wobble;
+    one whose scale alternates by 2 % at 2 cm depth while the camera moves 0.2 mm per frame
+    wobbles twice as far as the camera moves."""
+    import numpy as np
+
+    wobble = _import_benchmark("depth_scale_wobble")
+    true = np.full((8, 8), 0.02)
+    assert wobble.frame_scale(true, true) == (1.0, 0.02)
+    assert wobble.frame_scale(true, 0.5 * true)[0] == pytest.approx(2.0)
+    assert np.isnan(wobble.frame_scale(np.zeros((8, 8)), true)[0])
+    positions = np.stack([np.zeros(20), np.zeros(20), 0.0002 * np.arange(20)], axis=1)
+    steady = wobble.wobble_measures(np.ones(20), np.full(20, 0.02), positions, lag=2)
+    assert steady["std"] == 0.0 and steady["change_median"] == 0.0 and steady["wobble_over_motion"] == 0.0
+    k = np.where(np.arange(20) % 2 == 0, 1.0, 1.02)
+    shaky = wobble.wobble_measures(k, np.full(20, 0.02), positions, lag=2)
+    assert shaky["change_median"] == pytest.approx(0.02, rel=0.02)
+    assert shaky["wobble_over_motion"] == pytest.approx(2.0, rel=0.02) and shaky["lag_corr"] == pytest.approx(1.0)
+    assert shaky["wobble_over_motion_lag"] == 0.0  # two frames on, the same scale again
