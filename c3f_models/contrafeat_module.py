@@ -43,6 +43,7 @@ from c3f_models.contrafeat.pairs import (
     batch_frames,
     make_pairs,
 )
+from c3f_models.depth.augment import ColorAugmentConfig, color_augment
 from c3f_models.module_base import C3FModule
 from c3f_slam.errors import InputError
 from c3f_slam.matching import MatchCounts
@@ -58,6 +59,7 @@ DEFAULT_NETWORK, DEFAULT_LOSS = ContraFeatNetworkConfig(), ContraFeatLossConfig(
 DEFAULT_OPTIM = OptimConfig(lr=3e-4, weight_decay=1e-4, milestones=())
 DEFAULT_KEYPOINTS, DEFAULT_GROUND_TRUTH = KeypointSettings(), GroundTruthSettings()
 DEFAULT_EVALUATION = MatchEvaluationConfig()
+DEFAULT_AUGMENT = ColorAugmentConfig()
 
 
 class ContraFeat(C3FModule):
@@ -73,6 +75,9 @@ class ContraFeat(C3FModule):
         keypoints: SIFT keypoints per frame.
         ground_truth: ground-truth matching radius (pixels) and occlusion test.
         evaluation: keypoint filter, ratio tests and match images of validation and test.
+        augment: colour augmentation of the training inputs, drawn for each frame of a pair on its
+            own (beyond the paper; off by default): the descriptors must match across a change of
+            light or mucosa colour. Keypoints and ground truth come from the original frames.
         init_weights: checkpoint whose weights start ``fit`` (optimiser and epoch not resumed).
     """
 
@@ -89,12 +94,14 @@ class ContraFeat(C3FModule):
         ground_truth: GroundTruthSettings = DEFAULT_GROUND_TRUTH,
         evaluation: MatchEvaluationConfig = DEFAULT_EVALUATION,
         init_weights: str | None = None,
+        augment: ColorAugmentConfig = DEFAULT_AUGMENT,
     ) -> None:
         network = as_config(network, DEFAULT_NETWORK, "model.network")
         loss = as_config(loss, DEFAULT_LOSS, "model.loss")
         keypoints = as_config(keypoints, DEFAULT_KEYPOINTS, "model.keypoints")
         ground_truth = as_config(ground_truth, DEFAULT_GROUND_TRUTH, "model.ground_truth")
         evaluation = as_config(evaluation, DEFAULT_EVALUATION, "model.evaluation")
+        self.augment_config = as_config(augment, DEFAULT_AUGMENT, "model.augment")
         super().__init__(as_config(optim, DEFAULT_OPTIM, "model.optim"), init_weights)
         self.save_hyperparameters()
         self.network_config, self.loss_config, self.evaluation_config = network, loss, evaluation
@@ -134,13 +141,17 @@ class ContraFeat(C3FModule):
         return sample_descriptors(self.net(image[None].to(self.device))[0], xy)
 
     # ------------------------------------------------------------------ shared step
-    def _descriptor_maps(self, batch: dict) -> torch.Tensor:
+    def _descriptor_maps(self, batch: dict, augment: bool = False) -> torch.Tensor:
+        """(B, F, C, H, W) descriptor maps of the batch's frames; with ``augment`` the network sees
+        each frame after its own colour change (``model.augment``)."""
         images = batch["image"]
         b, f = images.shape[:2]
         if f < 2:
             raise InputError(f"ContraFeat needs frame pairs (F >= 2), got F = {f}")
         if "depth" not in batch or "pose" not in batch:
             raise InputError("ContraFeat needs ground-truth depth and poses in the batch (depth/ and poses.txt)")
+        if augment and self.augment_config.p > 0:
+            images = torch.stack([color_augment([images[:, k]], self.augment_config)[0] for k in range(f)], dim=1)
         maps = self.net(images.flatten(0, 1))
         return maps.view(b, f, *maps.shape[1:])
 
@@ -159,9 +170,9 @@ class ContraFeat(C3FModule):
         return out
 
     def _loss(
-        self, batch: dict, sift_descriptors: bool, dense: bool = False
+        self, batch: dict, sift_descriptors: bool, dense: bool = False, augment: bool = False
     ) -> tuple[torch.Tensor, torch.Tensor, list[PairData], dict]:
-        maps = self._descriptor_maps(batch)
+        maps = self._descriptor_maps(batch, augment)
         frames = batch_frames(batch)
         use_dense = dense and self.dense_settings.points > 0
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, ()))) if use_dense else None  # follows the seed
@@ -181,7 +192,7 @@ class ContraFeat(C3FModule):
 
     # ------------------------------------------------------------------ training
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        loss, _, _, stats = self._loss(batch, sift_descriptors=False, dense=True)
+        loss, _, _, stats = self._loss(batch, sift_descriptors=False, dense=True, augment=True)
         bs = batch["image"].shape[0]
         self.log("train/loss", loss, prog_bar=True, batch_size=bs)
         self.log("train/matches", stats["matches"], batch_size=bs)

@@ -287,6 +287,37 @@ def test_module_dense_points_join_the_training_loss(plane_dataset):
         _module(loss={"dense_spacing": 0})
 
 
+def test_colour_augmentation_changes_each_frame_on_its_own(plane_dataset):
+    """model.augment: in training the network sees each frame of a pair after its own colour
+    change; keypoints and ground-truth matches come from the original frames; evaluation sees
+    the originals."""
+    dm = ContraFeatDataModule(str(plane_dataset), sampling=PairSamplingConfig(gaps=(1, 2)),
+                              frames=FramesConfig(size=(48, 48)), loader=LoaderConfig(batch_size=2))
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    plain, aug = _module(), _module(augment={"p": 1.0, "brightness": 0.5, "hue": 0.2})
+    aug.load_state_dict(plain.state_dict())
+    seen = []
+    forward = aug.net.forward
+    aug.net.forward = lambda x: (seen.append(x.detach().clone()), forward(x))[1]
+    torch.manual_seed(1)
+    loss_a, _, pairs_a, _ = aug._loss(batch, sift_descriptors=False, dense=True, augment=True)
+    torch.manual_seed(1)
+    loss_p, _, pairs_p, _ = plain._loss(batch, sift_descriptors=False, dense=True, augment=True)
+    images = batch["image"]
+    x = seen[0].view(images.shape)
+    assert not torch.allclose(x, images)
+    ratio = x.mean(dim=(2, 3, 4)) / images.mean(dim=(2, 3, 4))  # (B, F): each frame its own brightness
+    assert (ratio[:, 0] - ratio[:, 1]).abs().max() > 1e-3
+    assert [p.gt.tolist() for p in pairs_a] == [p.gt.tolist() for p in pairs_p]
+    assert not torch.isclose(loss_a, loss_p)
+    seen.clear()
+    aug._loss(batch, sift_descriptors=True)
+    assert torch.equal(seen[0].view(images.shape), images)
+    with pytest.raises(InputError, match="model.augment.p"):
+        _module(augment={"p": 2.0})
+
+
 def test_old_class_path_of_the_data_module_still_loads():
     """Configs saved before the data module moved name c3f_models.contrafeat.data (one release)."""
     import importlib
