@@ -27,10 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS
+from benchmarks.common.depth_models import depth_runs
 from benchmarks.common.report import Report
 from c3f_slam.io import Sequence
-from c3f_slam.models import DepthModel
-from c3f_slam.zoo import resolve
 
 SPAN = 2  # pixels between the two depths a step is measured across
 
@@ -82,21 +81,14 @@ def main() -> None:
     if args.every < 1 or args.step <= 0:
         raise SystemExit("--every must be >= 1 and --step > 0")
     rows = []
-    for name in args.depth_model:
-        model = DepthModel(resolve(name, "depth", "--depth-model"), args.threads, "--depth-model")
-        scale = model.metric_scale or 1.0
-        for path in args.sequences:
-            seq = Sequence(path)
-            if not seq.has_depth:
-                raise SystemExit(f"{path}: needs depth/")
-            r = analyse(seq, lambda i: model.predict(seq.read_rgb(i), seq.camera) * scale,  # noqa: B023
-                        args.every, args.step)
-            print(name, path.name, r, flush=True)
-            if r["frames"] == 0:
-                rows.append(f"| {name} | {path.name} | 0 | | | | |")
-                continue
-            rows.append(f"| {name} | {path.name} | {r['frames']} | {r['true_step']:.3f} | {r['pred_step']:.3f} | "
-                        f"{100 * r['kept']:.0f} | {r['range']:.2f} |")
+    for name, path, seq, predict in depth_runs(args.depth_model, args.sequences, args.threads):
+        r = analyse(seq, predict, args.every, args.step)
+        print(name, path.name, r, flush=True)
+        if r["frames"] == 0:
+            rows.append(f"| {name} | {path.name} | 0 | | | | |")
+            continue
+        rows.append(f"| {name} | {path.name} | {r['frames']} | {r['true_step']:.3f} | {r['pred_step']:.3f} | "
+                    f"{100 * r['kept']:.0f} | {r['range']:.2f} |")
     report = Report(__file__, "Does the depth network draw the occluding edges of the folds?")
     text = report.render([
         (f"- Every {args.every}th frame; a true occluding edge is a pixel where the true log depth changes by more "

@@ -34,10 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS
+from benchmarks.common.depth_models import depth_runs, open_depth_model
 from benchmarks.common.report import Report
 from c3f_slam.io import Sequence
-from c3f_slam.models import DepthModel
-from c3f_slam.zoo import resolve
 
 
 def frame_scale(true: np.ndarray, pred: np.ndarray) -> tuple[float, float]:
@@ -79,33 +78,38 @@ def analyse(seq: Sequence, predict: Callable[[int], np.ndarray], every: int, lag
 
 
 def oracle_slam(seq_dir: Path, depth_model: str, feature_model: str, out: Path, oracle: bool) -> int:
-    """``c3f_slam run`` of ``seq_dir`` into ``out`` with the depth network's output multiplied,
-    frame by frame, by the frame's true scale k (``oracle``), recognised by its network input."""
+    """``c3f_slam run`` of ``seq_dir`` into ``out`` (in this process), with ``oracle`` the depth
+    network's output multiplied, frame by frame, by the frame's true scale k, the frame
+    recognised by its network input."""
     from c3f_slam.cli import main as slam_main
     from c3f_slam.models import nets
 
+    run = ["run", str(seq_dir), "--depth-model", depth_model, "--feature-model", feature_model, "--quiet",
+           "--overwrite", "--out", str(out)]
+    if not oracle:
+        return slam_main(run)
     seq = Sequence(seq_dir)
-    model = DepthModel(resolve(depth_model, "depth", "--depth-model"), 2, "--depth-model")
-    metric = model.metric_scale or 1.0
+    model, metric = open_depth_model(depth_model, 2)
 
     def key(x: np.ndarray) -> str:
         return hashlib.sha1(np.ascontiguousarray(x, np.float32).tobytes()).hexdigest()
 
-    table = {key(model.prepare(seq.read_rgb(i), seq.camera)[0]):
-             frame_scale(seq.read_depth(i), model.predict(seq.read_rgb(i), seq.camera) * metric)[0]
-             for i in range(len(seq))}
+    table = {}
+    for i in range(len(seq)):
+        x, view = model.prepare(seq.read_rgb(i), seq.camera)
+        depth = view.network_to_frame(model.predict_batch(x[None])[0], model.upsample) * metric
+        table[key(x)] = frame_scale(seq.read_depth(i), depth)[0]
     plain = nets.DepthModel.predict_batch
 
     def scaled(self, images: np.ndarray) -> np.ndarray:
         depth = plain(self, images)
         for b in range(len(images)):
-            depth[b] *= table[key(images[b])] if oracle else 1.0
+            depth[b] *= table[key(images[b])]
         return depth
 
     nets.DepthModel.predict_batch = scaled
     try:
-        return slam_main(["run", str(seq_dir), "--depth-model", depth_model, "--feature-model", feature_model,
-                          "--quiet", "--overwrite", "--out", str(out)])
+        return slam_main(run)
     finally:
         nets.DepthModel.predict_batch = plain
 
@@ -131,19 +135,12 @@ def main() -> None:
         raise SystemExit(oracle_slam(args.sequences[0], args.depth_model[0], args.feature_model, args.slam,
                                      args.oracle))
     rows = []
-    for name in args.depth_model:
-        model = DepthModel(resolve(name, "depth", "--depth-model"), args.threads, "--depth-model")
-        metric = model.metric_scale or 1.0
-        for path in args.sequences:
-            seq = Sequence(path)
-            if not (seq.has_depth and seq.has_poses):
-                raise SystemExit(f"{path}: needs depth/ and poses.txt")
-            r = analyse(seq, lambda i: model.predict(seq.read_rgb(i), seq.camera) * metric,  # noqa: B023
-                        args.every, args.lag)
-            print(name, path.name, r, flush=True)
-            rows.append(f"| {name} | {path.name} | {r['frames']} | {r['mean']:.3f} | {100 * r['std']:.1f} | "
-                        f"{100 * r['change_median']:.1f} / {100 * r['change_p90']:.1f} | {r['lag_corr']:.2f} | "
-                        f"{r['wobble_over_motion']:.2f} / {r['wobble_over_motion_lag']:.2f} |")
+    for name, path, seq, predict in depth_runs(args.depth_model, args.sequences, args.threads, needs_poses=True):
+        r = analyse(seq, predict, args.every, args.lag)
+        print(name, path.name, r, flush=True)
+        rows.append(f"| {name} | {path.name} | {r['frames']} | {r['mean']:.3f} | {100 * r['std']:.1f} | "
+                    f"{100 * r['change_median']:.1f} / {100 * r['change_p90']:.1f} | {r['lag_corr']:.2f} | "
+                    f"{r['wobble_over_motion']:.2f} / {r['wobble_over_motion_lag']:.2f} |")
     report = Report(__file__, "How steady is the depth's scale from frame to frame?")
     text = report.render([
         (f"- One frame in {args.every}; k = median over pixels of true / predicted depth (the model's recorded "
