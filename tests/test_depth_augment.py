@@ -56,7 +56,21 @@ def test_training_inputs_only(monkeypatch):
     assert seen == [0.5]
 
 
-@pytest.mark.parametrize("field,value", [("p", 1.5), ("brightness", 1.0), ("hue", 0.6)])
+@pytest.mark.parametrize("field,value", [("p", 1.5), ("brightness", 1.0), ("hue", 0.6), ("noise", -0.1)])
 def test_settings_are_checked(field, value):
     with pytest.raises(InputError, match=f"model.augment.{field}"):
         ColorAugmentConfig(**{field: value})
+
+
+def test_noise_is_independent_per_frame_and_bounded():
+    f = [torch.full((64, 3, 16, 16), 0.5) for _ in range(3)]
+    torch.manual_seed(1)
+    out = color_augment(f, ColorAugmentConfig(p=1.0, brightness=0.0, contrast=0.0, saturation=0.0, hue=0.0,
+                                              noise=0.05))
+    d = [o - g for o, g in zip(out, f)]
+    assert not torch.equal(d[0], d[1])  # each frame its own noise
+    std = d[0].flatten(1).std(1)  # per sample: its drawn sigma in [0, 0.05]
+    assert float(std.max()) <= 0.05 * 1.1 and float(std.max()) > 0.03 and float(std.min()) < 0.02
+    assert abs(float(d[0].mean())) < 2e-3  # zero-mean
+    assert float(out[0].min()) >= 0.0 and float(out[0].max()) <= 1.0
+

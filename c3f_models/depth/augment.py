@@ -5,7 +5,9 @@ contrast, saturation and hue change, the same for the three (the photometric los
 frames with each other, so they must stay consistent). Only the networks see the changed
 frames; the losses are computed on the original ones, as in Monodepth2. It makes the depth
 network less sensitive to the mucosa's colour and the light's strength, which vary between
-patients, scopes and simulator presets.
+patients, scopes and simulator presets. Optional sensor noise (``noise``) is drawn for every
+frame on its own, as a camera's is. ContraFeat uses the same change, drawn for each frame of a
+pair on its own.
 """
 
 from __future__ import annotations
@@ -31,6 +33,9 @@ class ColorAugmentConfig:
         contrast: blend with the frames' mean luma, factor from [1 - c, 1 + c] (0.2).
         saturation: blend with the luma image, factor from [1 - s, 1 + s] (0.2).
         hue: rotation of the chroma plane by up to +-hue of a full turn (0.1).
+        noise: sensor noise (0 = none; not in Monodepth2): a chosen sample gets zero-mean
+            Gaussian noise, independent per pixel, channel and frame, of a standard deviation
+            drawn from [0, noise] (fraction of the full range), added after the colour change.
     """
 
     p: float = 0.0
@@ -38,6 +43,7 @@ class ColorAugmentConfig:
     contrast: float = 0.2
     saturation: float = 0.2
     hue: float = 0.1
+    noise: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.p <= 1.0:
@@ -47,6 +53,8 @@ class ColorAugmentConfig:
                 raise InputError(f"model.augment.{name} must be in [0, 1), got {getattr(self, name)}")
         if not 0.0 <= self.hue <= 0.5:
             raise InputError(f"model.augment.hue must be in [0, 0.5], got {self.hue}")
+        if not 0.0 <= self.noise <= 0.5:
+            raise InputError(f"model.augment.noise must be in [0, 0.5], got {self.noise}")
 
 
 def _factor(n: int, spread: float, device: torch.device) -> torch.Tensor:
@@ -74,6 +82,8 @@ def color_augment(frames: list[torch.Tensor], cfg: ColorAugmentConfig) -> list[t
     hue_matrix = to_rgb @ rot @ to_yiq  # (B, 3, 3)
     luma_w = _LUMA.to(device).view(1, 3, 1, 1)
     mean_luma = torch.stack([(f * luma_w).sum(1).mean(dim=(1, 2)) for f in frames]).mean(0).view(b, 1, 1, 1)
+    # drawn only when on, so that configurations without noise keep their random stream
+    sigma = (torch.rand(b, device=device) * cfg.noise).view(b, 1, 1, 1) if cfg.noise > 0 else None
     out = []
     for f in frames:
         x = f * bright
@@ -81,6 +91,8 @@ def color_augment(frames: list[torch.Tensor], cfg: ColorAugmentConfig) -> list[t
         luma = (x * luma_w).sum(1, keepdim=True)
         x = (x - luma) * sat + luma
         x = torch.einsum("bij,bjhw->bihw", hue_matrix, x)
+        if sigma is not None:
+            x = x + sigma * torch.randn_like(x)
         out.append(torch.where(chosen, x.clamp(0.0, 1.0), f))
     return out
 
