@@ -187,6 +187,32 @@ def test_mutual_nearest_neighbours_toy():
     assert mutual_nearest_neighbours(sa, np.zeros((0, 2)), "l2")[0].shape == (0, 2)
 
 
+@pytest.mark.parametrize("guided", [False, True])
+def test_ratio_test_takes_the_second_smallest_distance_of_each_row(guided):
+    """The ratio test against a plain reference (np.partition over every row), with exact ties
+    (duplicated descriptors) and a guided mask that leaves some rows without candidates."""
+    from c3f_slam.matching.descriptors import descriptor_distances
+
+    rng = np.random.default_rng(4)
+    a = rng.integers(0, 4, (300, 8)).astype(np.float32)  # few values: many equal distances
+    b = np.vstack([a[:150] + rng.normal(0, 0.3, (150, 8)).astype(np.float32), a[100:200]])
+    allowed = rng.random((300, 250)) < 0.3 if guided else None
+    if guided:
+        allowed[:5] = False
+    for ratio in (0.6, 0.8, 0.95):
+        m, d = mutual_nearest_neighbours(a, b, "l2", ratio=ratio, allowed=allowed)
+        dist = descriptor_distances(a, b, "l2")
+        if guided:
+            dist = np.where(allowed, dist, np.inf)
+        nn_ij, nn_ji = dist.argmin(1), dist.argmin(0)
+        rows = np.arange(300)
+        best = dist[rows, nn_ij]
+        keep = (nn_ji[nn_ij] == rows) & (best < ratio * np.partition(dist, 1, axis=1)[:, 1]) & np.isfinite(best)
+        want = rows[keep][np.argsort(best[keep], kind="stable")]
+        assert m[:, 0].tolist() == want.tolist() and np.array_equal(d, best[want].astype(np.float32))
+        assert 0 < len(m) < 300
+
+
 # ---------------------------------------------------------------- Kabsch and filters
 
 

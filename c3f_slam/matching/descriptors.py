@@ -71,7 +71,11 @@ def mutual_nearest_neighbours(
     d_best = dist[a, nn_ij]
     keep = mutual
     if ratio is not None and n_j >= 2:
-        second = np.partition(dist, 1, axis=1)[:, 1]
+        rows = np.flatnonzero(keep)  # the second neighbour of the mutual rows only
+        others = dist[rows]
+        others[np.arange(len(rows)), nn_ij[rows]] = np.inf
+        second = np.full(n_i, np.inf, dist.dtype)
+        second[rows] = others.min(axis=1)  # the second-smallest distance of the row (ties included)
         keep = keep & (d_best < ratio * second)
     if max_distance is not None:
         keep = keep & (d_best <= max_distance)
