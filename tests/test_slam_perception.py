@@ -42,17 +42,18 @@ class _Recorder:
         return PerceivedFrame(frame, seconds={"io": io_seconds})
 
 
-@pytest.mark.parametrize("prefetch", [0, 1, 3])
-def test_order_and_bound(prefetch):
+@pytest.mark.parametrize("prefetch,workers", [(0, 1), (1, 1), (3, 1), (3, 3)])
+def test_order_and_bound(prefetch, workers):
     rec = _Recorder()
     ahead = []
-    with Prefetcher(_frames(40), rec, prefetch) as frames:
+    with Prefetcher(_frames(40), rec, prefetch, workers) as frames:
         for k, item in enumerate(frames):
             assert item.frame.index == k
             ahead.append(len(rec.seen) - 1 - k)  # frames perceived beyond the one consumed
-    assert rec.seen == list(range(40))
-    # the queue holds at most `prefetch` frames and the worker works on one more; in the loop
-    # (prefetch 0) nothing is perceived ahead (that the worker really runs ahead: the next test)
+    assert sorted(rec.seen) == list(range(40)) and (workers > 1 or rec.seen == list(range(40)))
+    # the queue holds at most `prefetch` frames and the reader works on (or hands out) one more;
+    # in the loop (prefetch 0) nothing is perceived ahead (that the workers really run ahead:
+    # the next tests)
     assert max(ahead) <= prefetch + 1 and (prefetch > 0 or max(ahead) == 0)
 
 
@@ -74,10 +75,26 @@ def test_perception_runs_beside_the_loop():
     assert done == [0, 1, 2]
 
 
-@pytest.mark.parametrize("prefetch", [0, 2])
-def test_an_error_arrives_at_its_frame(prefetch):
+def test_workers_perceive_frames_at_once():
+    """Frames 0 and 1 are perceived at the same time: each waits until the other has started
+    (one worker at a time would deadlock)."""
+    started = {0: threading.Event(), 1: threading.Event()}
+
+    def perceive(frame, io_seconds=0.0):
+        if frame.index in started:
+            started[frame.index].set()
+            assert started[1 - frame.index].wait(timeout=20), "frames 0 and 1 were not perceived at once"
+        return PerceivedFrame(frame)
+
+    with Prefetcher(_frames(6), perceive, prefetch=2, workers=2) as frames:
+        assert [item.frame.index for item in frames] == list(range(6))
+
+
+@pytest.mark.parametrize("prefetch,workers", [(0, 1), (2, 1), (3, 2)])
+def test_an_error_arrives_at_its_frame(prefetch, workers):
     consumed = []
-    with pytest.raises(InputError, match="frame 5: broken"), Prefetcher(_frames(20), _Recorder(5), prefetch) as fr:
+    with pytest.raises(InputError, match="frame 5: broken"), \
+            Prefetcher(_frames(20), _Recorder(5), prefetch, workers) as fr:
         for item in fr:
             consumed.append(item.frame.index)
     assert consumed == [0, 1, 2, 3, 4]
@@ -91,8 +108,17 @@ def test_leaving_the_loop_stops_the_worker():
             if item.frame.index == 3:
                 break
     assert pre._thread is None and len(rec.seen) <= 3 + 1 + 2 + 1
+    rec = _Recorder()
+    pre = Prefetcher(_frames(10_000), rec, prefetch=2, workers=2)
+    with pre as frames:
+        for item in frames:
+            if item.frame.index == 3:
+                break
+    assert pre._thread is None and pre._pool is None and len(rec.seen) <= 3 + 1 + 2 + 1
     with pytest.raises(ValueError, match="prefetch must be >= 0"):
         Prefetcher(_frames(1), rec, -1)
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        Prefetcher(_frames(1), rec, 2, 0)
 
 
 @pytest.fixture(scope="module")
@@ -100,8 +126,9 @@ def seq(tmp_path_factory) -> Path:
     return make_tiny_sequence(tmp_path_factory.mktemp("perc") / "seq", frames=24, size=96, seed=5)
 
 
-def _run(seq: Path, out: Path, prefetch: int, inputs: RunInputs | None = None) -> dict:
-    cfg = slam_preset("colon", frames={"prefetch": prefetch}, fragments={"min_correspondences": 15})
+def _run(seq: Path, out: Path, prefetch: int, inputs: RunInputs | None = None, workers: int = 1) -> dict:
+    cfg = slam_preset("colon", frames={"prefetch": prefetch, "perception_workers": workers},
+                      fragments={"min_correspondences": 15})
     return run_slam(seq, out, cfg, inputs, progress=False)
 
 
@@ -128,9 +155,11 @@ def test_prefetched_run_equals_serial_model_depth_and_contrafeat(seq, tmp_path):
                        feature_model=fx.descriptor_model(tmp_path / "f.onnx", (96, 96)))
     serial = _run(seq, tmp_path / "serial", 0, inputs)
     _run(seq, tmp_path / "ahead", 2, inputs)
+    _run(seq, tmp_path / "workers", 3, inputs, workers=3)
     assert serial["depth_source"] == "model" and serial["descriptors"] == "contrafeat"
     assert serial["processed"] >= 20
     _same_run(tmp_path / "serial", tmp_path / "ahead")
+    _same_run(tmp_path / "serial", tmp_path / "workers")
 
 
 def test_model_threads_default_to_the_cores_less_one(seq, tmp_path, monkeypatch):

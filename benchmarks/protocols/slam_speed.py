@@ -7,9 +7,11 @@ Variants, run with the CLI one after another (runs alternate so machine noise hi
 - ``serial``: this checkout as the loop was: each frame perceived (read, depth, keypoints,
   descriptors) in the run loop (``frames.prefetch=0``), each new frame matched against every
   earlier frame of its fragment (``fragments.intra_all_pairs=true``), ContraFeat's dense graph;
-- ``prefetch``: only perception beside tracking;
+- ``prefetch``: only perception beside tracking, by one worker thread;
 - ``bounded``: only the bounded intra-fragment matching;
-- ``after``: the defaults (both, and ContraFeat's keypoint graph where the export has one).
+- ``one-worker``: the defaults but one perception thread (``frames.perception_workers=1``);
+- ``after``: the defaults (both, ContraFeat's keypoint graph where the export has one, and two
+  perception threads: two frames' networks and SIFT at once, beside the back-end).
 
 Cases (``--cases``): ``rgbd-128`` (simulator colon, 128 px, true depth, SIFT), ``rgbd-640x480``
 (the synthetic room at 640x480 with Kinect-like noise, room preset, true depth, SIFT),
@@ -45,8 +47,9 @@ NO_EVENTS = ("path.closeups=0", "path.bursts=0", "path.occlusions=0", "path.roll
 BASELINE = "baseline"  #: the variant run from ``--baseline CHECKOUT`` with its defaults
 VARIANTS: dict[str, tuple[str, ...]] = {  # --set overrides of this checkout's defaults
     "serial": ("frames.prefetch=0", "fragments.intra_all_pairs=true"),
-    "prefetch": ("fragments.intra_all_pairs=true",),
+    "prefetch": ("fragments.intra_all_pairs=true", "frames.perception_workers=1"),
     "bounded": ("frames.prefetch=0",),
+    "one-worker": ("frames.perception_workers=1",),
     "after": (),
 }
 DENSE_ONLY = (BASELINE, "serial", "prefetch", "bounded")  # variants given ContraFeat's dense graph alone
@@ -171,15 +174,18 @@ def row(case: Case, variant: str, runs: list[dict], base_fps: float) -> tuple[st
     frame_ms = 1000.0 / fps
     perception = sum(stage[k] for k in PERCEPTION)
     backend = sum(v for k, v in stage.items() if k not in PERCEPTION and k != "wait")
-    slowest = max(perception, backend)
+    frames_cfg = runs[0].get("config", {}).get("frames", {})
+    workers = frames_cfg.get("perception_workers", 1) if frames_cfg.get("prefetch", 0) else 1
+    slowest = max(perception / workers, backend)  # the workers share the perception
     r = runs[0]
     data = {"fps": fps, "speedup": fps / base_fps, "stage_ms": stage, "frame_ms": frame_ms,
-            "perception_ms": perception, "backend_ms": backend, "frame_over_slowest": frame_ms / slowest,
+            "perception_ms": perception, "perception_workers": workers, "backend_ms": backend,
+            "frame_over_slowest": frame_ms / slowest,
             "ate_sim3_cm": r["ate_sim3_cm"], "registered_share": r["registered_share"],
             "fragments": r.get("fragments"), "intra_edges": r.get("intra_edges")}
     text = (f"| {case.name} | {variant} | {fps:.2f} | {fps / base_fps:.2f}x | {frame_ms:.0f} | "
             + " | ".join(f"{stage[k]:.1f}" for k in STAGES)
-            + f" | {perception:.0f} / {backend:.0f} | {frame_ms / slowest:.2f} | {r['ate_sim3_cm']:.2f} | "
+            + f" | {perception:.0f} / {backend:.0f} | {workers} | {frame_ms / slowest:.2f} | {r['ate_sim3_cm']:.2f} | "
             f"{100 * r['registered_share']:.1f} | {r.get('intra_edges')} |")
     return text, data
 
@@ -235,20 +241,20 @@ def body(args: argparse.Namespace, rows: list[str]) -> list[str]:
         + f"; {args.frames} frames (model-224: {args.frames // 2}).",
         "- Variants: " + (f"baseline: {args.baseline} with its defaults; " if args.baseline else "")
         + "; ".join(f"{v}: {' '.join(VARIANTS[v]) or 'the defaults'}" for v in args.variants)
-        + " (variants other than after are given ContraFeat's dense graph alone); coverage off."
+        + " (the baseline, serial, prefetch and bounded are given ContraFeat's dense graph alone); coverage off."
         + (f" This checkout's variants run {args.models[0]} and {args.models[1]} in place of the case's models."
            if args.models else ""),
         "- Columns: frames/s over the whole command's wall-clock time (summary.json's wall_seconds: opening "
         "the models, the frames, the final optimisation, fusion and the outputs) and "
         "its ratio to the first variant; ms per frame; ms per frame per stage (with perception ahead of the "
-        "loop, io, depth and keypoints run in the worker beside the other stages, and wait is the time the "
-        "loop waited for it); perception (io + depth + keypoints) / back-end (the rest but wait) ms per "
-        "frame; frame time over the slower of the two; ATE Sim(3) RMSE (cm); registered share; "
-        "intra-fragment edges.",
+        "loop, io, depth and keypoints run in the workers beside the other stages, and wait is the time the "
+        "loop waited for them); perception (io + depth + keypoints, summed over its threads) / back-end (the "
+        "rest but wait) ms per frame; perception threads; frame time over the slower of perception / threads "
+        "and the back-end; ATE Sim(3) RMSE (cm); registered share; intra-fragment edges.",
         "",
         "| case | variant | frames/s | vs first | ms/frame | " + " | ".join(STAGES)
-        + " | perception / back-end ms | frame / slowest | ATE cm | registered % | intra edges |",
-        "|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|---|",
+        + " | perception / back-end ms | threads | frame / slowest | ATE cm | registered % | intra edges |",
+        "|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|---|---|",
         *rows,
     ]
 

@@ -50,11 +50,16 @@ class FramesConfig:
     #: frames read and perceived (depth, keypoints, descriptors) ahead of the back-end by a worker
     #: thread, overlapping it; 0 = one after another in the run loop. Same results either way
     prefetch: int = 2
+    #: threads that perceive frames at once (with prefetch >= 1; at most prefetch + 1 are busy):
+    #: the networks and SIFT of the next frames overlap each other as well as the back-end.
+    #: Same results with any number
+    perception_workers: int = 2
 
     def __post_init__(self) -> None:
         at_least(self.stride, 1, "frames.stride")
         at_least(self.max_frames, 1, "frames.max_frames", "all frames")
         at_least(self.prefetch, 0, "frames.prefetch")
+        at_least(self.perception_workers, 1, "frames.perception_workers")
 
 
 @dataclass(frozen=True)

@@ -154,13 +154,14 @@ class ModelDepth:
         self._last: DepthPrediction | None = None
 
     def predict(self, frame: StreamFrame) -> DepthPrediction:
-        if self._last is None or self._last.index != frame.index:
+        last = self._last  # read once: perception workers may call this for several frames at once
+        if last is None or last.index != frame.index:
             net, view = self.model.predict_network(frame.rgb, self.camera)
             if self.scale != 1.0:
                 net = net * np.float32(self.scale)
             full = view.network_to_frame(net, self.model.upsample)
-            self._last = DepthPrediction(frame.index, net, full, view)
-        return self._last
+            last = self._last = DepthPrediction(frame.index, net, full, view)
+        return last
 
     def depth(self, frame: StreamFrame) -> np.ndarray:
         return self.predict(frame).frame

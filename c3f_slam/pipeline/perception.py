@@ -5,9 +5,12 @@ Perception depends on the frame alone, never on the map, so the next frames can 
 while the back-end matches, optimises and fuses the current one: the networks run in
 onnxruntime and OpenCV, which release the GIL, so a worker thread overlaps them with the
 back-end's NumPy and Open3D work. The results, and their order, are those of the serial loop
-(same trajectory bit for bit); a bounded queue (``prefetch`` frames) keeps memory flat. An
-error in the worker (a corrupt model, an unreadable video) is raised in the run loop at the
-frame where it happened; closing the prefetcher stops and joins the worker.
+(same trajectory bit for bit); a bounded queue (``prefetch`` frames) keeps memory flat. With
+``workers`` > 1 several frames are perceived at once (each network run and each SIFT detection
+is a call of its own on one frame, so they may overlap); frames are still read one after another
+and handed to the loop in order. An error in a worker (a corrupt model, an unreadable video) is
+raised in the run loop at the frame where it happened; closing the prefetcher stops and joins
+the workers.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import queue
 import threading
 import time
 from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,8 +54,11 @@ class Perception:
         if not frame.usable:
             return PerceivedFrame(frame, seconds=seconds)
         t0 = time.perf_counter()
-        depth = self.depth.depth(frame)
-        prediction = self.depth.predict(frame) if isinstance(self.depth, ModelDepth) else None  # memoised
+        if isinstance(self.depth, ModelDepth):  # the network-grid depth travels too, for fusion
+            prediction = self.depth.predict(frame)
+            depth = prediction.frame
+        else:
+            prediction, depth = None, self.depth.depth(frame)
         t1 = time.perf_counter()
         feat = self.frontend.describe(frame, self.frontend.keypoints(frame.rgb), depth)
         seconds.update(depth=t1 - t0, keypoints=time.perf_counter() - t1)
@@ -75,17 +82,22 @@ _DONE = object()
 
 class Prefetcher:
     """Perceived frames of ``frames`` in order. ``prefetch`` 0: perceived in the caller's loop;
-    k >= 1: by one worker thread, at most k frames ahead of the caller. Use as a context
-    manager (or call :meth:`close`) so that an early exit stops the worker."""
+    k >= 1: by worker threads, at most k frames ahead of the caller: one thread reads the frames
+    and perceives them itself (``workers`` 1) or hands each to a pool of ``workers`` threads. Use
+    as a context manager (or call :meth:`close`) so that an early exit stops the workers."""
 
-    def __init__(self, frames: Iterable[StreamFrame], perceive: Perception, prefetch: int = 0) -> None:
+    def __init__(self, frames: Iterable[StreamFrame], perceive: Perception, prefetch: int = 0,
+                 workers: int = 1) -> None:
         if prefetch < 0:
             raise ValueError(f"prefetch must be >= 0, got {prefetch}")
-        self.frames, self.perceive, self.prefetch = frames, perceive, prefetch
-        self.wait_seconds = 0.0  #: time the caller waited for the worker (prefetch >= 1)
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.frames, self.perceive, self.prefetch, self.workers = frames, perceive, prefetch, workers
+        self.wait_seconds = 0.0  #: time the caller waited for the workers (prefetch >= 1)
         self._queue: queue.Queue | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._pool: ThreadPoolExecutor | None = None
 
     def __enter__(self) -> Prefetcher:
         return self
@@ -110,15 +122,24 @@ class Prefetcher:
             self.wait_seconds += time.perf_counter() - t0
             if item is _DONE:
                 return
+            if isinstance(item, Future):
+                t0 = time.perf_counter()
+                exc = item.exception()
+                self.wait_seconds += time.perf_counter() - t0
+                item = exc if exc is not None else item.result()
             if isinstance(item, BaseException):
                 raise item
             yield item
 
     def _work(self) -> None:
-        """The worker: perceive frames into the queue until the end, an error or :meth:`close`."""
+        """The reader: frames perceived (or, with a pool, their futures) into the queue, in order,
+        until the end, an error or :meth:`close`."""
+        if self.workers > 1:
+            self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="c3f-perception")
         try:
             for frame, io in _timed_frames(self.frames):
-                if not self._put(self.perceive(frame, io)):
+                item = self.perceive(frame, io) if self._pool is None else self._pool.submit(self.perceive, frame, io)
+                if not self._put(item):
                     return
             self._put(_DONE)
         except BaseException as exc:  # handed to the caller, raised at this frame
@@ -136,8 +157,12 @@ class Prefetcher:
         return False
 
     def close(self) -> None:
-        """Stop the worker (it finishes the frame it is on) and wait for it."""
+        """Stop the workers (each finishes the frame it is on; queued frames are dropped) and
+        wait for them."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None

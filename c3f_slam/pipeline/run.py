@@ -127,7 +127,8 @@ class SlamRun:
         t0 = time.perf_counter()
         perceive = Perception(self.sources.depth, self.frontend)
         try:
-            with Prefetcher(self.sources.stream, perceive, self.cfg.frames.prefetch) as frames:
+            fc = self.cfg.frames
+            with Prefetcher(self.sources.stream, perceive, fc.prefetch, fc.perception_workers) as frames:
                 for item in frames:
                     self.step(item)
                 self.timings.add("wait", frames.wait_seconds)
