@@ -448,3 +448,29 @@ def test_pairwise_distances_are_numpys_norm_bit_for_bit():
     for n in (1, 2, 7, 300):
         p = rng.normal(scale=0.03, size=(n, 3))
         assert np.array_equal(pairwise_distances(p), np.linalg.norm(p[:, None] - p[None], axis=-1))
+    p32 = p.astype(np.float32)
+    assert np.array_equal(pairwise_distances(p32), np.linalg.norm(p32[:, None] - p32[None], axis=-1))
+
+
+def test_consistent_subset_follows_the_plain_rule():
+    """The greedy pairwise-consistency subset against the rule written out plainly."""
+    from c3f_slam.matching.filters import consistent_subset
+
+    rng = np.random.default_rng(5)
+    p = rng.normal(scale=0.02, size=(200, 3))
+    q = p + rng.normal(scale=0.0005, size=p.shape)
+    q[::7] += rng.normal(scale=0.01, size=q[::7].shape)  # outliers
+    prio = rng.random(200)
+    d_i = np.linalg.norm(p[:, None] - p[None], axis=-1)
+    d_j = np.linalg.norm(q[:, None] - q[None], axis=-1)
+    bad = np.abs(d_i - d_j) > 0.002 + 0.05 * np.maximum(d_i, d_j)
+    alive, tie = np.ones(200, bool), np.argsort(np.argsort(prio))
+    while True:
+        count = (bad & alive[None, :] & alive[:, None]).sum(1)
+        key = np.where(alive, count * 201 + tie, -1)
+        worst = int(np.argmax(key))
+        if count[worst] == 0:
+            break
+        alive[worst] = False
+    got = consistent_subset(p, q, 0.002, 0.05, prio)
+    assert got.tolist() == np.flatnonzero(alive).tolist() and 100 < len(got) < 200

@@ -101,14 +101,17 @@ def spanned_area(points: np.ndarray) -> float:
 def pairwise_distances(points: np.ndarray) -> np.ndarray:
     """(N, N) Euclidean distances of (N, 3) points, the same bits as
     ``np.linalg.norm(p[:, None] - p[None], axis=-1)`` at a fraction of its cost (one coordinate
-    at a time instead of a reduction over a short last axis)."""
-    total = None
+    at a time instead of a reduction over a short last axis, in two preallocated arrays)."""
+    n = len(points)
+    total = np.empty((n, n), np.result_type(points.dtype, np.float32))
+    buf = np.empty_like(total)
     for k in range(points.shape[1]):
-        c = points[:, k]
-        diff = c[:, None] - c[None, :]
-        sq = diff * diff
-        total = sq if total is None else total + sq
-    return np.sqrt(total)
+        out = total if k == 0 else buf
+        np.subtract.outer(points[:, k], points[:, k], out=out)
+        np.multiply(out, out, out=out)
+        if k:
+            np.add(total, buf, out=total)
+    return np.sqrt(total, out=total)
 
 
 def consistent_subset(
@@ -125,7 +128,12 @@ def consistent_subset(
     if n < 2:
         return np.arange(n)
     d_i, d_j = pairwise_distances(pts_i), pairwise_distances(pts_j)
-    bad = np.abs(d_i - d_j) > tolerance + relative_tolerance * np.maximum(d_i, d_j)
+    # |d_i - d_j| > tolerance + relative_tolerance * max(d_i, d_j), in place (the same bits)
+    bound = np.maximum(d_i, d_j)
+    bound *= relative_tolerance
+    bound += tolerance
+    np.subtract(d_i, d_j, out=d_i)
+    bad = np.abs(d_i, out=d_i) > bound
     count = bad.sum(axis=1).astype(np.int64)
     alive = np.ones(n, bool)
     tie = np.arange(n) if priority is None else np.argsort(np.argsort(np.asarray(priority, dtype=np.float64)))
