@@ -73,4 +73,3 @@ def test_noise_is_independent_per_frame_and_bounded():
     assert float(std.max()) <= 0.05 * 1.1 and float(std.max()) > 0.03 and float(std.min()) < 0.02
     assert abs(float(d[0].mean())) < 2e-3  # zero-mean
     assert float(out[0].min()) >= 0.0 and float(out[0].max()) <= 1.0
-

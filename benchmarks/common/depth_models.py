@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Callable, Iterator
 from collections.abc import Sequence as SequenceABC
 from pathlib import Path
@@ -11,6 +12,17 @@ import numpy as np
 from c3f_slam.io import Sequence
 from c3f_slam.models import DepthModel
 from c3f_slam.zoo import resolve
+
+
+def add_depth_study_arguments(ap: argparse.ArgumentParser, every: int, report: Path, needs: str) -> None:
+    """The arguments the depth studies share: sequence folders (which must have ``needs``), the
+    depth models (repeatable), every n-th frame, onnxruntime threads and the report file."""
+    ap.add_argument("sequences", type=Path, nargs="+", help=f"sequence folders with {needs}")
+    ap.add_argument("--depth-model", action="append", required=True,
+                    help="DepthNet ONNX export or zoo:NAME (repeatable: each gets its own rows)")
+    ap.add_argument("--every", type=int, default=every, help="every n-th frame")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--report", type=Path, default=report)
 
 
 def open_depth_model(name: str, threads: int) -> tuple[DepthModel, float]:

@@ -22,12 +22,11 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
 from benchmarks.common import RESULTS
-from benchmarks.common.depth_models import depth_runs
+from benchmarks.common.depth_models import add_depth_study_arguments, depth_runs
 from benchmarks.common.report import Report
 from c3f_slam.io import Sequence
 
@@ -70,13 +69,8 @@ def analyse(seq: Sequence, predict: Callable[[int], np.ndarray], every: int, ste
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("sequences", type=Path, nargs="+", help="sequence folders with depth/")
-    ap.add_argument("--depth-model", action="append", required=True,
-                    help="DepthNet ONNX export or zoo:NAME (repeatable: each gets its own rows)")
-    ap.add_argument("--every", type=int, default=10, help="every n-th frame")
+    add_depth_study_arguments(ap, 10, RESULTS / "depth_edges.md", "depth/")
     ap.add_argument("--step", type=float, default=0.25, help="true log-depth step that makes an edge")
-    ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--report", type=Path, default=RESULTS / "depth_edges.md")
     args = ap.parse_args()
     if args.every < 1 or args.step <= 0:
         raise SystemExit("--every must be >= 1 and --step > 0")

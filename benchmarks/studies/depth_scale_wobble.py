@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS
-from benchmarks.common.depth_models import depth_runs, open_depth_model
+from benchmarks.common.depth_models import add_depth_study_arguments, depth_runs, open_depth_model
 from benchmarks.common.report import Report
 from c3f_slam.io import Sequence
 
@@ -116,13 +116,8 @@ def oracle_slam(seq_dir: Path, depth_model: str, feature_model: str, out: Path, 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("sequences", type=Path, nargs="+", help="sequence folders with depth/ and poses.txt")
-    ap.add_argument("--depth-model", action="append", required=True,
-                    help="DepthNet ONNX export or zoo:NAME (repeatable: each gets its own rows)")
-    ap.add_argument("--every", type=int, default=2, help="every n-th frame")
+    add_depth_study_arguments(ap, 2, RESULTS / "depth_scale_wobble.md", "depth/ and poses.txt")
     ap.add_argument("--lag", type=int, default=10, help="frames between the scales correlated")
-    ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--report", type=Path, default=RESULTS / "depth_scale_wobble.md")
     ap.add_argument("--slam", type=Path, metavar="OUT", help="run SLAM on the one sequence into OUT instead")
     ap.add_argument("--feature-model", default="zoo:c3f-features-r18w32", help="with --slam")
     ap.add_argument("--oracle", action="store_true", help="with --slam: each frame's depth times its true k")

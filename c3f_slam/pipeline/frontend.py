@@ -133,8 +133,9 @@ class ModelDepth:
     (``DepthModel.metric_scale``), else 1; ``scale_source`` says which ("option", "model
     metadata", "none"). ``benchmarks/studies/depth_motion.py`` measures the factor on any sequence
     with true depth.
-    The prediction of the most recent frame is memoised (by frame index), so that the run
-    loop can also store its network-grid depth for fusion without running the net twice.
+    :meth:`predict` gives both grids (perception keeps the network grid for fusion), so the
+    network runs once per frame; nothing is cached, so perception threads may call it for
+    several frames at once.
     """
 
     name = "model"
@@ -151,17 +152,12 @@ class ModelDepth:
         else:
             self.scale, self.scale_source = 1.0, "none"
         self.view = model.view(camera)  # InputError now when the model's crop does not fit
-        self._last: DepthPrediction | None = None
 
     def predict(self, frame: StreamFrame) -> DepthPrediction:
-        last = self._last  # read once: perception workers may call this for several frames at once
-        if last is None or last.index != frame.index:
-            net, view = self.model.predict_network(frame.rgb, self.camera)
-            if self.scale != 1.0:
-                net = net * np.float32(self.scale)
-            full = view.network_to_frame(net, self.model.upsample)
-            last = self._last = DepthPrediction(frame.index, net, full, view)
-        return last
+        net, view = self.model.predict_network(frame.rgb, self.camera)
+        if self.scale != 1.0:
+            net = net * np.float32(self.scale)
+        return DepthPrediction(frame.index, net, view.network_to_frame(net, self.model.upsample), view)
 
     def depth(self, frame: StreamFrame) -> np.ndarray:
         return self.predict(frame).frame
