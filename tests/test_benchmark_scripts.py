@@ -404,6 +404,41 @@ def test_zoo_ablation_runs_in_chunks(tmp_path, monkeypatch):
     zoo._ablation_run(run, other, ["a.yaml"], [], "x")
     assert "--ckpt_path" not in calls[0] and not ckpt.exists()
     assert json.loads((run / "result.json").read_text())["settings"] == other
+    calls.clear()
+    zoo._ablation_run(run, other, ["a.yaml"], [], "x", start_sha256="abc")  # the same settings from another start
+    assert calls and "--ckpt_path" not in calls[0]
+
+
+def test_zoo_ablation_from_a_self_supervised_start(tmp_path, monkeypatch):
+    """The self-supervised start is fit from random weights with the Monodepth2 objective; both
+    objectives then start from its checkpoint, and a changed start (another hash) is not read
+    back from a finished pair."""
+    from benchmarks.protocols import zoo
+    from c3f_slam.zoo import sha256_of
+
+    fits: list[tuple] = []
+
+    def fake_run(run, last, configs, seqs, what, start_sha256=None):
+        fits.append((run.name, last["model"]["init_args"]["init_weights"], [str(c) for c in configs], start_sha256,
+                     last["trainer"]["max_steps"]))
+        ckpt = run / "tb" / "version_0" / "checkpoints" / "last.ckpt"
+        ckpt.parent.mkdir(parents=True, exist_ok=True)
+        if run.name == "start":
+            ckpt.write_bytes(b"weights")
+        return {"sq_rel": 0.5}
+
+    monkeypatch.setattr(zoo, "_ablation_run", fake_run)
+    monkeypatch.setattr(zoo, "simulate", lambda presets, size, folder: [folder / "seq1_s1", folder / "seq1_s2"])
+    a = argparse.Namespace(depth="zoo:c3f-depth-r18w32", work=tmp_path, quick=True, ablation_steps=3,
+                           ablation_seeds=[1, 2], start_steps=5)
+    out = zoo.ablation_selfsup_section(a, [])
+    start, *pairs = fits
+    assert start[0] == "start" and start[1] is None and start[2][-1] == zoo.ABLATION["monodepth2"] and start[4] == 5
+    ckpt = str(tmp_path / "ablation_selfsup" / "start" / "tb" / "version_0" / "checkpoints" / "last.ckpt")
+    assert len(pairs) == 4 and all(p[1] == ckpt and p[3] == sha256_of(Path(ckpt)) and p[4] == 3 for p in pairs)
+    assert {p[2][-1] for p in pairs} == set(zoo.ABLATION.values())
+    assert out["start"] == {"sq_rel": 0.5} and out["start_steps"] == 5 and set(out["c3fusion"]) == {"1", "2"}
+    assert any("self-supervised start" in line for line in zoo.ablation_selfsup_lines(out))
 
 
 def test_zoo_slam_settings_reach_every_run_and_the_cache(tmp_path, monkeypatch):

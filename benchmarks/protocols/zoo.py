@@ -25,6 +25,9 @@ Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and r
   self-supervised steps on four of the zoo's training sequences with the paper's objective and
   with the Monodepth2 baseline (no supervised term, no augmentation in either), for each seed;
   the held-out Sq Rel of each (mean over the seeds).
+- ``ablation_selfsup``: the same from a self-supervised start instead (``--start-steps`` steps of the
+  Monodepth2 objective from random weights), the counterpart of the paper's ImageNet start: the
+  zoo weights were trained with a supervised term, so any self-supervised step leads away from them.
 
     python -m benchmarks.protocols.zoo
 
@@ -50,7 +53,7 @@ from benchmarks.common.report import Report, json_beside
 from c3f_models.zoo.recipes import HELD_OUT, QUICK_HELD_OUT, TRAIN, shortened
 from c3f_models.zoo.train import REPO, simulate
 
-SECTIONS = ("depth", "matches", "slam", "coverage", "ttt", "ablation")
+SECTIONS = ("depth", "matches", "slam", "coverage", "ttt", "ablation", "ablation_selfsup")
 ABLATION = {"c3fusion": "configs/depthnet/paper_objective.yaml", "monodepth2": "configs/depthnet/monodepth2.yaml"}
 #: test-time training's sequences -> their appearance (seq1: trained; seq5: in no training sequence)
 TTT_SEQUENCES = {"seq1_s2001": "trained", "seq1_s2002": "trained", "seq5_s2005": "unseen", "seq5_s2006": "unseen"}
@@ -177,36 +180,78 @@ def ttt_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     return out
 
 
-def ablation_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
-    from c3f_slam import zoo
+def _ablation_settings(run: Path, seed: int, steps: int, train: list[Path],
+                       init: str | None, lr: float) -> dict:
+    """The last config of one ablation fit: ``steps`` steps from ``init`` (None: random), ``seed``,
+    no supervised term and no augmentation, a constant learning rate, logs and checkpoint in ``run``."""
+    return {"seed_everything": seed, "trainer": {
+        "max_steps": steps, "max_epochs": -1, "limit_val_batches": 0, "num_sanity_val_steps": 0,
+        "enable_progress_bar": False, "default_root_dir": str(run),
+        "logger": {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
+                   "init_args": {"save_dir": str(run), "name": "tb", "version": 0}},
+        "callbacks": [{"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
+                       "init_args": {"save_last": True}}]},
+        "model": {"init_args": {"init_weights": init, "loss": {"lambda_gt_depth": 0.0},
+                                "augment": {"p": 0.0}, "optim": {"lr": lr, "milestones": []}}},
+        "data": {"init_args": {"data_dir": str(train[0].parent), "split": {
+            "train": [p.name for p in train], "val": [], "test": [], "val_fraction": 0.0,
+            "test_fraction": 0.0}}}}
 
-    entry = zoo.entry(a.depth, "--depth")
-    train = simulate(shortened(TRAIN[:2], 24) if a.quick else TRAIN[:4], 128, a.work / "train")
-    out: dict = {"steps": a.ablation_steps, "seeds": list(a.ablation_seeds), "train": [p.name for p in train]}
+
+def _ablation_train(a: argparse.Namespace) -> list[Path]:
+    return simulate(shortened(TRAIN[:2], 24) if a.quick else TRAIN[:4], 128, a.work / "train")
+
+
+def _ablation_pairs(a: argparse.Namespace, seqs: list[Path], train: list[Path], entry, init: str, folder: str,
+                    init_sha256: str | None = None) -> dict:
+    """Both objectives (:data:`ABLATION`) for every seed, ``a.ablation_steps`` steps from ``init``
+    (its hash ``init_sha256``), under ``WORK/folder``: ``{objective: {seed: held-out mean metrics}}``."""
+    out: dict = {}
     for variant, config in ABLATION.items():
         for seed in a.ablation_seeds:
-            run = a.work / "ablation" / f"{variant}_s{seed}"
-            last = {"seed_everything": seed, "trainer": {
-                "max_steps": a.ablation_steps, "max_epochs": -1, "limit_val_batches": 0, "num_sanity_val_steps": 0,
-                "enable_progress_bar": False, "default_root_dir": str(run),
-                "logger": {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
-                           "init_args": {"save_dir": str(run), "name": "tb", "version": 0}},
-                "callbacks": [{"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
-                               "init_args": {"save_last": True}}]},
-                "model": {"init_args": {"init_weights": a.depth, "loss": {"lambda_gt_depth": 0.0},
-                                        "augment": {"p": 0.0}, "optim": {"lr": 1e-4, "milestones": []}}},
-                "data": {"init_args": {"data_dir": str(train[0].parent), "split": {
-                    "train": [p.name for p in train], "val": [], "test": [], "val_fraction": 0.0,
-                    "test_fraction": 0.0}}}}
+            run = a.work / folder / f"{variant}_s{seed}"
+            last = _ablation_settings(run, seed, a.ablation_steps, train, init, 1e-4)
             out.setdefault(variant, {})[str(seed)] = _ablation_run(run, last, [entry.folder / "config.yaml", config],
-                                                                   seqs, f"{variant} seed {seed}")
+                                                                   seqs, f"{variant} seed {seed}", init_sha256)
     return out
 
 
-def _ablation_run(run: Path, last: dict, configs: list, seqs: list[Path], what: str) -> dict:
+def ablation_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
+    """From the zoo weights (trained with a supervised term, so near the simulator's optimum)."""
+    from c3f_slam import zoo
+
+    entry = zoo.entry(a.depth, "--depth")
+    train = _ablation_train(a)
+    return {"steps": a.ablation_steps, "seeds": list(a.ablation_seeds), "train": [p.name for p in train],
+            **_ablation_pairs(a, seqs, train, entry, a.depth, "ablation")}
+
+
+def ablation_selfsup_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
+    """From a self-supervised start: the zoo entry's network trained from random weights with the
+    Monodepth2 objective for ``a.start_steps`` steps (seed 0, learning rate 3e-4, the same four
+    sequences), a network that predicts structure without having seen true depth; then both
+    objectives as in :func:`ablation_section`. The paper starts from ImageNet weights, which
+    this checkpoint stands in for (nothing is downloaded)."""
+    from c3f_slam import zoo
+
+    entry = zoo.entry(a.depth, "--depth")
+    train = _ablation_train(a)
+    run = a.work / "ablation_selfsup" / "start"
+    last = _ablation_settings(run, 0, a.start_steps, train, None, 3e-4)
+    start = _ablation_run(run, last, [entry.folder / "config.yaml", ABLATION["monodepth2"]], seqs, "start")
+    ckpt = run / "tb" / "version_0" / "checkpoints" / "last.ckpt"
+    return {"steps": a.ablation_steps, "seeds": list(a.ablation_seeds), "train": [p.name for p in train],
+            "start_steps": a.start_steps, "start": start,
+            **_ablation_pairs(a, seqs, train, entry, str(ckpt), "ablation_selfsup", zoo.sha256_of(ckpt))}
+
+
+def _ablation_run(run: Path, last: dict, configs: list, seqs: list[Path], what: str,
+                  start_sha256: str | None = None) -> dict:
     """One fit of the ablation in ``run``: fit (continued from its last checkpoint after an
     interruption), export, held-out depth metrics; a finished run with the same settings
-    (``result.json``) is read back instead, so the section can run in chunks."""
+    (``result.json``) is read back instead, so the section can run in chunks. ``start_sha256``:
+    the hash of the checkpoint it starts from where that file can change under the same path
+    (a run from another start is made again)."""
     import yaml
 
     from c3f_models.zoo.evaluate import depth_heldout
@@ -214,29 +259,33 @@ def _ablation_run(run: Path, last: dict, configs: list, seqs: list[Path], what: 
     done = run / "result.json"
     if done.is_file():
         saved = json.loads(done.read_text())
-        if saved.get("settings") == last:
+        if saved.get("settings") == last and saved.get("start_sha256") == start_sha256:
             return saved["mean"]
     ckpt = run / "tb" / "version_0" / "checkpoints" / "last.ckpt"
-    resume = ["--ckpt_path", str(ckpt)] if ckpt.is_file() and (run / "last.yaml").is_file() and \
+    same_start = (run / "start.sha256").read_text() == str(start_sha256) if (run / "start.sha256").is_file() else False
+    resume = ["--ckpt_path", str(ckpt)] if ckpt.is_file() and same_start and (run / "last.yaml").is_file() and \
         yaml.safe_load((run / "last.yaml").read_text()) == last else []
     if not resume:
         shutil.rmtree(run, ignore_errors=True)
     run.mkdir(parents=True, exist_ok=True)
     (run / "last.yaml").write_text(yaml.safe_dump(last, sort_keys=False))
+    (run / "start.sha256").write_text(str(start_sha256))
     _cli(["-m", "c3f_models", "fit", *(a for c in configs for a in ("--config", str(c))),
           "--config", str(run / "last.yaml"), *resume], f"ablation fit {what}")
     _cli(["-m", "c3f_models", "export", "--config", str(run / "tb" / "version_0" / "config.yaml"),
           "--ckpt_path", str(ckpt), "--output_dir", str(run / "onnx"), "--graphs", "[depth]", "--metric_scale", "1.0"],
          f"ablation export {what}")
     mean = depth_heldout(run / "onnx" / "depthnet.onnx", seqs)["mean"]
-    done.write_text(json.dumps({"settings": last, "mean": mean}, indent=1))
+    done.write_text(json.dumps({"settings": last, "start_sha256": start_sha256, "mean": mean}, indent=1))
     return mean
 
 
-def ablation_lines(t: dict, start: dict | None = None) -> list[str]:
-    """The ablation's table; ``start``: the zoo model's own held-out metrics (the depth section's mean)."""
+def ablation_lines(t: dict, start: dict | None = None, origin: str = "From the zoo weights",
+                   start_name: str = "the zoo model they start from") -> list[str]:
+    """The ablation's table; ``start``: held-out metrics of the checkpoint both objectives start
+    from (``start_name``), ``origin`` begins the description."""
     mean = {v: float(np.mean([r["sq_rel"] for r in t[v].values()])) for v in ABLATION if v in t}
-    lines = [f"From the zoo weights, {t['steps']} self-supervised steps on {', '.join(t['train'])} per run; seeds "
+    lines = [f"{origin}, {t['steps']} self-supervised steps on {', '.join(t['train'])} per run; seeds "
              f"{t['seeds']}; held-out Sq Rel (cm, median-scaled), mean over the held-out sequences:", "",
              "| objective | " + " | ".join(f"seed {s}" for s in t["seeds"]) + " | mean |",
              "|---|" + "---|" * (len(t["seeds"]) + 1)]
@@ -244,16 +293,23 @@ def ablation_lines(t: dict, start: dict | None = None) -> list[str]:
         lines.append(f"| {v} | " + " | ".join(f"{100 * t[v][str(s)]['sq_rel']:.4f}" for s in t["seeds"])
                      + f" | {100 * m:.4f} |")
     if start is not None:
-        lines.append("| (the zoo model they start from) | " + " | ".join("" for _ in t["seeds"])
+        lines.append(f"| ({start_name}) | " + " | ".join("" for _ in t["seeds"])
                      + f" | {100 * start['sq_rel']:.4f} |")
     if len(mean) == 2:
         change = mean["c3fusion"] / mean["monodepth2"] - 1
         lines += ["", f"C3Fusion's Sq Rel is {abs(100 * change):.1f} % {'lower' if change < 0 else 'higher'} than "
                   "the baseline's (paper: about 15 % lower)."]
         if start is not None and min(mean.values()) > start["sq_rel"]:
-            lines[-1] += (" Both objectives end above the zoo model they start from: at this budget, "
-                          "self-supervised training from the zoo weights makes the depth worse.")
+            lines[-1] += (f" Both objectives end above {start_name}: at this budget, "
+                          "self-supervised training from it makes the depth worse.")
     return lines
+
+
+def ablation_selfsup_lines(t: dict) -> list[str]:
+    return ablation_lines(t, t.get("start"), f"From a self-supervised start ({t['start_steps']} steps of the "
+                          "Monodepth2 objective from random weights, seed 0, learning rate 3e-4, the same sequences; "
+                          "it stands in for the paper's ImageNet start)",
+                          "the self-supervised start")
 
 
 def _pct(x) -> str:
@@ -374,11 +430,13 @@ def target_lines(m: dict) -> list[str]:
         row("unseen-wall estimate within 5 points of the truth on the 7 coverage cases",
             f"{len(ok)} of {len(cases)} ran; |error| max {max(errs, default=float('nan')):.1f} pp",
             len(ok) == len(cases) and max(errs) <= 5)
-    if "ablation" in m and all(v in m["ablation"] for v in ABLATION):
-        t = m["ablation"]
-        c, b = (float(np.mean([r["sq_rel"] for r in t[v].values()])) for v in ABLATION)
-        row("the paper's objective: Sq Rel >= 15 % lower than the Monodepth2 baseline (same start and budget)",
-            f"{100 * c:.3f} vs {100 * b:.3f} cm ({100 * (c / b - 1):+.1f} %)", c <= 0.85 * b)
+    for name, origin in (("ablation", "from the zoo weights"), ("ablation_selfsup", "from a self-supervised start")):
+        if name in m and all(v in m[name] for v in ABLATION):
+            t = m[name]
+            c, b = (float(np.mean([r["sq_rel"] for r in t[v].values()])) for v in ABLATION)
+            row(f"the paper's objective: Sq Rel >= 15 % lower than the Monodepth2 baseline (same start and budget; "
+                f"{origin}, mean of {len(t['seeds'])} seeds)",
+                f"{100 * c:.3f} vs {100 * b:.3f} cm ({100 * (c / b - 1):+.1f} %)", c <= 0.85 * b)
     if "ttt" in m:
         t = m["ttt"]
         change = {a: [t[n]["after"]["abs_rel"] / t[n]["before"]["abs_rel"] - 1 for n, k in TTT_SEQUENCES.items()
@@ -395,10 +453,12 @@ def target_lines(m: dict) -> list[str]:
 RENDER = {"depth": lambda d, m: depth_lines(d), "matches": lambda d, m: matches_lines(d),
           "slam": lambda d, m: slam_lines(d), "coverage": lambda d, m: coverage_lines(d),
           "ttt": lambda d, m: ttt_lines(d),
-          "ablation": lambda d, m: ablation_lines(d, m.get("depth", {}).get("mean"))}
+          "ablation": lambda d, m: ablation_lines(d, m.get("depth", {}).get("mean")),
+          "ablation_selfsup": lambda d, m: ablation_selfsup_lines(d)}
 TITLES = {"depth": "Depth (held-out)", "matches": "Matches (held-out pairs)", "slam": "SLAM at default settings",
           "coverage": "Unseen wall on zoo depth (coverage_accuracy cases, SIFT)", "ttt": "Test-time training",
-          "ablation": "The paper's objective against the Monodepth2 baseline (same start, same budget)"}
+          "ablation": "The paper's objective against the Monodepth2 baseline (same start, same budget)",
+          "ablation_selfsup": "The same from a self-supervised start"}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -413,6 +473,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--ttt-steps", type=int, default=60, help="as the demo (ZOO_TTT_STEPS)")
     ap.add_argument("--ablation-steps", type=int, default=300)
     ap.add_argument("--ablation-seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--start-steps", type=int, default=400,
+                    help="ablation_selfsup: steps of the Monodepth2 objective from random weights that make the start")
     ap.add_argument("--report", type=Path, default=RESULTS / "zoo.md")
     ap.add_argument("--heldout", type=Path, default=REPO / "runs" / "zoo" / "heldout",
                     help="folder of the held-out sequences (made when missing; the recipes' evaluation uses the same)")
@@ -425,7 +487,8 @@ def main(argv: list[str] | None = None) -> None:
     seqs = simulate(heldout, 128, a.work / "heldout" if a.quick else a.heldout)
     compute = {"depth": lambda: depth_section(a, seqs), "matches": lambda: matches_section(a, seqs),
                "slam": lambda: slam_section(a, seqs), "coverage": lambda: coverage_section(a),
-               "ttt": lambda: ttt_section(a, seqs), "ablation": lambda: ablation_section(a, seqs)}
+               "ttt": lambda: ttt_section(a, seqs), "ablation": lambda: ablation_section(a, seqs),
+               "ablation_selfsup": lambda: ablation_selfsup_section(a, seqs)}
     results = {name: _cached(a.work, name, a.redo, compute[name], a.slam_set if name in ("slam", "coverage") else None)
                for name in SECTIONS if name in a.only}
     json_path = json_beside(a.report)
