@@ -24,6 +24,7 @@ the CPU hash map grows beyond ``block_count`` on demand.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -139,11 +140,14 @@ class FragmentFusion:
         into an empty volume, in fragment order, and return the mesh."""
         self.volume.reset()
         keep = sorted(self.fragments) if fragments is None else sorted(set(fragments))
-        for k in keep:
-            for frame in self.fragments.get(k, ()):
-                T = pose_of(frame)
-                if T is None:
-                    continue
-                rgb, depth = self.load_frame(frame)
+        todo = [(frame, T) for k in keep for frame in self.fragments.get(k, ()) if (T := pose_of(frame)) is not None]
+        # the next frame is read in a thread while this one is fused (both release the GIL;
+        # the same frames in the same order, at most two in memory)
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="fusion-read") as reader:
+            ahead = reader.submit(self.load_frame, todo[0][0]) if todo else None
+            for n, (_, T) in enumerate(todo):
+                rgb, depth = ahead.result()
+                if n + 1 < len(todo):
+                    ahead = reader.submit(self.load_frame, todo[n + 1][0])
                 self.volume.integrate(rgb, depth, self.K, T)
         return self.volume.extract_mesh()

@@ -474,3 +474,65 @@ def test_consistent_subset_follows_the_plain_rule():
         alive[worst] = False
     got = consistent_subset(p, q, 0.002, 0.05, prio)
     assert got.tolist() == np.flatnonzero(alive).tolist() and 100 < len(got) < 200
+
+
+def _residual_loop_written_out(src, dst, bound, min_matches):
+    """The residual loop as first written: a fresh Kabsch fit after every dropped point."""
+    from c3f_slam.matching.kabsch import residuals
+
+    idx = np.arange(len(src))
+    while True:
+        T = kabsch(src[idx], dst[idx])
+        res = residuals(T, src[idx], dst[idx])
+        worst = int(np.argmax(res / bound[idx]))
+        if res[worst] <= bound[idx][worst]:
+            return idx, True
+        if len(idx) - 1 < min_matches:
+            return idx, False
+        idx = np.delete(idx, worst)
+
+
+@pytest.mark.parametrize("relative", [0.0, 0.03])
+def test_residual_loop_drops_what_a_fresh_fit_per_drop_drops(relative):
+    """The residual loop's updated sums give the same survivors as a fresh Kabsch fit after
+    every drop (colon and room scales, 0-60 % outliers, fixed and depth-relative bounds), and
+    the same set before the drop that leaves too few; filter_matches' transform is then the
+    plain fit of the survivors, bit for bit."""
+    from c3f_slam.matching.filters import drop_worst_residuals
+
+    rng = np.random.default_rng(21)
+    for trial in range(60):
+        scale = 1.0 if trial % 2 else 100.0  # colon (cm) or room (m)
+        n_in, n_out = int(rng.integers(8, 200)), int(rng.integers(0, 120))
+        pts_i, pts_j, _ = _correspondences(rng, n_in, n_out, noise=3e-4)
+        pts_i, pts_j = scale * pts_i, scale * pts_j
+        bound = scale * 1e-3 + relative * np.abs(pts_i[:, 2])
+        want = _residual_loop_written_out(pts_j, pts_i, bound, 10)
+        got = drop_worst_residuals(pts_j, pts_i, bound, 10)
+        assert got[1] == want[1] and got[0].tolist() == want[0].tolist(), trial
+    pts_i, pts_j, _ = _correspondences(rng, 60, 30, noise=3e-4)
+    cfg = MatchFilterConfig(use_pairwise=False, residual_relative_tolerance=relative, weighted_fit=False)
+    res = filter_matches(pts_i, pts_j, cfg)
+    keep = _residual_loop_written_out(pts_j, pts_i, 1e-3 + relative * pts_i[:, 2], cfg.min_matches)[0]
+    assert res.accepted and res.kept.tolist() == keep.tolist()
+    assert np.array_equal(res.T_ij, kabsch(pts_j[keep], pts_i[keep]))
+
+
+@pytest.mark.parametrize("metric", ["cosine", "l2"])
+def test_descriptor_distances_are_the_formula_bit_for_bit(metric):
+    """The distance matrix computed in place equals the formula written with temporaries."""
+    from c3f_slam.matching.descriptors import descriptor_distances
+
+    rng = np.random.default_rng(9)
+    a = rng.normal(size=(300, 128)).astype(np.float32) * (40 if metric == "l2" else 1)
+    b = np.vstack([a[:50] + rng.normal(scale=0.01, size=(50, 128)).astype(np.float32), a[50:250:2]])  # near copies
+    if metric == "cosine":
+        an = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
+        bn = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
+        want = np.sqrt(np.maximum(2.0 - 2.0 * (an @ bn.T), 0.0))
+    else:
+        want = np.sqrt(np.maximum((a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * (a @ b.T), 0.0))
+    got = descriptor_distances(a, b, metric)
+    assert got.dtype == np.float32 and np.array_equal(got, want)
+    if metric == "l2":
+        assert (want == 0).any()  # exact copies: the clamp at 0 is exercised

@@ -164,6 +164,49 @@ def test_fragment_fusion_fuses_the_chosen_fragments_with_final_poses_at_the_end(
     assert ff.volume.n_integrated == 1 and loads[8:] == [1]
 
 
+def test_fragment_fusion_reads_ahead_without_changing_the_mesh():
+    """finalize reads the next frame while it fuses one: the mesh is the serial loop's, bit
+    for bit, at most one frame is read ahead, and an unreadable frame's error reaches the caller."""
+    import threading
+
+    poses = tube_poses(6)
+    frames = {k: render_tube(T) for k, T in enumerate(poses)}
+    serial = TSDFVolume(CFG)
+    for k in range(6):
+        serial.integrate(*frames[k], CAM.K, poses[k])
+    fused: list[int] = []
+    read: list[int] = []
+    lock = threading.Lock()
+
+    class Counting(TSDFVolume):
+        def integrate(self, rgb, depth, K, T_wc):
+            fused.append(len(fused))
+            super().integrate(rgb, depth, K, T_wc)
+
+    def load(k: int):
+        with lock:
+            read.append(k)
+            assert len(read) <= len(fused) + 2  # the frame being fused and the next one
+        return frames[k]
+
+    ff = FragmentFusion(Counting(CFG), load, CAM.K)
+    for k in range(6):
+        ff.add_frame(0, k)
+    mesh, want = ff.finalize(lambda k: poses[k]), serial.extract_mesh()
+    assert read == list(range(6)) and len(fused) == 6
+    assert np.array_equal(np.asarray(mesh.vertices), np.asarray(want.vertices))
+    assert np.array_equal(np.asarray(mesh.triangles), np.asarray(want.triangles))
+
+    def broken(k: int):
+        if k == 3:
+            raise OSError("frame 3: unreadable")
+        return frames[k]
+
+    ff.load_frame = broken
+    with pytest.raises(OSError, match="frame 3"):
+        ff.finalize(lambda k: poses[k])
+
+
 # ---------------------------------------------------------------------- coverage
 
 

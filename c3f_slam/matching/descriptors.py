@@ -26,12 +26,20 @@ def descriptor_distances(desc_i: np.ndarray, desc_j: np.ndarray, metric: str = "
     b = np.asarray(desc_j, dtype=np.float32)
     if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1]:
         raise ValueError(f"descriptors must be (N, C) with the same C, got {a.shape} and {b.shape}")
+    # in place, the same bits as 2 - 2 a.b (cosine) and |a|^2 + |b|^2 - 2 a.b (l2), then sqrt(max(., 0))
     if metric == "cosine":
         a, b = _normalise(a), _normalise(b)
-        sq = 2.0 - 2.0 * (a @ b.T)
+        sq = a @ b.T
+        sq *= -2.0
+        sq += 2.0
     else:
-        sq = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * (a @ b.T)
-    return np.sqrt(np.maximum(sq, 0.0))
+        prod = a @ b.T
+        prod *= 2.0
+        sq = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :]
+        sq -= prod
+        del prod
+    np.maximum(sq, 0.0, out=sq)
+    return np.sqrt(sq, out=sq)
 
 
 def mutual_nearest_neighbours(

@@ -10,9 +10,10 @@ transform T_ij (p_i ~ T_ij p_j):
    ``pairwise_tolerance + pairwise_relative_tolerance * max(distance)``; the candidate with
    the most inconsistencies is dropped until none is left;
 3. Kabsch fit; the candidate with the worst residual (relative to its bound) is dropped and the
-   fit redone until every residual is below its bound, ``max_residual +
-   residual_relative_tolerance * z`` (z: the point's depth in frame i; predicted depth errs in
-   proportion to the depth, so a run on model depth takes 3 % and one on depth files 0); with a
+   fit redone (:func:`drop_worst_residuals`, from updated sums) until every residual is below
+   its bound, ``max_residual + residual_relative_tolerance * z`` (z: the point's depth in frame
+   i; predicted depth errs in proportion to the depth, so a run on model depth takes 3 % and
+   one on depth files 0); the survivors are fitted once more from their points; with a
    depth-relative bound and ``weighted_fit`` the survivors' transform is then refitted with
    weights 1 / bound^2 (the inverse variance of that error: near points count more);
 4. accept only with >= ``min_matches`` survivors and a condition number below
@@ -148,6 +149,51 @@ def consistent_subset(
     return np.flatnonzero(alive)
 
 
+def drop_worst_residuals(
+    src: np.ndarray, dst: np.ndarray, bound: np.ndarray, min_matches: int
+) -> tuple[np.ndarray, bool]:
+    """The residual loop of :func:`filter_matches`: fit (Kabsch, ``dst ~ T src``), drop the
+    point with the largest residual relative to its ``bound`` (metres; the first of equal
+    ones) while it exceeds it, refit. Returns the (K,) indices of the points kept and whether
+    every residual is within its bound; False when fewer than ``min_matches`` would be left
+    (the indices are then the set before that drop).
+
+    Each refit updates the sums of the points it keeps (centred on the first mean) instead of
+    fitting again from the points, a constant cost per dropped point; the caller fits the
+    survivors once more with :func:`kabsch`, so its transform is the plain fit of that set.
+    """
+    n = len(src)
+    p = src - src.mean(axis=0)
+    q = dst - dst.mean(axis=0)
+    s_p, s_q, s_pq = p.sum(axis=0), q.sum(axis=0), p.T @ q
+    res, ratio = np.empty(n), np.empty(n)
+    alive = np.ones(n, bool)
+    m = n
+    while True:
+        c_p, c_q = s_p / m, s_q / m
+        U, _, Vt = np.linalg.svd(s_pq / m - np.outer(c_p, c_q))
+        R = Vt.T @ U.T
+        if np.linalg.det(R) < 0:
+            R = Vt.T @ np.diag([1.0, 1.0, -1.0]) @ U.T
+        diff = p @ R.T
+        diff += c_q - R @ c_p
+        diff -= q
+        np.einsum("ij,ij->i", diff, diff, out=res)
+        np.sqrt(res, out=res)
+        np.divide(res, bound, out=ratio)
+        ratio[~alive] = -np.inf
+        worst = int(np.argmax(ratio))
+        if res[worst] <= bound[worst]:
+            return np.flatnonzero(alive), True
+        if m - 1 < min_matches:
+            return np.flatnonzero(alive), False
+        alive[worst] = False
+        m -= 1
+        s_p -= p[worst]
+        s_q -= q[worst]
+        s_pq -= np.outer(p[worst], q[worst])
+
+
 def filter_matches(
     pts_i: np.ndarray,
     pts_j: np.ndarray,
@@ -190,16 +236,12 @@ def filter_matches(
             return reject(idx, f"too few pairwise-consistent matches ({len(idx)} < {cfg.min_matches})")
     # Kabsch, dropping the worst residual (over its bound) until all are below their bounds
     bound = cfg.max_residual + cfg.residual_share * np.abs(pts_i[:, 2])
-    while True:
-        T, sv = kabsch(pts_j[idx], pts_i[idx], return_singular_values=True)
-        res = residuals(T, pts_j[idx], pts_i[idx])
-        allowed = bound[idx]
-        worst = int(np.argmax(res / allowed))
-        if res[worst] <= allowed[worst]:
-            break
-        if len(idx) - 1 < cfg.min_matches:
-            return reject(idx, f"too few matches under the residual threshold (< {cfg.min_matches})", T, res)
-        idx = np.delete(idx, worst)
+    kept, within = drop_worst_residuals(pts_j[idx], pts_i[idx], bound[idx], cfg.min_matches)
+    idx = idx[kept]
+    T, sv = kabsch(pts_j[idx], pts_i[idx], return_singular_values=True)  # the survivors' fit, exactly
+    res = residuals(T, pts_j[idx], pts_i[idx])
+    if not within:
+        return reject(idx, f"too few matches under the residual threshold (< {cfg.min_matches})", T, res)
     if cfg.weighted_fit and cfg.residual_share > 0:  # inverse variance of a depth-proportional error
         T = kabsch(pts_j[idx], pts_i[idx], weights=1.0 / bound[idx] ** 2)
         res = residuals(T, pts_j[idx], pts_i[idx])
@@ -214,5 +256,6 @@ def filter_matches(
 
 
 __all__ = [
-    "FilterResult", "MatchFilterConfig", "condition_number", "consistent_subset", "filter_matches", "spanned_area",
+    "FilterResult", "MatchFilterConfig", "condition_number", "consistent_subset", "drop_worst_residuals",
+    "filter_matches", "spanned_area",
 ]
