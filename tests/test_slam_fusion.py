@@ -164,10 +164,13 @@ def test_fragment_fusion_fuses_the_chosen_fragments_with_final_poses_at_the_end(
     assert ff.volume.n_integrated == 1 and loads[8:] == [1]
 
 
-def test_fragment_fusion_reads_ahead_without_changing_the_mesh():
-    """finalize reads the next frame while it fuses one: the mesh is the serial loop's, bit
-    for bit, at most one frame is read ahead, and an unreadable frame's error reaches the caller."""
+def test_fragment_fusion_reads_ahead_without_changing_the_mesh(tmp_path):
+    """finalize reads the next frame while it fuses one: the mesh is the serial loop's (the same
+    triangles, positions and colours; Open3D lists them in another order from one run to the
+    next), at most one frame is read ahead, and an unreadable frame's error reaches the caller."""
     import threading
+
+    from benchmarks.protocols.trajectory_identity import mesh_fingerprint
 
     poses = tube_poses(6)
     frames = {k: render_tube(T) for k, T in enumerate(poses)}
@@ -194,8 +197,10 @@ def test_fragment_fusion_reads_ahead_without_changing_the_mesh():
         ff.add_frame(0, k)
     mesh, want = ff.finalize(lambda k: poses[k]), serial.extract_mesh()
     assert read == list(range(6)) and len(fused) == 6
-    assert np.array_equal(np.asarray(mesh.vertices), np.asarray(want.vertices))
-    assert np.array_equal(np.asarray(mesh.triangles), np.asarray(want.triangles))
+    write_mesh(mesh, tmp_path / "ahead.ply")
+    write_mesh(want, tmp_path / "serial.ply")
+    assert len(mesh.triangles) > 1000
+    assert mesh_fingerprint(tmp_path / "ahead.ply") == mesh_fingerprint(tmp_path / "serial.ply")
 
     def broken(k: int):
         if k == 3:
