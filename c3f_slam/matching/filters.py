@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 from c3f_slam.config import MatchFilterConfig
-from c3f_slam.matching.kabsch import kabsch, residuals
+from c3f_slam.matching.kabsch import kabsch, residuals, rotation_from_covariance
 
 
 @dataclass(frozen=True)
@@ -171,10 +171,7 @@ def drop_worst_residuals(
     m = n
     while True:
         c_p, c_q = s_p / m, s_q / m
-        U, _, Vt = np.linalg.svd(s_pq / m - np.outer(c_p, c_q))
-        R = Vt.T @ U.T
-        if np.linalg.det(R) < 0:
-            R = Vt.T @ np.diag([1.0, 1.0, -1.0]) @ U.T
+        R, _ = rotation_from_covariance(s_pq / m - np.outer(c_p, c_q))
         diff = p @ R.T
         diff += c_q - R @ c_p
         diff -= q

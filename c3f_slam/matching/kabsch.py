@@ -32,14 +32,19 @@ def kabsch(
         raise ValueError("kabsch weights must be (N,) non-negative with a positive sum")
     w = w / w.sum()
     c_src, c_dst = w @ src, w @ dst
-    H = (src - c_src).T @ ((dst - c_dst) * w[:, None])  # 3x3 cross-covariance
-    U, S, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    R, S = rotation_from_covariance((src - c_src).T @ ((dst - c_dst) * w[:, None]))
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = c_dst - R @ c_src
     return (T, S) if return_singular_values else T
+
+
+def rotation_from_covariance(H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The proper rotation R (det +1) maximising trace(R H) for the 3x3 cross-covariance
+    H = sum w (src - c_src)(dst - c_dst)^T, and H's singular values (descending)."""
+    U, S, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T, S
 
 
 def residuals(T: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
