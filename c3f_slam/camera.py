@@ -4,6 +4,11 @@ Convention (OpenCV): pixel (u, v) with integer coordinates is the *centre* of th
 in column u and row v; the image spans [-0.5, W-0.5] x [-0.5, H-0.5]. Focal lengths and
 principal point are in pixels. Depth is metres along the optical axis (z), camera frame
 x right, y down, z forward.
+
+Lens distortion (``model`` and ``distortion``, OpenCV's conventions): ``pinhole`` with 0, 4,
+5, 8, 12 or 14 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tx, ty]]]]), or
+``fisheye`` (OpenCV's equidistant model) with exactly k1..k4. The runtime undistorts such
+frames to a pinhole camera (:class:`c3f_slam.calibration.Undistortion`).
 """
 
 from __future__ import annotations
@@ -18,6 +23,13 @@ import numpy as np
 from c3f_slam.errors import InputError
 
 _REQUIRED = ("width", "height", "fx", "fy", "cx", "cy")
+
+#: lens models of camera.json's ``model`` and their allowed numbers of distortion coefficients
+DISTORTION_COUNTS = {"pinhole": (0, 4, 5, 8, 12, 14), "fisheye": (4,)}
+#: widest field of view (degrees, per image axis) taken for a pinhole camera: beyond it the image is
+#: mostly stretched border (a wider lens needs its fisheye model), and values in normalised units
+#: or millimetres instead of pixels land here
+MAX_PINHOLE_FOV_DEG = 170.0
 
 
 @dataclass(frozen=True)
@@ -36,6 +48,7 @@ class PinholeCamera:
     cy: float
     distortion: tuple[float, ...] = field(default_factory=tuple)
     depth_scale: float = 10000.0
+    model: str = "pinhole"  #: lens model of ``distortion``: pinhole | fisheye (module docstring)
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
@@ -49,6 +62,16 @@ class PinholeCamera:
                 raise InputError(f"camera {name} must be finite, got {getattr(self, name)}")
         if not (self.depth_scale > 0):
             raise InputError(f"camera depth_scale must be positive, got {self.depth_scale}")
+        if self.model not in DISTORTION_COUNTS:
+            hint = (" (a C3VD omnidirectional calibration: convert the sequence with `python -m datamodules convert "
+                    "c3vd`, which undistorts it)") if self.model.startswith("omni") else ""
+            raise InputError(f"camera model must be one of {', '.join(DISTORTION_COUNTS)}, got {self.model!r}{hint}")
+        counts = DISTORTION_COUNTS[self.model]
+        if len(self.distortion) not in counts:
+            raise InputError(f"a {self.model} camera takes {' or '.join(map(str, counts))} distortion coefficients, "
+                             f"got {len(self.distortion)}")
+        if not all(math.isfinite(d) for d in self.distortion):
+            raise InputError(f"camera distortion coefficients must be finite, got {list(self.distortion)}")
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -82,16 +105,39 @@ class PinholeCamera:
                 cy=float(data["cy"]),
                 distortion=tuple(float(d) for d in data.get("distortion", []) or []),
                 depth_scale=float(data.get("depth_scale", 10000.0)),
-            )
+                model=str(data.get("model") or "pinhole"),
+            ).check_plausible()
         except InputError as exc:
             raise InputError(f"{path}: {exc}") from None
         except (TypeError, ValueError) as exc:
             raise InputError(f"{path}: bad value ({exc})") from None
 
     def to_dict(self) -> dict:
+        """The camera.json fields (:meth:`from_json` reads them back)."""
         d = asdict(self)
         d["distortion"] = list(self.distortion)
         return d
+
+    def check_plausible(self) -> PinholeCamera:
+        """Self, or InputError when no real camera has these intrinsics: the principal point
+        more than a quarter of the image outside it, or a pinhole that would see
+        :data:`MAX_PINHOLE_FOV_DEG` degrees or more across an axis (fx, fy not in pixels?)."""
+        for name, c, size in (("cx", self.cx, self.width), ("cy", self.cy, self.height)):
+            if not -0.25 * size - 0.5 <= c <= 1.25 * size - 0.5:
+                raise InputError(f"principal point {name}={c:g} px is far outside the {self.width}x{self.height} "
+                                 "image")
+        if self.model == "pinhole":
+            fov = max(self.fov_deg())
+            if fov >= MAX_PINHOLE_FOV_DEG:
+                raise InputError(f"fx={self.fx:g}, fy={self.fy:g} px give a pinhole field of view of {fov:.1f} "
+                                 f"degrees (at most {MAX_PINHOLE_FOV_DEG:g}): focal lengths must be in pixels, and "
+                                 "a wider lens needs \"model\": \"fisheye\"")
+        return self
+
+    @property
+    def is_distorted(self) -> bool:
+        """True when frames must be undistorted to be a pinhole image (a fisheye, or non-zero coefficients)."""
+        return self.model != "pinhole" or any(d != 0.0 for d in self.distortion)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -146,3 +192,27 @@ class PinholeCamera:
             raise InputError(
                 f"{what}: image is {w}x{h} but the camera intrinsics are for {self.width}x{self.height}"
             )
+
+
+@dataclass(frozen=True)
+class FovGuess:
+    """No calibration: a pinhole camera of ``degrees`` horizontal field of view, square pixels and
+    the principal point at the centre, for frames of whatever size the video has (``--fov``)."""
+
+    degrees: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.degrees) and 0 < self.degrees < MAX_PINHOLE_FOV_DEG):
+            raise InputError(f"--fov must be between 0 and {MAX_PINHOLE_FOV_DEG:g} degrees (a pinhole camera's "
+                             f"horizontal field of view), got {self.degrees:g}")
+
+    def camera(self, width: int, height: int) -> PinholeCamera:
+        """The guessed intrinsics for ``width`` x ``height`` frames (pixels)."""
+        try:
+            return PinholeCamera.from_fov(width, height, self.degrees).check_plausible()
+        except InputError as exc:
+            raise InputError(f"--fov {self.degrees:g} on {width}x{height} frames: {exc}") from None
+
+    def describe(self) -> str:
+        """What summary.json's ``camera_source`` says."""
+        return f"fov guess {self.degrees:g} deg"

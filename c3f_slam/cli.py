@@ -3,12 +3,14 @@
     python -m c3f_slam run SEQUENCE_DIR --out OUT [--depth-source files] [--descriptors sift]
         [--preset colon|room] [--config FILE|OLD_OUT/summary.json] [--set part.field=value ...]
     python -m c3f_slam run SEQUENCE_DIR|VIDEO --depth-model depth.onnx --feature-model feat.onnx --out OUT
-        [--camera camera.json] [--threads N] [--providers CUDAExecutionProvider,CPUExecutionProvider]
+        [--camera camera.json | --fov DEG] [--threads N] [--providers CUDAExecutionProvider,CPUExecutionProvider]
     python -m c3f_slam run [--preset room] [--config FILE] [--set ...] --print-config
     python -m c3f_slam batch DATASET_DIR|LIST_FILE --out OUT [--workers N] [--threads N] [--ray auto|ADDRESS|local]
         [the options of run: models, --preset, --config, --set ...]
     python -m c3f_slam evaluate OUT --gt SEQUENCE_DIR
     python -m c3f_slam inspect MODEL.onnx
+    python -m c3f_slam calibrate IMAGE_DIR|VIDEO --out camera.json --board COLSxROWS --square METRES
+        [--model pinhole|fisheye] [--every N]
     python -m c3f_slam view OUT [--gt SEQUENCE_DIR] [--sequence SEQ_OR_VIDEO] [--no-video] [--no-open]
     python -m c3f_slam simcol3d SEQUENCE_DIR --depth-model depth.onnx --out SUBMISSION/SCENE/Frames_X_OP
         [--trajectory OUT/trajectory.txt] [--depth-scale F] [--threads N]
@@ -67,6 +69,24 @@ def _view_parser(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _calibrate_parser(sub: argparse._SubParsersAction) -> None:
+    c = sub.add_parser("calibrate", help="camera.json of a real camera from checkerboard images or a video",
+                       description="Fit a camera's intrinsics and lens distortion to views of a checkerboard "
+                                   "(OpenCV) and write them as camera.json for `run --camera`. "
+                                   "docs/runtime.md#intrinsics-of-a-real-scope-calibrate-fov-distorted-lenses")
+    c.add_argument("input", help="a folder of checkerboard images (.png, .jpg, ...) or a checkerboard video")
+    c.add_argument("--out", required=True, help="camera.json to write")
+    c.add_argument("--board", required=True, metavar="COLSxROWS",
+                   help="inner corners of the board per row x per column, e.g. 9x6 for a board of 10 x 7 squares")
+    c.add_argument("--square", required=True, type=float, metavar="METRES", help="side of a board square in metres")
+    c.add_argument("--model", default="pinhole", choices=("pinhole", "fisheye"),
+                   help="pinhole: k1, k2, p1, p2, k3 (fields of view up to about 120 degrees); fisheye: k1..k4 "
+                        "(OpenCV's fisheye model, wider lenses such as colonoscopes); default pinhole")
+    c.add_argument("--every", type=int, default=1, metavar="N",
+                   help="use every N-th image or video frame (default 1; at most 40 views with the board are fitted, "
+                        "evenly spread)")
+
+
 def _batch_parser(sub: argparse._SubParsersAction) -> None:
     from c3f_slam.batch.cli import add_batch_parser
 
@@ -84,6 +104,7 @@ def _parser() -> argparse.ArgumentParser:
     i = sub.add_parser("inspect", help="print the metadata of an exported ONNX model (kind, size, units, ...)")
     i.add_argument("model", help="an .onnx file written by the C3Fusion exporter")
     _view_parser(sub)
+    _calibrate_parser(sub)
     c = sub.add_parser("simcol3d", help="write a sequence's depth (and relative poses) as SimCol3D challenge "
                                         "submission files (c3f_slam.simcol3d)")
     c.add_argument("sequence", help="sequence folder (rgb/, camera.json), e.g. a SimCol3D one made by "
@@ -171,6 +192,20 @@ def _simcol3d(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate(args: argparse.Namespace) -> int:
+    from c3f_slam.calibration import calibrate_command
+
+    r = calibrate_command(args.input, args.out, args.board, args.square, args.model, args.every)
+    cam = r.camera
+    print(f"{len(r.views.corners)} views with the board (of {r.views.tried} looked at), RMS reprojection error "
+          f"{r.rms:.3f} px: {cam.model} fx {cam.fx:.2f} fy {cam.fy:.2f} cx {cam.cx:.2f} cy {cam.cy:.2f} px, "
+          f"distortion {[round(d, 5) for d in cam.distortion]} -> {args.out}")
+    if r.rms > 1.0:
+        print(f"warning: an RMS error of {r.rms:.2f} px is high (a good calibration is well under 1 px): blurred "
+              "views, a board that is not flat, or --model pinhole for a fisheye lens?", file=sys.stderr)
+    return 0
+
+
 def _view(args: argparse.Namespace) -> int:
     from c3f_slam.view.command import view_command
 
@@ -184,7 +219,7 @@ def _batch(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": _run, "batch": _batch, "evaluate": _evaluate, "inspect": _inspect, "simcol3d": _simcol3d,
-            "view": _view}
+            "view": _view, "calibrate": _calibrate}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -14,8 +14,8 @@ RUN_THREADS_HELP = "onnxruntime threads per model (default: the cores less one, 
 
 
 def add_input_options(r: argparse.ArgumentParser, threads_help: str = RUN_THREADS_HELP) -> None:
-    """Depth and descriptor sources, the models, the camera of a video, onnxruntime threads and
-    providers, the depth scale, ``--max-bad-frames``."""
+    """Depth and descriptor sources, the models, the camera of a video (``--camera`` or the guess
+    ``--fov``), onnxruntime threads and providers, the depth scale, ``--max-bad-frames``."""
     r.add_argument("--depth-source", choices=("files", "model"),
                    help="files: depth/ of the sequence (RGB-D mode); model: DepthNet ONNX (--depth-model). "
                         "Default: model when --depth-model is given, else files")
@@ -25,7 +25,13 @@ def add_input_options(r: argparse.ArgumentParser, threads_help: str = RUN_THREAD
     r.add_argument("--depth-model", help="DepthNet ONNX export (see `python -m c3f_slam inspect`), or zoo:NAME "
                                          "(a model of the repository's zoo/, `python -m c3f_models zoo list`)")
     r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints), or zoo:NAME")
-    r.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video)")
+    lens = r.add_mutually_exclusive_group()
+    lens.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video; make one with "
+                                       "`python -m c3f_slam calibrate`); a distorted lens (fisheye or pinhole "
+                                       "distortion coefficients) is undistorted to a pinhole camera")
+    lens.add_argument("--fov", type=float, metavar="DEG",
+                      help="no calibration: guess a pinhole camera of DEG degrees horizontal field of view for a "
+                           "video (summary.json camera_source says it is a guess)")
     r.add_argument("--threads", type=int, default=None, help=threads_help)
     r.add_argument("--providers", default="CPUExecutionProvider",
                    help="onnxruntime execution providers of the models, comma-separated, preferred first, e.g. "
@@ -50,13 +56,15 @@ def settings_from_args(args: argparse.Namespace):
 
 def inputs_from_args(args: argparse.Namespace, threads: int | None = None):
     """The :class:`c3f_slam.pipeline.RunInputs` of the options (``threads``: instead of ``--threads``).
-    InputError for ``--threads`` below 1 or an unknown provider."""
+    InputError for ``--threads`` below 1, an unknown provider or a ``--fov`` out of range."""
+    from c3f_slam.camera import FovGuess
     from c3f_slam.models.session import check_providers  # onnxruntime, Open3D, OpenCV: not for --print-config
     from c3f_slam.pipeline import RunInputs
 
     if args.threads is not None and args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
-    return RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, args.camera,
+    camera = FovGuess(args.fov) if args.fov is not None else args.camera
+    return RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, camera,
                      threads or args.threads, args.depth_scale, args.max_bad_frames, check_providers(args.providers))
 
 

@@ -14,6 +14,14 @@ files) is recorded in :attr:`FrameStream.truncation` after iteration.
 Timestamps (seconds): a video gives index / fps (the container's fps, else ``fps``); a sequence
 folder gives the poses.txt timestamps when present, else index / ``fps`` (``fps`` None: the
 frame index itself).
+
+Intrinsics: a video's come from ``camera`` (a camera.json, default the one beside the video, or a
+:class:`c3f_slam.camera.FovGuess`), a folder's from its camera.json. A distorted camera (a
+``fisheye`` model, or pinhole distortion coefficients) has its frames undistorted to a pinhole
+camera of the same size (:class:`c3f_slam.calibration.Undistortion`); :attr:`FrameStream.camera`
+is then that pinhole camera; :attr:`FrameStream.camera_file` is the camera.json read (None for a
+camera given as an object or guessed) and :attr:`FrameStream.camera_source` says where the
+intrinsics came from.
 """
 
 from __future__ import annotations
@@ -26,7 +34,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.calibration import Undistortion
+from c3f_slam.camera import FovGuess, PinholeCamera
 from c3f_slam.errors import InputError
 from c3f_slam.io.sequence import Sequence, read_depth_png, read_rgb
 
@@ -70,15 +79,36 @@ def frame_status(
     return OK, mean
 
 
-def _load_camera(camera: PinholeCamera | str | Path | None, source: Path) -> PinholeCamera:
+def _load_camera(camera: PinholeCamera | str | Path | None, source: Path) -> tuple[PinholeCamera, Path | None]:
+    """A video's intrinsics and the camera.json they were read from (None: given as an object)."""
     if isinstance(camera, PinholeCamera):
-        return camera
+        return camera, None
     if camera is not None:
-        return PinholeCamera.from_json(camera)
+        return PinholeCamera.from_json(camera), Path(camera)
     beside = source.parent / "camera.json"
     if beside.is_file():
-        return PinholeCamera.from_json(beside)
-    raise InputError(f"{source}: video needs intrinsics: pass a camera.json (none found at {beside})")
+        return PinholeCamera.from_json(beside), beside
+    raise InputError(f"{source}: video needs intrinsics: pass a camera.json or --fov DEG (none found at {beside})")
+
+
+class UndistortedSequence(Sequence):
+    """A sequence folder whose frames (and depth) are read undistorted when its camera.json has a
+    lens distortion: ``camera`` is then the pinhole camera, ``lens`` the camera.json as written."""
+
+    def __init__(self, root: str | Path) -> None:
+        super().__init__(root)
+        self.lens = self.camera
+        self.undistortion = Undistortion.of(self.lens)
+        if self.undistortion is not None:
+            self.camera = self.undistortion.camera
+
+    def read_rgb(self, i: int) -> np.ndarray:
+        img = super().read_rgb(i)
+        return img if self.undistortion is None else self.undistortion.rgb(img)
+
+    def read_depth(self, i: int) -> np.ndarray:
+        depth = super().read_depth(i)
+        return depth if self.undistortion is None else self.undistortion.depth(depth)
 
 
 @dataclass(frozen=True)
@@ -96,8 +126,8 @@ class Truncation:
 class FrameStream:
     """Iterate frames of ``source`` (a sequence folder or a video file) lazily.
 
-    ``camera``: intrinsics (object or camera.json path) for a video; default camera.json
-    beside the video. A sequence folder always uses its own camera.json. Frames
+    ``camera``: intrinsics (object, camera.json path or :class:`FovGuess`) for a video; default
+    camera.json beside the video. A sequence folder always uses its own camera.json. Frames
     ``start, start + step, ...`` are yielded, at most ``max_frames``; ``index`` is the frame
     number in the source. ``use_depth``: read depth/ when the folder has it.
     """
@@ -105,7 +135,7 @@ class FrameStream:
     def __init__(
         self,
         source: str | Path,
-        camera: PinholeCamera | str | Path | None = None,
+        camera: PinholeCamera | FovGuess | str | Path | None = None,
         use_depth: bool = True,
         start: int = 0,
         step: int = 1,
@@ -128,17 +158,33 @@ class FrameStream:
         if not self.source.exists():
             raise InputError(f"{self.source}: no such file or folder")
         if self.source.is_dir():
-            self.sequence = Sequence(self.source)
+            if isinstance(camera, FovGuess):
+                raise InputError(f"{self.source}: --fov is for videos; a sequence folder uses its camera.json")
+            self.sequence = UndistortedSequence(self.source)
+            self.undistortion = self.sequence.undistortion
             self.camera = self.sequence.camera
+            self.camera_file: Path | None = self.source / "camera.json"
             self.is_video = False
         else:
             if self.source.suffix.lower() not in VIDEO_SUFFIXES:
                 raise InputError(
                     f"{self.source}: not a sequence folder or a video ({', '.join(VIDEO_SUFFIXES)})"
                 )
-            self.camera = _load_camera(camera, self.source)
             self.is_video = True
-            self._probe_video()
+            if isinstance(camera, FovGuess):  # the guess needs the frames' size
+                width, height = self._probe_video()
+                lens, self.camera_file = camera.camera(width, height), None
+            else:  # a missing or bad camera.json is told before the video is opened
+                lens, self.camera_file = _load_camera(camera, self.source)
+                width, height = self._probe_video()
+            lens.check_image((height, width), str(self.source))
+            self.undistortion = Undistortion.of(lens)
+            self.camera = lens if self.undistortion is None else self.undistortion.camera
+        #: where the intrinsics came from, for summary.json: "file PATH", "fov guess DEG deg" or "given"
+        self.camera_source = (f"file {self.camera_file}" if self.camera_file is not None
+                              else camera.describe() if isinstance(camera, FovGuess) else "given")
+        if self.undistortion is not None:
+            self.camera_source += f" ({self.undistortion.describe()})"
 
     # ------------------------------------------------------------------ video
     def _open(self) -> cv2.VideoCapture:
@@ -148,18 +194,18 @@ class FrameStream:
             raise InputError(f"{self.source}: video does not open (unsupported codec or corrupt file)")
         return cap
 
-    def _probe_video(self) -> None:
-        """Open once to check that the first frame decodes and matches the intrinsics."""
+    def _probe_video(self) -> tuple[int, int]:
+        """Open once to check that the first frame decodes; its (width, height)."""
         cap = self._open()
         try:
             ok, bgr = cap.read()
             if not ok or bgr is None:
                 raise InputError(f"{self.source}: no frame could be decoded")
-            self.camera.check_image(bgr.shape, str(self.source))
             container_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
             self.video_fps = container_fps if container_fps > 0 else (self.fps or 30.0)
             n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
             self._n_source = n if n > 0 else None
+            return bgr.shape[1], bgr.shape[0]
         finally:
             cap.release()
 
@@ -180,6 +226,8 @@ class FrameStream:
                     self._note_end(index)
                     return
                 self.camera.check_image(bgr.shape, f"{self.source} frame {index}")
+                if self.undistortion is not None:
+                    bgr = self.undistortion.rgb(bgr)
                 yield index, index / self.video_fps, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), None
                 index += 1
         finally:
@@ -210,6 +258,9 @@ class FrameStream:
             seq.camera.check_image(rgb.shape, str(seq.rgb_paths[index]))  # wrong intrinsics: an error
             if depth is not None:
                 seq.camera.check_image(depth.shape, str(seq.depth_paths[index]))
+            if self.undistortion is not None:
+                rgb = self.undistortion.rgb(rgb)
+                depth = None if depth is None else self.undistortion.depth(depth)
             yield index, stamp, rgb, depth
 
     # ------------------------------------------------------------------ public
