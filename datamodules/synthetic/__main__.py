@@ -3,6 +3,8 @@
     python -m datamodules.synthetic generate --preset seq1 --frames 300 --size 256 --seed 7 --out DIR
     python -m datamodules.synthetic generate --out DIR --length 0.5 --fov 120 --path B --loop \\
         --set colon.fold_height=0.45 --set appearance.wetness=0.5
+    python -m datamodules.synthetic generate --preset seq1 --frames 60 --size 128 --seed 3 --out DIR \\
+        --set nuisance.border=octagon --set nuisance.overlay=true --set nuisance.motion_blur_share=0.1
     python -m datamodules.synthetic contact-sheet DIR --out sheet.png
     python -m datamodules.synthetic presets
 

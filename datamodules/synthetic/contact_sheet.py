@@ -11,6 +11,10 @@ from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.io.atomic import atomic_write
 from datamodules.synthetic.generate import read_event_labels
+from datamodules.synthetic.nuisances import read_nuisances
+
+#: per-frame nuisances named in a tile's caption (border and overlay are in every frame)
+_CAPTION = {"motion_blur": "blur", "defocus": "defocus", "washed_out": "washed", "repeat": "repeat"}
 
 
 def _depth_colour(depth: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -31,6 +35,7 @@ def make_contact_sheet(seq_dir: str | Path, out: str | Path, count: int = 12, co
         raise InputError("contact sheet: count and cols must be >= 1 and tile >= 16")
     idx = np.unique(np.linspace(0, len(seq) - 1, min(count, len(seq))).round().astype(int))
     labels = read_event_labels(seq_dir)
+    nuisances = read_nuisances(seq_dir)
     show_depth = depth and seq.has_depth
     depths = [seq.read_depth(i) for i in idx] if show_depth else []
     if depths:
@@ -41,7 +46,10 @@ def make_contact_sheet(seq_dir: str | Path, out: str | Path, count: int = 12, co
     cells = []
     for k, i in enumerate(idx):
         rgb = cv2.resize(seq.read_rgb(i), (tile, h), interpolation=cv2.INTER_AREA)
-        text = f"{seq.frame_names[i]} {labels[i] if i < len(labels) else ''}".strip()
+        extra = [_CAPTION[n] for n in nuisances.get(int(i), []) if n in _CAPTION]
+        text = " ".join(t for t in (seq.frame_names[i], labels[i] if i < len(labels) else "", *extra) if t)
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)
+        rgb[: th + 8, : tw + 8] //= 4  # darkened behind the caption: readable over washed-out frames and overlays
         cv2.putText(rgb, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
         cell = rgb
         if depths:

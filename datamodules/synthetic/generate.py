@@ -11,6 +11,14 @@ Output (docs/datasets.md, Sequence layout; via :class:`c3f_slam.io.SequenceWrite
       params.json         seed and every parameter (SimParams.from_dict reads it back)
       frames.csv          per frame: time, arc length, event label (the event's frames and
                           its ramps in and out), wall distance
+      nuisances.json      only with nuisance.* on: frame index -> the nuisances of that frame
+      tissue_mask.png     only with nuisance.border: uint8, 255 = tissue (depth is 0 elsewhere)
+
+Nuisances of real recordings (``SimParams.nuisance``, :mod:`datamodules.synthetic.nuisances`) are
+applied to the rendered frames of this layout only; a repeated frame carries the pose and depth
+of the frame it repeats (poses.txt), while frames.csv keeps the planned path. With every nuisance
+off the files are exactly those of the simulator without them (params.json has no ``nuisance``
+group while it holds the defaults).
 
 The sequence is written into a hidden sibling folder and renamed to OUT at the end, so an
 interrupted run never leaves a half sequence under OUT; an existing non-empty OUT is only
@@ -33,7 +41,15 @@ import open3d as o3d
 from c3f_slam.io import SequenceWriter
 from c3f_slam.io.atomic import move_into_place, staging_dir
 from datamodules.synthetic.layouts import layout_writer
-from datamodules.synthetic.params import PAPER_COMMON, PAPER_TABLE, SimParams, check_layout, check_output
+from datamodules.synthetic.nuisances import NuisanceChain
+from datamodules.synthetic.params import (
+    PAPER_COMMON,
+    PAPER_TABLE,
+    NuisanceParams,
+    SimParams,
+    check_layout,
+    check_output,
+)
 from datamodules.synthetic.scene import SimScene, build_scene, render_frames
 
 FORMAT_VERSION = 1
@@ -48,7 +64,7 @@ def params_record(scene: SimScene) -> dict:
         "format_version": FORMAT_VERSION,
         "seed": p.seed,
         "preset": p.preset,
-        "params": p.to_dict(),
+        "params": _params_dict(p),
         "paper_table": dict(PAPER_TABLE[p.preset], **PAPER_COMMON) if p.preset in PAPER_TABLE else None,
         "units": "metres, radians inside the code; params: lengths in m, angles in degrees",
         "camera": scene.camera.to_dict(),
@@ -58,6 +74,15 @@ def params_record(scene: SimScene) -> dict:
         "events": {k: int(sum(1 for x in scene.path.labels if x == k))
                    for k in ("closeup", "burst", "occluded", "roll")},
     }
+
+
+def _params_dict(p: SimParams) -> dict:
+    """Every parameter; the ``nuisance`` group only when it differs from the defaults (so
+    sequences without nuisances keep the params.json of the simulator before them)."""
+    d = p.to_dict()
+    if p.nuisance == NuisanceParams():
+        d.pop("nuisance")
+    return d
 
 
 def generate_sequence(
@@ -97,14 +122,23 @@ def _write_all(scene: SimScene, root: Path, layout: str, progress: bool,
     extra = None
     if layout != "c3f":
         extra = layout_writer(layout, root / layout, scene)
+    chain = NuisanceChain(p.nuisance, p.camera.width, p.camera.height, p.path.fps, p.seed) if p.nuisance.active() \
+        else None
+    poses = scene.path.poses.copy()  # a repeated frame carries the pose of the frame it repeats
+    names: dict[int, tuple[str, ...]] = {}
     pending: deque[Future] = deque()
     with ThreadPoolExecutor(max_workers=1) as pool:  # PNG encoding overlaps the next frame's rendering
         bar = tqdm(total=p.path.frames, desc=f"simulating {root.name.split('.partial-')[0].lstrip('.')}",
                    unit="frame", disable=not progress, leave=False)
         try:
             for i, rgb, depth in render_frames(scene):
-                pending.append(pool.submit(writer.write_frame, i, rgb, depth))
-                if extra is not None:
+                if chain is None:
+                    pending.append(pool.submit(writer.write_frame, i, rgb, depth))
+                else:
+                    f = chain.apply(i, rgb, depth)
+                    poses[i], names[i] = scene.path.poses[f.source], f.names
+                    pending.append(pool.submit(writer.write_frame, i, f.rgb, f.depth))
+                if extra is not None:  # the published layouts get the frames as rendered
                     pending.append(pool.submit(extra.write_frame, i, rgb, depth))
                 while len(pending) > 4:
                     pending.popleft().result()
@@ -120,10 +154,12 @@ def _write_all(scene: SimScene, root: Path, layout: str, progress: bool,
                                write_triangle_uvs=False, print_progress=False)
     (root / "params.json").write_text(json.dumps(params_record(scene), indent=2, sort_keys=True) + "\n")
     _write_frames_csv(scene, root / "frames.csv")
+    if chain is not None:
+        chain.write_truth(root, names)
     if extra is not None:
         extra.finish()
     stamps = np.arange(p.path.frames, dtype=np.float64) / p.path.fps
-    writer.finish(scene.path.poses, stamps)
+    writer.finish(poses, stamps)
 
 
 def _write_frames_csv(scene: SimScene, path: Path) -> None:

@@ -5,7 +5,9 @@ C3VD and Colon10K (docs/datasets.md, Published data sets), quirks included, so t
 ``generate_sequence(..., layout=NAME)`` writes them into ``OUT/NAME/`` beside the project's
 own layout (which holds the exact depth, poses and intrinsics to compare with). No writer
 adds a file the published data does not have (no ``camera.json``): the loaders must find the
-intrinsics where the data sets keep them. What each writer reproduces:
+intrinsics where the data sets keep them. The writers get the frames as rendered: the nuisances
+of real recordings (``SimParams.nuisance``) go into the project's layout only. What each writer
+reproduces:
 
 UTS (``uts``)::
 

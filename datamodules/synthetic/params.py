@@ -25,6 +25,7 @@ PATH_KINDS = ("A", "B", "random")
 LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, docs/datasets.md)
 LAYOUT_ALIASES = {"simcol": "simcol3d"}  # earlier name
 PATH_ALIASES = {"a": "A", "b": "B", "random": "random", "rp": "random"}
+BORDERS = ("none", "circle", "octagon", "cut_corners", "letterbox")  # nuisance.border shapes
 
 
 @dataclass
@@ -111,6 +112,35 @@ class PathParams:
 
 
 @dataclass
+class NuisanceParams:
+    """What real recordings add to the rendered frames (:mod:`datamodules.synthetic.nuisances`);
+    all off by default. Shares are the expected fraction of frames, 0..1; sizes in pixels of
+    the output frame unless stated."""
+
+    border: str = "none"  # the scope's black border: none, circle, octagon, cut_corners, letterbox
+    border_scale: float = 1.0  # circle diameter / octagon width over the frame's smaller side
+    border_corner: float = 0.15  # cut_corners: leg of each cut corner, fraction of the smaller side
+    border_bars: float = 0.2  # letterbox: the two bars' share of the frame height
+    border_level: float = 6.0  # mean grey level of the border, 0..12 of 255 (with a little noise)
+    overlay: bool = False  # burned-in label, clock (HH:MM:SS of video time) and icon
+    overlay_text: str = "C3F SIM"  # the label (printable ASCII)
+    motion_blur_share: float = 0.0  # frames blurred along a random direction
+    motion_blur_px: float = 9.0  # length of the motion blur's line kernel, px
+    defocus_share: float = 0.0  # frames blurred by a disc (out of focus)
+    defocus_px: float = 3.0  # radius of the defocus disc, px
+    washed_out_share: float = 0.0  # over-exposed frames
+    washed_out_strength: float = 0.8  # 0..1: how far brightness and contrast are pushed
+    repeat_share: float = 0.0  # frames that repeat the previous one (re-encoded as JPEG)
+    repeat_quality: int = 85  # JPEG quality of a repeated frame, 1..100
+
+    def active(self) -> bool:
+        """True when some nuisance is on: a border, the overlay or a share above 0 (otherwise the
+        frames are written exactly as rendered)."""
+        shares = (self.motion_blur_share, self.defocus_share, self.washed_out_share, self.repeat_share)
+        return self.border != "none" or self.overlay or any(v > 0 for v in shares)
+
+
+@dataclass
 class SimParams:
     """All parameters of one simulated sequence."""
 
@@ -120,6 +150,7 @@ class SimParams:
     appearance: AppearanceParams = field(default_factory=AppearanceParams)
     camera: CameraParams = field(default_factory=CameraParams)
     path: PathParams = field(default_factory=PathParams)
+    nuisance: NuisanceParams = field(default_factory=NuisanceParams)
 
     # ------------------------------------------------------------------ (de)serialisation
     def to_dict(self) -> dict[str, Any]:
@@ -150,7 +181,7 @@ class SimParams:
         _validate(self)
 
 
-_GROUPS = ("colon", "appearance", "camera", "path")
+_GROUPS = ("colon", "appearance", "camera", "path", "nuisance")
 
 # short names accepted by overrides (CLI flags, fixture keywords)
 ALIASES = {
@@ -189,6 +220,7 @@ _GROUP_TYPES = {
     "appearance": AppearanceParams,
     "camera": CameraParams,
     "path": PathParams,
+    "nuisance": NuisanceParams,
 }
 
 
@@ -200,6 +232,8 @@ def set_param(params: SimParams, name: str, value: Any) -> None:
     value = convert_value(value, ftype, name if group is None else f"{group}.{key}")
     if group == "path" and key == "kind":
         value = normalise_path_kind(value)
+    if group == "nuisance" and key == "border":
+        value = value.strip().lower().replace("-", "_")
     setattr(target, key, value)
 
 
@@ -278,11 +312,12 @@ def _validate(p: SimParams) -> None:
     _validate_appearance(p.appearance, p.colon)
     _validate_camera(p.camera, p.colon)
     _validate_path(p.path, p.colon)
+    _validate_nuisance(p.nuisance)
 
 
 def _validate_finite(p: SimParams) -> None:
     """Every float parameter of every group is finite."""
-    for group in (p.colon, p.appearance, p.camera, p.path):
+    for group in (p.colon, p.appearance, p.camera, p.path, p.nuisance):
         for f in fields(group):
             v = getattr(group, f.name)
             if isinstance(v, float):
@@ -381,9 +416,29 @@ def _validate_path(path: PathParams, c: ColonParams) -> None:
            f" (radius and fold height leave {axis_clearance * 1000:.1f} mm on the axis), got {path.min_wall_distance}")
 
 
+def _validate_nuisance(n: NuisanceParams) -> None:
+    """Border shape and size (fractions of the frame), grey level (0..255), shares (0..1), kernel sizes (px)."""
+    _check(n.border in BORDERS, f"nuisance.border: unknown border {n.border!r} (choose {', '.join(BORDERS)})")
+    _check(0.5 <= n.border_scale <= 1.5, f"nuisance.border_scale: must be in [0.5, 1.5], got {n.border_scale}")
+    _check(0 <= n.border_corner <= 0.5, f"nuisance.border_corner: must be in [0, 0.5], got {n.border_corner}")
+    _check(0 <= n.border_bars <= 0.8, f"nuisance.border_bars: must be in [0, 0.8], got {n.border_bars}")
+    _check(0 <= n.border_level <= 12, f"nuisance.border_level: must be in [0, 12] grey levels, got {n.border_level}")
+    text = n.overlay_text
+    _check(len(text) <= 40 and all(" " <= ch <= "~" for ch in text),
+           f"nuisance.overlay_text: at most 40 printable ASCII characters, got {text!r}")
+    for name in ("motion_blur_share", "defocus_share", "washed_out_share", "repeat_share"):
+        v = getattr(n, name)
+        _check(0 <= v <= 1, f"nuisance.{name}: must be in [0, 1], got {v}")
+    _check(1 <= n.motion_blur_px <= 200, f"nuisance.motion_blur_px: must be in [1, 200] px, got {n.motion_blur_px}")
+    _check(0.5 <= n.defocus_px <= 100, f"nuisance.defocus_px: must be in [0.5, 100] px, got {n.defocus_px}")
+    _check(0 < n.washed_out_strength <= 1,
+           f"nuisance.washed_out_strength: must be in (0, 1], got {n.washed_out_strength}")
+    _check(isinstance(n.repeat_quality, int) and 1 <= n.repeat_quality <= 100,
+           f"nuisance.repeat_quality: must be a JPEG quality 1..100, got {n.repeat_quality}")
+
+
 def _gname(group: Any) -> str:
-    group_names = {ColonParams: "colon", AppearanceParams: "appearance", CameraParams: "camera", PathParams: "path"}
-    return group_names[type(group)]
+    return {t: name for name, t in _GROUP_TYPES.items()}[type(group)]
 
 
 # ---------------------------------------------------------------------- paper presets
