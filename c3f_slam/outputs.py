@@ -305,6 +305,14 @@ class RunOutputs:
     def unseen_mesh(self) -> Path:
         return self.root / "unseen.ply"
 
+    @property
+    def coverage_mask(self) -> Path:
+        return self.root / "coverage_mask.png"
+
+    @property
+    def tissue_mask(self) -> Path:
+        return self.root / "tissue_mask.png"
+
     def component(self, n: int) -> RunOutputs:
         """The files of component ``n`` (>= 1) beside the main map: ``components/NN/``."""
         return RunOutputs(self.root / COMPONENTS_DIR / f"{n:02d}")

@@ -1,8 +1,11 @@
 """Frame pre-processing shared by training and the runtime (NumPy/OpenCV, no torch).
 
 - :func:`center_crop_resize`: centre crop then resize, with the intrinsics updated to match.
-- :func:`prepare_network_input`: the whole chain a network sees (crop, resize, inpainting);
+- :func:`prepare_network_input`: the whole chain a network sees (crop, resize, the scope's
+  border filled from the tissue, inpainting);
   training (:mod:`datamodules.base`) and the ONNX runtime (:mod:`c3f_slam.models`) both call it.
+- :func:`on_grid` / :func:`fill_outside`: a frame-grid mask on a network grid, and the pixels
+  outside a mask filled from the inside (the scope's border, :mod:`c3f_slam.tissue`).
 - :func:`specular_mask` / :func:`inpaint_specular` (docs/design.md, Pre-processing): the
   specular highlights are the pixels whose YUV luma Y exceeds 0.9 of full range, dilated with a
   13-px kernel; they are inpainted in the input (OpenCV Telea) and excluded from the losses.
@@ -72,6 +75,43 @@ def inpaint_specular(rgb: np.ndarray, mask: np.ndarray, radius: int = 3) -> np.n
     return cv2.inpaint(rgb, mask.astype(np.uint8), radius, cv2.INPAINT_TELEA)
 
 
+def on_grid(mask: np.ndarray, box: tuple[int, int, int, int], size: tuple[int, int]) -> np.ndarray:
+    """A frame-grid mask cropped to ``box`` = (x0, y0, w, h) and resized to ``size`` = (w, h):
+    a grid pixel is tissue when at least half of the frame pixels it covers are."""
+    x0, y0, w, h = box
+    crop = mask[y0:y0 + h, x0:x0 + w].astype(np.float32)
+    if (w, h) == tuple(size):
+        return crop > 0.5
+    return cv2.resize(crop, tuple(size), interpolation=cv2.INTER_AREA) >= 0.5
+
+
+def fill_outside(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 ``rgb`` with the pixels outside ``mask`` replaced by a smooth continuation
+    of the tissue (pull-push: masked averages down an image pyramid, then filled back up), so a
+    network sees no black border. Pixels inside the mask are unchanged."""
+    if mask.all():
+        return rgb
+    levels: list[tuple[np.ndarray, np.ndarray]] = []
+    img = rgb.astype(np.float32) * mask[..., None]
+    w = mask.astype(np.float32)
+    while True:
+        levels.append((img, w))
+        if min(w.shape) <= 2:
+            break
+        img, w = cv2.pyrDown(img), cv2.pyrDown(w)
+    img, w = levels[-1]
+    filled = np.where(w[..., None] > 1e-6, img / np.maximum(w[..., None], 1e-6),
+                      img.sum(axis=(0, 1)) / max(float(w.sum()), 1e-6))
+    for img, w in reversed(levels[:-1]):
+        up = cv2.pyrUp(filled, dstsize=(w.shape[1], w.shape[0]))
+        own = img / np.maximum(w[..., None], 1e-6)
+        alpha = np.clip(w, 0.0, 1.0)[..., None]
+        filled = alpha * own + (1.0 - alpha) * up
+    out = rgb.copy()
+    out[~mask] = np.clip(np.rint(filled[~mask]), 0, 255).astype(np.uint8)
+    return out
+
+
 def prepare_network_input(
     rgb: np.ndarray,
     camera: PinholeCamera,
@@ -80,15 +120,22 @@ def prepare_network_input(
     specular: bool = True,
     specular_threshold: float = SPECULAR_THRESHOLD,
     specular_dilation_px: int = SPECULAR_DILATION_PX,
+    tissue: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, PinholeCamera]:
     """What a network sees of an (H, W, 3) uint8 RGB frame.
 
     Centre crop ``crop`` = (width, height), resize to ``size`` = (width, height)
-    (:func:`center_crop_resize`), then, with ``specular``, the specular mask of the resized
-    frame (``specular_threshold``, ``specular_dilation_px``) and Telea inpainting of its pixels.
+    (:func:`center_crop_resize`); with ``tissue`` ((H, W) bool, True = tissue: the frame's
+    :class:`c3f_slam.tissue.TissueMask`), the pixels outside it filled by a smooth continuation of
+    the tissue (:func:`fill_outside`), so the black border does not bias the
+    prediction; then, with ``specular``, the specular mask of the resized frame
+    (``specular_threshold``, ``specular_dilation_px``) and Telea inpainting of its pixels.
     Returns (uint8 RGB, (h, w) bool specular mask, intrinsics of the returned image).
     """
+    box = camera.center_crop_box(*crop) if crop is not None else (0, 0, camera.width, camera.height)
     rgb, cam = center_crop_resize(rgb, camera, crop, size)
+    if tissue is not None and not tissue.all():
+        rgb = fill_outside(rgb, on_grid(tissue, box, (cam.width, cam.height)))
     if specular:
         mask = specular_mask(rgb, specular_threshold, specular_dilation_px)
         rgb = inpaint_specular(rgb, mask)

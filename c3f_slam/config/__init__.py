@@ -34,12 +34,13 @@ from c3f_slam.config.tracking import (
     MatchFilterConfig,
     RejoinConfig,
 )
-from c3f_slam.config.tree import MODES, PRESET_NAMES, SECTIONS, FramesConfig, SlamConfig
+from c3f_slam.config.tree import MODES, PRESET_NAMES, SECTIONS, FramesConfig, SlamConfig, TissueConfig
 
 __all__ = [
     "MODES", "PAPER_FRAME_PIXELS", "PAPER_MIN_CORRESPONDENCES", "PAPER_RULES", "PREDICTED_DEPTH_RESIDUAL_SHARE",
     "PRESETS", "PRESET_NAMES",
     "SECTIONS", "CandidateConfig", "ComponentConfig", "CoverageConfig", "FallbackConfig", "FragmentConfig",
     "FramesConfig", "FrontendConfig", "FusionConfig", "KeyframeConfig", "MatchFilterConfig", "OptimizationConfig",
-    "PoseGraphConfig", "RefineConfig", "RejoinConfig", "SlamConfig", "TSDFConfig", "config_from_dict", "preset",
+    "PoseGraphConfig", "RefineConfig", "RejoinConfig", "SlamConfig", "TSDFConfig", "TissueConfig", "config_from_dict",
+    "preset",
 ]

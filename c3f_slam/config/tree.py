@@ -1,15 +1,16 @@
 """The runtime's settings tree: :class:`SlamConfig`, one small frozen group per part.
 
 All lengths are metres, angles degrees. The parts: ``frames`` (which frames of the input are
-read), ``frontend`` (keypoints, ratio test), ``match_filter``, ``fragments`` (the new-fragment
-rule), ``candidates`` (keyframe retrieval), ``keyframes`` (what a keyframe keeps, revisits),
-``rejoin`` (bridging tracking breaks), ``fallback`` (guided and dense matching where sparse
-matching fails), ``refine`` (dense refinement of keyframe edges), ``posegraph``,
-``optimization`` (the global schedule), ``components`` (those written beside the main map),
-``fusion`` and ``coverage`` (the unseen-wall estimate). Each group validates its own fields
-(InputError naming ``part.field``). The presets are complete instances of this tree
-(:mod:`c3f_slam.config.presets`); a run's ``summary.json`` records the tree it ran with
-(:meth:`SlamConfig.as_dict`), and :func:`c3f_slam.config.presets.config_from_dict` reads it back.
+read), ``tissue`` (the image area that shows tissue), ``frontend`` (keypoints, ratio test),
+``match_filter``, ``fragments`` (the new-fragment rule), ``candidates`` (keyframe retrieval),
+``keyframes`` (what a keyframe keeps, revisits), ``rejoin`` (bridging tracking breaks),
+``fallback`` (guided and dense matching where sparse matching fails), ``refine`` (dense
+refinement of keyframe edges), ``posegraph``, ``optimization`` (the global schedule),
+``components`` (those written beside the main map), ``fusion`` and ``coverage`` (the unseen-wall
+estimate). Each group validates its own fields (InputError naming ``part.field``). The presets
+are complete instances of this tree (:mod:`c3f_slam.config.presets`); a run's ``summary.json``
+records the tree it ran with (:meth:`SlamConfig.as_dict`), and
+:func:`c3f_slam.config.presets.config_from_dict` reads it back.
 
 In Python, parts may be changed as dicts of their fields::
 
@@ -62,6 +63,40 @@ class FramesConfig:
         at_least(self.perception_workers, 1, "frames.perception_workers")
 
 
+TISSUE_MODES = ("auto", "off")
+
+
+@dataclass(frozen=True)
+class TissueConfig:
+    """The image area that shows tissue (:mod:`c3f_slam.tissue`): the scope's black border and
+    burned-in overlays are left out of depth, keypoints, fusion and the unseen-wall estimate.
+    Luma levels are 0..255."""
+
+    #: auto: ``file``, else the mask camera.json names (``tissue_mask``), else detected from the
+    #: first frames; off: the whole frame
+    mode: str = "auto"
+    file: str | None = None  #: mask image (PNG of the frame size, white = tissue); None: see ``mode``
+    frames: int = 40  #: frames sampled for detection
+    window: int = 300  #: ... evenly over the first this many frames of the run (5 s of 60 fps video)
+    dark_level: float = 30.0  #: a pixel no sample shows brighter than this is border
+    static_level: float = 3.0  #: a change of luma up to this between two samples is compression noise
+    #: a pixel changing between at least this share of consecutive samples moves with the scene
+    moving_share: float = 0.3
+    overlay_edge: float = 120.0  #: Sobel magnitude of the temporal median at a static overlay's edge
+    margin: float = 0.015  #: the mask is eroded by this share of the smaller image side
+    full_share: float = 0.995  #: a mask covering at least this share of the frame: no border
+
+    def __post_init__(self) -> None:
+        check(self.mode in TISSUE_MODES, f"tissue.mode must be one of {TISSUE_MODES}, got {self.mode!r}")
+        at_least(self.frames, 2, "tissue.frames")
+        at_least(self.window, 2, "tissue.window")
+        for name in ("dark_level", "static_level", "overlay_edge", "margin"):
+            at_least(getattr(self, name), 0.0, f"tissue.{name}")
+        check(0.0 < self.moving_share <= 1.0, f"tissue.moving_share must be in (0, 1], got {self.moving_share}")
+        check(0.0 < self.full_share <= 1.0, f"tissue.full_share must be in (0, 1], got {self.full_share}")
+        check(self.margin < 0.25, f"tissue.margin must be < 0.25, got {self.margin}")
+
+
 @dataclass(frozen=True)
 class SlamConfig:
     """Runtime settings, one group per part (see the module notes); the defaults are the
@@ -70,6 +105,7 @@ class SlamConfig:
     preset: str = "colon"  #: the preset this tree started from: colon (mm scale) or room (cm scale)
     mode: str = "full"  #: full system, or the frame-to-frame odometry baseline (odometry)
     frames: FramesConfig = field(default_factory=FramesConfig)
+    tissue: TissueConfig = field(default_factory=TissueConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
     match_filter: MatchFilterConfig = field(default_factory=MatchFilterConfig)
     fragments: FragmentConfig = field(default_factory=FragmentConfig)

@@ -97,15 +97,19 @@ def compute_coverage(surface: o3d.geometry.TriangleMesh, poses: np.ndarray, K: n
 def settings_dict(cfg: CoverageConfig, view: ViewSettings, K: np.ndarray) -> dict:
     """The settings recorded beside the shares (depth range resolved; ``K`` and ``image_size``
     of the images tested), enough to compute the truth the same way (:func:`settings_from_dict`)."""
-    return {**asdict(cfg), "depth_min": view.depth_min, "depth_max": view.depth_max,
-            "image_size": [view.width, view.height], "K": np.asarray(K, dtype=np.float64).tolist()}
+    out = {**asdict(cfg), "depth_min": view.depth_min, "depth_max": view.depth_max,
+           "image_size": [view.width, view.height], "K": np.asarray(K, dtype=np.float64).tolist()}
+    if view.mask is not None:
+        out["tissue_mask_share"] = float(view.mask.mean())
+    return out
 
 
-def settings_from_dict(d: dict) -> tuple[CoverageConfig, ViewSettings, np.ndarray]:
-    """Inverse of :func:`settings_dict`."""
+def settings_from_dict(d: dict, mask: np.ndarray | None = None) -> tuple[CoverageConfig, ViewSettings, np.ndarray]:
+    """Inverse of :func:`settings_dict`; ``mask``: the observing pixels of the images tested
+    (a run with a tissue mask records its share; :func:`c3f_slam.tissue.coverage_grid_mask`)."""
     names = {f.name for f in fields(CoverageConfig)}
     cfg = CoverageConfig(**{k: v for k, v in d.items() if k in names})
     w, h = d["image_size"]
     view = ViewSettings(int(w), int(h), float(d["depth_min"]), float(d["depth_max"]), cfg.occlusion_tol,
-                        cfg.occlusion_tol_rel)
+                        cfg.occlusion_tol_rel, mask)
     return cfg, view, np.asarray(d["K"], dtype=np.float64)

@@ -9,7 +9,7 @@ stops before it by more than the tolerance.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
@@ -20,7 +20,8 @@ from c3f_slam.geometry import invert_pose, project, transform_points
 @dataclass(frozen=True)
 class ViewSettings:
     """Image size (pixels), depth range (metres, along z) and occlusion tolerance
-    (``tol`` + ``tol_rel`` x distance, metres) of the visibility test."""
+    (``tol`` + ``tol_rel`` x distance, metres) of the visibility test; ``mask`` (height, width)
+    bool: the pixels that observe (the tissue area, :mod:`c3f_slam.tissue`; None: all)."""
 
     width: int
     height: int
@@ -28,6 +29,7 @@ class ViewSettings:
     depth_max: float
     tol: float = 0.001
     tol_rel: float = 0.02
+    mask: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 def raycasting_scene(mesh: o3d.geometry.TriangleMesh) -> o3d.t.geometry.RaycastingScene:
@@ -47,13 +49,19 @@ def subsample_poses(poses: np.ndarray, max_frames: int) -> np.ndarray:
 
 
 def in_view(points: np.ndarray, T_wc: np.ndarray, K: np.ndarray, view: ViewSettings) -> np.ndarray:
-    """(N,) bool: world ``points`` inside the image of the camera at ``T_wc`` and its depth range."""
+    """(N,) bool: world ``points`` inside the image of the camera at ``T_wc`` (inside
+    ``view.mask`` when given) and its depth range."""
     pc = transform_points(invert_pose(T_wc), points)
     uv, z = project(pc, K)
     with np.errstate(invalid="ignore"):
-        return ((z >= view.depth_min) & (z <= view.depth_max)
-                & (uv[:, 0] >= -0.5) & (uv[:, 0] < view.width - 0.5)
-                & (uv[:, 1] >= -0.5) & (uv[:, 1] < view.height - 0.5))
+        ok = ((z >= view.depth_min) & (z <= view.depth_max)
+              & (uv[:, 0] >= -0.5) & (uv[:, 0] < view.width - 0.5)
+              & (uv[:, 1] >= -0.5) & (uv[:, 1] < view.height - 0.5))
+    if view.mask is not None and ok.any():
+        i = np.flatnonzero(ok)
+        px = np.rint(uv[i]).astype(np.int64)
+        ok[i] = view.mask[np.clip(px[:, 1], 0, view.height - 1), np.clip(px[:, 0], 0, view.width - 1)]
+    return ok
 
 
 def observed(points: np.ndarray, poses: np.ndarray, K: np.ndarray, view: ViewSettings,

@@ -44,12 +44,13 @@ class FrameModel:
     The last prepared input is shared by all models (one entry, class level): when a depth
     and a descriptor model with the same pre-processing see the same frame array, the crop,
     resize and inpainting run once. The entry is keyed by the frame object itself (a weak
-    reference), the camera and the pre-processing, so a new frame array is always prepared;
+    reference), the camera, the pre-processing and the tissue mask (the same array), so a new
+    frame array is always prepared;
     frames must not be modified in place between the two calls.
     """
 
     kind = ""
-    _last_input: tuple | None = None  # (weakref to the frame, camera, preprocessing, input)
+    _last_input: tuple | None = None  # (weakref to the frame, camera, preprocessing, tissue mask, input)
 
     def __init__(self, path: str | Path, threads: int = 2, option: str | None = None,
                  providers: Sequence[str] = DEFAULT_PROVIDERS) -> None:
@@ -69,22 +70,25 @@ class FrameModel:
         except InputError as exc:
             raise InputError(f"{self.onnx.where}: {exc} (frames from camera intrinsics)") from None
 
-    def prepare(self, rgb: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, NetworkView]:
-        """(3, h, w) float32 RGB in [0, 1] network input of an (H, W, 3) uint8 frame, and its view."""
+    def prepare(self, rgb: np.ndarray, camera: PinholeCamera,
+                tissue: np.ndarray | None = None) -> tuple[np.ndarray, NetworkView]:
+        """(3, h, w) float32 RGB in [0, 1] network input of an (H, W, 3) uint8 frame, and its view;
+        ``tissue``: (H, W) bool tissue area (the border is filled from it; None: the whole frame)."""
         rgb = np.asarray(rgb)
         if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
             raise InputError(f"frame must be (H, W, 3) uint8 RGB, got {rgb.dtype} {rgb.shape}")
         view = self.view(camera)
         pp = self.metadata.preprocessing
         last = FrameModel._last_input
-        if last is not None and last[0]() is rgb and last[1] == camera and last[2] == pp:
-            return last[3], view
+        if last is not None and last[0]() is rgb and last[1] == camera and last[2] == pp and last[3] is tissue:
+            return last[4], view
         net_rgb, _, _ = prepare_network_input(
-            rgb, camera, pp.crop, pp.size, pp.specular_inpaint, pp.specular_threshold, pp.specular_dilation_px
+            rgb, camera, pp.crop, pp.size, pp.specular_inpaint, pp.specular_threshold, pp.specular_dilation_px,
+            tissue,
         )
         x = np.ascontiguousarray(net_rgb.transpose(2, 0, 1), dtype=np.float32) / np.float32(255.0)
         x.flags.writeable = False
-        FrameModel._last_input = (weakref.ref(rgb), camera, pp, x)
+        FrameModel._last_input = (weakref.ref(rgb), camera, pp, tissue, x)
         return x, view
 
     def __repr__(self) -> str:
@@ -132,10 +136,11 @@ class DepthModel(FrameModel):
         depth = self.onnx.run({"image": images})["depth"][:, 0]
         return np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
 
-    def predict_network(self, rgb: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, NetworkView]:
+    def predict_network(self, rgb: np.ndarray, camera: PinholeCamera,
+                        tissue: np.ndarray | None = None) -> tuple[np.ndarray, NetworkView]:
         """Depth (h, w) float32 metres on the network grid of one frame, and the grid's view
-        (``view.camera`` are its intrinsics)."""
-        x, view = self.prepare(rgb, camera)
+        (``view.camera`` are its intrinsics); ``tissue`` as :meth:`FrameModel.prepare`."""
+        x, view = self.prepare(rgb, camera, tissue)
         return self.predict_batch(x[None])[0], view
 
     def predict(self, rgb: np.ndarray, camera: PinholeCamera) -> np.ndarray:
@@ -210,8 +215,10 @@ class DescriptorModel(FrameModel):
         x, view = self.prepare(rgb, camera)
         return self.describe_batch(x[None])[0], view
 
-    def describe(self, rgb: np.ndarray, camera: PinholeCamera, xy: np.ndarray) -> np.ndarray:
-        """(N, C) float32 unit descriptors at (N, 2) keypoints (u, v) in frame pixels.
+    def describe(self, rgb: np.ndarray, camera: PinholeCamera, xy: np.ndarray,
+                 tissue: np.ndarray | None = None) -> np.ndarray:
+        """(N, C) float32 unit descriptors at (N, 2) keypoints (u, v) in frame pixels (``tissue``
+        as :meth:`FrameModel.prepare`).
 
         Keypoints are mapped into the network grid (:meth:`NetworkView.frame_to_network`) and
         the map is sampled bilinearly with pixel centres at integer coordinates, clamped at the
@@ -224,7 +231,7 @@ class DescriptorModel(FrameModel):
         if len(xy) == 0:
             camera.check_image(np.shape(rgb), "frame")
             return np.zeros((0, self.descriptor_dim), np.float32)
-        x, view = self.prepare(rgb, camera)
+        x, view = self.prepare(rgb, camera, tissue)
         net_xy = view.frame_to_network(xy)
         if self.sampling == "keypoints":
             return self.describe_keypoints_batch(x[None], net_xy[None].astype(np.float32))[0]

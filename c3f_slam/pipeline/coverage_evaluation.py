@@ -26,6 +26,7 @@ from c3f_slam.coverage.dataset_truth import FLAGS_FILE, dataset_unseen, read_obs
 from c3f_slam.coverage.render import draw_coverage_map
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.outputs import RunOutputs
+from c3f_slam.tissue import read_mask_png
 from c3f_slam.trajectory_metrics import associate
 
 TRUTH_MAP = "coverage_map_truth.png"
@@ -60,7 +61,11 @@ def unseen_truth(outputs: RunOutputs, seq: Sequence, summary: dict) -> dict:
         return {"status": f"no estimate settings in {outputs.coverage_json.name} (an older run?)"}
     if seq.mesh_path is None:
         return {"status": f"no ground truth ({seq.root} has no mesh.ply)"}
-    cfg, view, K = settings_from_dict(est["settings"])
+    mask = None
+    if "tissue_mask_share" in est["settings"]:  # the run's tissue area on the grid coverage tested
+        w, h = est["settings"]["image_size"]
+        mask = read_mask_png(outputs.coverage_mask, int(w), int(h), "coverage mask")
+    cfg, view, K = settings_from_dict(est["settings"], mask)
     mesh = o3d.io.read_triangle_mesh(str(seq.mesh_path))
     try:
         truth = compute_coverage(mesh, run_frame_poses(seq, summary), K, view, cfg)

@@ -37,6 +37,7 @@ from c3f_slam.outputs import RunOutputs, write_json
 from c3f_slam.pipeline.backend import SlamMap
 from c3f_slam.pipeline.frontend import ModelDepth
 from c3f_slam.pipeline.sources import RunSources
+from c3f_slam.tissue import TissueMask
 
 
 def fusion_camera(sources: RunSources) -> PinholeCamera:
@@ -44,11 +45,19 @@ def fusion_camera(sources: RunSources) -> PinholeCamera:
     return sources.depth.view.camera if isinstance(sources.depth, ModelDepth) else sources.camera
 
 
-def view_settings(camera: PinholeCamera, cfg: SlamConfig) -> ViewSettings:
-    """Image size, the depth range fusion integrates (or coverage's own) and the occlusion tolerance."""
+def fusion_mask(sources: RunSources) -> np.ndarray | None:
+    """The tissue area on the grid of the images fusion integrates (None: every pixel)."""
+    if isinstance(sources.depth, ModelDepth):
+        return sources.depth.network_tissue
+    return None if sources.tissue.whole_frame else sources.tissue.pixels
+
+
+def view_settings(camera: PinholeCamera, cfg: SlamConfig, mask: np.ndarray | None = None) -> ViewSettings:
+    """Image size, the depth range fusion integrates (or coverage's own), the occlusion tolerance
+    and the pixels that observe (``mask``, the tissue area; None: all)."""
     c, t = cfg.coverage, cfg.fusion.tsdf
     near, far = c.depth_range(t.depth_min, t.depth_max)
-    return ViewSettings(camera.width, camera.height, near, far, c.occlusion_tol, c.occlusion_tol_rel)
+    return ViewSettings(camera.width, camera.height, near, far, c.occlusion_tol, c.occlusion_tol_rel, mask)
 
 
 def coverage_report(cov: CoverageMap, cfg: CoverageConfig, view: ViewSettings, K: np.ndarray) -> dict:
@@ -59,14 +68,17 @@ def coverage_report(cov: CoverageMap, cfg: CoverageConfig, view: ViewSettings, K
 
 
 def write_coverage(outputs: RunOutputs, mesh: TriangleMesh | None, poses: np.ndarray, camera: PinholeCamera,
-                   cfg: SlamConfig) -> dict:
+                   cfg: SlamConfig, mask: np.ndarray | None = None) -> dict:
     """Estimate and write the coverage outputs; returns summary.json's fields (``unseen_share``,
     ``coverage``: status and files). ``poses``: camera-to-world (F, 4, 4) in time order, NaN
-    where unregistered."""
+    where unregistered; ``mask``: the tissue area of ``camera``'s images (written as
+    ``coverage_mask.png`` for the evaluation against the truth)."""
     c = cfg.coverage
     if not c.enabled:
         return {"coverage": {"status": "off"}}
-    view = view_settings(camera, cfg)
+    view = view_settings(camera, cfg, mask)
+    if mask is not None:
+        TissueMask(mask, "fusion grid").write_png(outputs.coverage_mask)
     try:
         if mesh is None:
             raise CoverageUnavailable("no mesh (--no-mesh)")
@@ -91,7 +103,7 @@ def run_coverage(outputs: RunOutputs, mesh: TriangleMesh | None, slam_map: SlamM
     try:
         _, _, poses, registered = slam_map.trajectory()
         poses = np.where(np.asarray(registered, bool)[:, None, None], poses, np.nan)
-        out = write_coverage(outputs, mesh, poses, fusion_camera(sources), cfg)
+        out = write_coverage(outputs, mesh, poses, fusion_camera(sources), cfg, fusion_mask(sources))
     except Exception as exc:  # the run's own outputs stay valid
         out = {"unseen_share": None, "coverage": {"status": "error", "error": f"{type(exc).__name__}: {exc}"}}
     out["coverage"]["seconds"] = time.perf_counter() - t0

@@ -35,7 +35,7 @@ from c3f_slam.matching import (
 )
 from c3f_slam.matching.reprojection import refine_by_reprojection
 from c3f_slam.models import DepthModel, DescriptorModel, NetworkView
-from c3f_slam.preprocess import SPECULAR_DILATION_PX, specular_mask
+from c3f_slam.preprocess import SPECULAR_DILATION_PX, on_grid, specular_mask
 from c3f_slam.stream import StreamFrame
 
 
@@ -84,13 +84,16 @@ class ContraFeatDescriptors:
     storage_dtype = np.dtype(np.float16)
     needs_sift_descriptors = False
 
-    def __init__(self, model: DescriptorModel, camera: PinholeCamera) -> None:
+    def __init__(self, model: DescriptorModel, camera: PinholeCamera, tissue: np.ndarray | None = None) -> None:
+        """``tissue``: (H, W) bool tissue area of the frames (None: the whole frame); the network
+        sees the border filled from the tissue (:func:`c3f_slam.preprocess.prepare_network_input`)."""
         self.model = model
         self.camera = camera
+        self.tissue = tissue
         model.view(camera)  # the model's crop must fit these frames (InputError now, not mid-run)
 
     def describe(self, rgb: np.ndarray, keypoints: Keypoints) -> np.ndarray:
-        return self.model.describe(rgb, self.camera, keypoints.xy)
+        return self.model.describe(rgb, self.camera, keypoints.xy, self.tissue)
 
 
 class DepthProvider(Protocol):
@@ -106,10 +109,14 @@ class FileDepth:
 
     name = "files"
 
+    def __init__(self, tissue: np.ndarray | None = None) -> None:
+        """``tissue``: (H, W) bool tissue area of the frames; depth outside it is 0 (None: the whole frame)."""
+        self.tissue = tissue
+
     def depth(self, frame: StreamFrame) -> np.ndarray:
         if frame.depth is None:
             raise InputError(f"frame {frame.index}: --depth-source files but the sequence has no depth/ folder")
-        return frame.depth
+        return frame.depth if self.tissue is None else np.where(self.tissue, frame.depth, np.float32(0.0))
 
 
 @dataclass(frozen=True)
@@ -132,7 +139,8 @@ class ModelDepth:
     in metres. None (default) takes the factor the exporter measured on the training data
     (``DepthModel.metric_scale``), else 1; ``scale_source`` says which ("option", "model
     metadata", "none"). ``benchmarks/studies/depth_motion.py`` measures the factor on any sequence
-    with true depth.
+    with true depth. ``tissue``: (H, W) bool tissue area of the frames (None: the whole frame):
+    the network sees the border filled from the tissue, and depth outside it is 0 on both grids.
     :meth:`predict` gives both grids (perception keeps the network grid for fusion), so the
     network runs once per frame; nothing is cached, so perception threads may call it for
     several frames at once.
@@ -140,7 +148,8 @@ class ModelDepth:
 
     name = "model"
 
-    def __init__(self, model: DepthModel, camera: PinholeCamera, scale: float | None = None) -> None:
+    def __init__(self, model: DepthModel, camera: PinholeCamera, scale: float | None = None,
+                 tissue: np.ndarray | None = None) -> None:
         if scale is not None and not (np.isfinite(scale) and scale > 0):
             raise InputError(f"--depth-scale must be a positive number, got {scale}")
         self.model = model
@@ -152,12 +161,18 @@ class ModelDepth:
         else:
             self.scale, self.scale_source = 1.0, "none"
         self.view = model.view(camera)  # InputError now when the model's crop does not fit
+        self.tissue = tissue
+        self.network_tissue = None if tissue is None else on_grid(tissue, self.view.box, self.view.size)
 
     def predict(self, frame: StreamFrame) -> DepthPrediction:
-        net, view = self.model.predict_network(frame.rgb, self.camera)
+        net, view = self.model.predict_network(frame.rgb, self.camera, self.tissue)
         if self.scale != 1.0:
             net = net * np.float32(self.scale)
-        return DepthPrediction(frame.index, net, view.network_to_frame(net, self.model.upsample), view)
+        if self.tissue is None:
+            return DepthPrediction(frame.index, net, view.network_to_frame(net, self.model.upsample), view)
+        net = np.where(self.network_tissue, net, np.float32(0.0))
+        full = view.network_to_frame(net, self.model.upsample)
+        return DepthPrediction(frame.index, net, np.where(self.tissue, full, np.float32(0.0)), view)
 
     def depth(self, frame: StreamFrame) -> np.ndarray:
         return self.predict(frame).frame
@@ -190,12 +205,14 @@ class FrameFeatures:
 
 
 class Frontend:
-    """Keypoints outside speculars, descriptors and 3D points of one frame."""
+    """Keypoints inside the tissue area and outside speculars, descriptors and 3D points of one frame."""
 
     def __init__(self, K: np.ndarray, descriptors: DescriptorProvider | None = None,
-                 cfg: FrontendConfig | None = None) -> None:
-        """``K``: 3x3 intrinsics of the frames (px); ``descriptors`` default SIFT."""
+                 cfg: FrontendConfig | None = None, tissue: np.ndarray | None = None) -> None:
+        """``K``: 3x3 intrinsics of the frames (px); ``descriptors`` default SIFT; ``tissue``:
+        (H, W) bool tissue area of the frames, where keypoints may lie (None: the whole frame)."""
         self.K = np.asarray(K, dtype=np.float64)
+        self.tissue = tissue
         self.provider = descriptors or SiftDescriptors()
         self.cfg = cfg or FrontendConfig()
 
@@ -208,6 +225,8 @@ class Frontend:
 
     def keypoints(self, rgb: np.ndarray) -> Keypoints:
         mask = ~specular_mask(rgb, dilation_px=self.dilation(rgb)) if self.cfg.mask_specular else None
+        if self.tissue is not None:
+            mask = self.tissue if mask is None else mask & self.tissue
         return detect_sift(
             rgb, self.cfg.max_keypoints, mask=mask, descriptors=self.provider.needs_sift_descriptors,
             contrast_threshold=self.cfg.sift_contrast_threshold,

@@ -52,9 +52,11 @@ class FusionFrames(Protocol):
 class SequenceFrames:
     """RGB-D mode: frames re-read from the sequence folder (``index_of(row)`` -> frame index)."""
 
-    def __init__(self, sequence: Sequence, index_of: Callable[[int], int]) -> None:
+    def __init__(self, sequence: Sequence, index_of: Callable[[int], int], tissue: np.ndarray | None = None) -> None:
+        """``tissue``: (H, W) bool tissue area; depth outside it is 0 (None: the whole frame)."""
         self.sequence = sequence
         self.index_of = index_of
+        self.tissue = tissue
         self.K = sequence.camera.K
 
     def record(self, row: int, frame: StreamFrame, prediction: DepthPrediction | None = None) -> None:
@@ -62,7 +64,8 @@ class SequenceFrames:
 
     def load(self, row: int) -> tuple[np.ndarray, np.ndarray]:
         i = int(self.index_of(row))
-        return self.sequence.read_rgb(i), self.sequence.read_depth(i)
+        depth = self.sequence.read_depth(i)
+        return self.sequence.read_rgb(i), depth if self.tissue is None else np.where(self.tissue, depth, np.float32(0))
 
     def close(self) -> None:
         pass
@@ -109,4 +112,4 @@ def fusion_frames(
         return PredictedFrames(Path(out_dir) / CACHE_DIR, depth)
     if sequence is None:
         raise ValueError("depth from files needs a sequence folder")
-    return SequenceFrames(sequence, index_of)
+    return SequenceFrames(sequence, index_of, getattr(depth, "tissue", None))

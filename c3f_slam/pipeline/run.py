@@ -4,7 +4,8 @@
 :class:`SlamRun` (a context manager that owns the run's resources: the BLAS thread limit,
 the progress bar, the frames fusion re-reads, the back-end) takes one frame at a time
 (:meth:`SlamRun.step`): :class:`c3f_slam.stream.FrameStream` reads it and perception
-(:mod:`.perception`, a worker thread a few frames ahead of the loop: ``frames.prefetch``) gives
+(:mod:`.perception`, a worker thread a few frames ahead of the loop: ``frames.prefetch``) gives,
+inside the frames' tissue area (:mod:`c3f_slam.tissue`: the scope's border and overlays left out),
 its depth (files, or DepthNet ONNX) and its keypoints, descriptors (SIFT or ContraFeat ONNX)
 and 3D points; flagged frames (black / saturated) are skipped and counted, the back-end
 (:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame (its
@@ -108,7 +109,8 @@ class SlamRun:
         cache = outputs.root / KEYFRAME_CACHE_DIR if cfg.keyframes.cache else None
         K = sources.camera.K
         self.backend = backend = factory(cfg, K, sources.describer.metric, self.timings, keyframe_cache=cache)
-        self.frontend = Frontend(K, sources.describer, cfg.frontend)
+        tissue = None if sources.tissue.whole_frame else sources.tissue.pixels
+        self.frontend = Frontend(K, sources.describer, cfg.frontend, tissue)
         if cfg.fusion.enabled:
             self.frames = fusion_frames(sources.depth, sources.stream.sequence, lambda row: backend.map.log.index[row],
                                         outputs.root)
@@ -243,8 +245,9 @@ def run_slam(
     try:
         inputs = inputs.resolved()
         summary.update(descriptors=inputs.descriptors, depth_source=inputs.depth_source)
-        sources = open_sources(sequence, inputs, cfg.frames.stride, cfg.frames.max_frames)
+        sources = open_sources(sequence, inputs, cfg.frames.stride, cfg.frames.max_frames, cfg.tissue)
         summary.update(sources.summary())
+        sources.tissue.write_png(outputs.tissue_mask)
         cfg = cfg.for_frame_size(sources.camera.width, sources.camera.height).for_depth_source(inputs.depth_source)
         summary["config"] = cfg.as_dict()  # with the thresholds derived from the frame size and depth source
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)

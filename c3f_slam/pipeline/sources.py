@@ -11,7 +11,8 @@ import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera import FovGuess, PinholeCamera
+from c3f_slam.config import TissueConfig
 from c3f_slam.errors import InputError
 from c3f_slam.models import DepthModel, DescriptorModel
 from c3f_slam.models.session import DEFAULT_PROVIDERS
@@ -24,6 +25,7 @@ from c3f_slam.pipeline.frontend import (
     SiftDescriptors,
 )
 from c3f_slam.stream import FrameStream
+from c3f_slam.tissue import TissueMask, resolve_tissue_mask, whole_frame
 
 DESCRIPTORS = ("sift", "contrafeat")
 DEPTH_SOURCES = ("files", "model")
@@ -37,7 +39,8 @@ class RunInputs:
     depth_source: str | None = None  #: files | model; None: model when depth_model is given
     depth_model: str | Path | None = None  #: DepthNet ONNX export
     feature_model: str | Path | None = None  #: ContraFeat ONNX export
-    camera: str | Path | PinholeCamera | None = None  #: intrinsics of a video (default camera.json beside it)
+    #: intrinsics of a video (default camera.json beside it); a FovGuess: ``--fov``, no calibration
+    camera: str | Path | PinholeCamera | FovGuess | None = None
     #: onnxruntime intra-op threads per model; None: :func:`default_threads` (one core left for the back-end)
     threads: int | None = None
     depth_scale: float | None = None  #: factor on model depth; None: the model's metric_scale, else 1
@@ -82,22 +85,26 @@ def default_threads() -> int:
     return max(1, (os.cpu_count() or 2) - 1)
 
 
-def make_providers(inputs: RunInputs, camera: PinholeCamera | None = None) -> tuple[DescriptorProvider, DepthProvider]:
+def make_providers(inputs: RunInputs, camera: PinholeCamera | None = None,
+                   tissue: TissueMask | None = None) -> tuple[DescriptorProvider, DepthProvider]:
     """The descriptor and depth providers of ``inputs``; model providers load their ONNX file
-    and are bound to ``camera``, the frames' intrinsics. InputError otherwise."""
+    and are bound to ``camera``, the frames' intrinsics; every provider to ``tissue``, the
+    frames' tissue area (None: the whole frame). InputError otherwise."""
     inputs = inputs.resolved()
     descriptors, depth_source = inputs.descriptors, inputs.depth_source
     if camera is None and (descriptors == "contrafeat" or depth_source == "model"):
         raise ValueError("model providers need the frames' camera")
+    pixels = None if tissue is None or tissue.whole_frame else tissue.pixels
     desc: DescriptorProvider = SiftDescriptors()
-    depth: DepthProvider = FileDepth()
+    depth: DepthProvider = FileDepth(pixels)
     threads = inputs.threads or default_threads()
     if descriptors == "contrafeat":  # the export's keypoint file when it sits beside the dense one
         desc = ContraFeatDescriptors(DescriptorModel(inputs.feature_model, threads, "--feature-model",
-                                                     prefer_keypoints=True, providers=inputs.providers), camera)
+                                                     prefer_keypoints=True, providers=inputs.providers), camera,
+                                     pixels)
     if depth_source == "model":
         depth = ModelDepth(DepthModel(inputs.depth_model, threads, "--depth-model",
-                                      providers=inputs.providers), camera, inputs.depth_scale)
+                                      providers=inputs.providers), camera, inputs.depth_scale, pixels)
     return desc, depth
 
 
@@ -110,6 +117,7 @@ class RunSources:
     stream: FrameStream
     describer: DescriptorProvider
     depth: DepthProvider
+    tissue: TissueMask  #: the frames' tissue area (:mod:`c3f_slam.tissue`)
     max_bad_frames: int = 10  #: RunInputs.max_bad_frames
 
     @property
@@ -117,12 +125,15 @@ class RunSources:
         return self.stream.camera
 
     def summary(self) -> dict:
-        """What summary.json records about the inputs: the choices, the camera, the depth scale
+        """What summary.json records about the inputs: the choices, the camera (the frames' pinhole
+        intrinsics) and where it came from (``camera_source``: ``file PATH`` or ``fov guess DEG deg``,
+        plus the lens when the frames were undistorted), the depth scale
         and per model the file run, its precision and the onnxruntime providers its session uses (``models``;
         for descriptors also the file given, how it samples and whether the export's keypoint
         file is used, or why not)."""
         out: dict = {"descriptors": self.descriptors, "depth_source": self.depth_source,
-                     "camera": self.camera.to_dict()}
+                     "camera": self.camera.to_dict(), "camera_source": self.stream.camera_source,
+                     "tissue_mask": self.tissue.summary()}
         if isinstance(self.depth, ModelDepth):
             out["depth_scale"] = {"factor": self.depth.scale, "source": self.depth.scale_source}
         out["models"] = {
@@ -138,10 +149,11 @@ class RunSources:
         return out
 
 
-def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_frames: int | None = None) -> RunSources:
+def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_frames: int | None = None,
+                 tissue: TissueConfig | None = None) -> RunSources:
     """Check resolved ``inputs`` (:meth:`RunInputs.resolved`) against ``sequence`` (a sequence
-    folder, or a video with model depth) and open the stream and providers. InputError on any
-    mismatch."""
+    folder, or a video with model depth), find the frames' tissue area (``tissue``; None: the
+    whole frame) and open the stream and providers. InputError on any mismatch."""
     descriptors, depth_source = inputs.descriptors, inputs.depth_source
     if descriptors is None or depth_source is None:
         raise ValueError("open_sources needs resolved inputs (RunInputs.resolved())")
@@ -158,5 +170,12 @@ def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_f
         raise InputError(f"--max-bad-frames must be >= 0, got {inputs.max_bad_frames}")
     if inputs.depth_scale is not None and depth_source != "model":
         raise InputError("--depth-scale applies to model depth (--depth-model) only")
-    describer, depth = make_providers(inputs, stream.camera)
-    return RunSources(descriptors, depth_source, stream, describer, depth, inputs.max_bad_frames)
+    mask = (resolve_tissue_mask(stream, tissue, _camera_file(stream, inputs.camera)) if tissue is not None
+            else whole_frame(stream.camera.width, stream.camera.height))
+    describer, depth = make_providers(inputs, stream.camera, mask)
+    return RunSources(descriptors, depth_source, stream, describer, depth, mask, inputs.max_bad_frames)
+
+
+def _camera_file(stream: FrameStream, camera: str | Path | PinholeCamera | FovGuess | None) -> Path | None:
+    """The camera.json the frames' intrinsics came from (None when given as an object or guessed, --fov)."""
+    return stream.camera_file
