@@ -208,6 +208,25 @@ def path_length(positions: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
 
 
+def jitter_ratio(positions: np.ndarray, timestamps: np.ndarray, window_s: float = 1.0) -> float:
+    """Path length of camera ``positions`` (N, 3) over the length of their moving average over
+    ``window_s`` seconds (centred, by ``timestamps`` in seconds): 1 for a smooth path, larger the
+    more the path shakes about its average. Needs no ground truth. NaN for fewer than 3 finite
+    positions or a path whose average does not move."""
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(timestamps, dtype=np.float64).reshape(-1)
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(t)
+    p, t = p[ok], t[ok]
+    if len(p) < 3:
+        return float("nan")
+    csum = np.vstack([np.zeros((1, 3)), np.cumsum(p, axis=0)])
+    lo = np.searchsorted(t, t - window_s / 2.0, side="left")
+    hi = np.searchsorted(t, t + window_s / 2.0, side="right")
+    smooth = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+    base = path_length(smooth)
+    return path_length(p) / base if base > 0 else float("nan")
+
+
 def registered_share(n_registered: int, n_frames: int) -> float:
     """Share of input frames that ended up registered (in the main component), in [0, 1]."""
     if n_frames <= 0:

@@ -18,6 +18,7 @@ from c3f_slam.trajectory_metrics import (
     common_frames_ate,
     evaluate_trajectory,
     frame_motion,
+    jitter_ratio,
     registered_share,
     rpe,
     umeyama,
@@ -215,3 +216,19 @@ def test_frame_motion_of_a_constant_step():
     np.testing.assert_allclose(trans[:10], 0.002, rtol=1e-9)
     assert trans[10] == pytest.approx(0.005, rel=1e-9) and rot[10] == pytest.approx(0.0, abs=1e-9)
     assert relative_motion(np.array(poses[:1]))[0].shape == (0,)
+
+
+def test_jitter_ratio_is_one_for_a_smooth_path_and_grows_with_shaking():
+    t = np.arange(300) / 30.0  # 10 s at 30 frames/s
+    smooth = np.stack([0.01 * t, 0.005 * np.sin(0.3 * t), np.zeros_like(t)], axis=1)  # 1 cm/s, gently curving
+    assert jitter_ratio(smooth, t) == pytest.approx(1.0, abs=0.01)
+    rng = np.random.default_rng(0)
+    shaken = smooth + rng.normal(0.0, 0.0003, smooth.shape)  # 0.3 mm per frame about a 0.33 mm step
+    more = smooth + rng.normal(0.0, 0.001, smooth.shape)
+    assert 1.3 < jitter_ratio(shaken, t) < jitter_ratio(more, t)
+    assert jitter_ratio(smooth, t * 2) == pytest.approx(jitter_ratio(smooth, t), abs=0.01)  # its own time scale
+    gaps = smooth.copy()
+    gaps[::7] = np.nan  # unregistered frames are left out
+    assert jitter_ratio(gaps, t) == pytest.approx(1.0, abs=0.01)
+    assert np.isnan(jitter_ratio(np.zeros((10, 3)), np.arange(10.0)))  # a path that never moves
+    assert np.isnan(jitter_ratio(smooth[:2], t[:2]))
