@@ -211,8 +211,9 @@ def path_length(positions: np.ndarray) -> float:
 def jitter_ratio(positions: np.ndarray, timestamps: np.ndarray, window_s: float = 1.0) -> float:
     """Path length of camera ``positions`` (N, 3) over the length of their moving average over
     ``window_s`` seconds (centred, by ``timestamps`` in seconds): 1 for a smooth path, larger the
-    more the path shakes about its average. Needs no ground truth. NaN for fewer than 3 finite
-    positions or a path whose average does not move."""
+    more the path shakes about its average. Both lengths are taken over the frames whose whole
+    window lies inside the recording. Needs no ground truth. NaN for a path shorter than its
+    window or whose average does not move."""
     p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(timestamps, dtype=np.float64).reshape(-1)
     ok = np.isfinite(p).all(axis=1) & np.isfinite(t)
@@ -223,8 +224,11 @@ def jitter_ratio(positions: np.ndarray, timestamps: np.ndarray, window_s: float 
     lo = np.searchsorted(t, t - window_s / 2.0, side="left")
     hi = np.searchsorted(t, t + window_s / 2.0, side="right")
     smooth = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
-    base = path_length(smooth)
-    return path_length(p) / base if base > 0 else float("nan")
+    inner = (t - window_s / 2.0 >= t[0]) & (t + window_s / 2.0 <= t[-1])  # whole windows only
+    if inner.sum() < 2:
+        return float("nan")
+    base = path_length(smooth[inner])
+    return path_length(p[inner]) / base if base > 0 else float("nan")
 
 
 def registered_share(n_registered: int, n_frames: int) -> float:
