@@ -22,7 +22,7 @@ from c3f_slam.config.mapping import (
     PoseGraphConfig,
     RefineConfig,
 )
-from c3f_slam.config.outputs import CoverageConfig, FusionConfig, TSDFConfig
+from c3f_slam.config.outputs import ChecksConfig, CoverageConfig, FusionConfig, TSDFConfig
 from c3f_slam.config.presets import PAPER_RULES, PRESETS, config_from_dict, preset
 from c3f_slam.config.tracking import (
     PAPER_FRAME_PIXELS,
@@ -39,7 +39,8 @@ from c3f_slam.config.tree import MODES, PRESET_NAMES, SECTIONS, FramesConfig, Sl
 __all__ = [
     "MODES", "PAPER_FRAME_PIXELS", "PAPER_MIN_CORRESPONDENCES", "PAPER_RULES", "PREDICTED_DEPTH_RESIDUAL_SHARE",
     "PRESETS", "PRESET_NAMES",
-    "SECTIONS", "CandidateConfig", "ComponentConfig", "CoverageConfig", "FallbackConfig", "FragmentConfig",
+    "SECTIONS", "CandidateConfig", "ChecksConfig", "ComponentConfig", "CoverageConfig", "FallbackConfig",
+    "FragmentConfig",
     "FramesConfig", "FrontendConfig", "FusionConfig", "KeyframeConfig", "MatchFilterConfig", "OptimizationConfig",
     "PoseGraphConfig", "RefineConfig", "RejoinConfig", "SlamConfig", "TSDFConfig", "TissueConfig", "config_from_dict",
     "preset",

@@ -85,3 +85,20 @@ class CoverageConfig:
         if not 0 <= near < far:
             raise InputError(f"coverage depth range must satisfy 0 <= near < far, got {near}, {far}")
         return near, far
+
+
+@dataclass(frozen=True)
+class ChecksConfig:
+    """Checks of a finished run that need no ground truth (:mod:`c3f_slam.pipeline.self_checks`):
+    photometric and depth agreement of re-read frames with the map, depth agreement of
+    neighbouring keyframes, and the trajectory's jitter ratio."""
+
+    enabled: bool = True  #: re-read frames and compare them with the map (the jitter ratio is always given)
+    frames: int = 40  #: frames compared with the map, evenly spread over the registered ones (and keyframe pairs)
+    size_px: int = 160  #: renders and comparisons at most this many pixels on the long side
+    jitter_window_s: float = 1.0  #: the moving average the jitter ratio compares the path with, seconds
+
+    def __post_init__(self) -> None:
+        at_least(self.frames, 2, "checks.frames")
+        at_least(self.size_px, 16, "checks.size_px")
+        check(self.jitter_window_s > 0, f"checks.jitter_window_s must be > 0 (seconds), got {self.jitter_window_s}")

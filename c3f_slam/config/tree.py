@@ -6,11 +6,12 @@ read), ``tissue`` (the image area that shows tissue), ``frontend`` (keypoints, r
 ``keyframes`` (what a keyframe keeps, revisits), ``rejoin`` (bridging tracking breaks),
 ``fallback`` (guided and dense matching where sparse matching fails), ``refine`` (dense
 refinement of keyframe edges), ``posegraph``, ``optimization`` (the global schedule),
-``components`` (those written beside the main map), ``fusion`` and ``coverage`` (the unseen-wall
-estimate). Each group validates its own fields (InputError naming ``part.field``). The presets
-are complete instances of this tree (:mod:`c3f_slam.config.presets`); a run's ``summary.json``
-records the tree it ran with (:meth:`SlamConfig.as_dict`), and
-:func:`c3f_slam.config.presets.config_from_dict` reads it back.
+``components`` (those written beside the main map), ``fusion``, ``coverage`` (the unseen-wall
+estimate) and ``checks`` (the run's agreement with itself, no ground truth). Each group
+validates its own fields (InputError naming ``part.field``). The presets are complete instances
+of this tree (:mod:`c3f_slam.config.presets`); a run's ``summary.json`` records the tree it ran
+with (:meth:`SlamConfig.as_dict`), and :func:`c3f_slam.config.presets.config_from_dict` reads it
+back.
 
 In Python, parts may be changed as dicts of their fields::
 
@@ -33,7 +34,7 @@ from c3f_slam.config.mapping import (
     PoseGraphConfig,
     RefineConfig,
 )
-from c3f_slam.config.outputs import CoverageConfig, FusionConfig
+from c3f_slam.config.outputs import ChecksConfig, CoverageConfig, FusionConfig
 from c3f_slam.config.tracking import FallbackConfig, FragmentConfig, FrontendConfig, MatchFilterConfig, RejoinConfig
 from c3f_slam.settings import tree_as_mapping, tree_from_mapping
 
@@ -119,6 +120,7 @@ class SlamConfig:
     components: ComponentConfig = field(default_factory=ComponentConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     coverage: CoverageConfig = field(default_factory=CoverageConfig)
+    checks: ChecksConfig = field(default_factory=ChecksConfig)
     #: BLAS threads NumPy may use during a run (threadpoolctl); None = the library's setting.
     #: 1: the matrices are small (benchmarks/results/slam_blas_threads.md)
     blas_threads: int | None = 1

@@ -51,6 +51,7 @@ from c3f_slam.pipeline.fusion_frames import FusionFrames, fusion_frames
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
 from c3f_slam.pipeline.odometry import OdometrySlam
 from c3f_slam.pipeline.perception import PerceivedFrame, Perception, Prefetcher
+from c3f_slam.pipeline.self_checks import self_checks
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.pipeline.sources import RunInputs, RunSources, open_sources
 from c3f_slam.pipeline.timings import Timings
@@ -255,6 +256,7 @@ def run_slam(
             mesh = run.run()
         summary.update(_write_main_mesh(outputs, mesh))
         summary.update(run_coverage(outputs, mesh, run.backend.map, sources, cfg))
+        summary.update(self_checks(mesh, run.backend.map, sources, cfg))
         summary["status"] = "ok"
     except BaseException as exc:  # write what we have, then pass the error on
         _record_error(summary, exc)
