@@ -320,6 +320,16 @@ class RunOutputs:
     def write_trajectory(self, stamps: np.ndarray, poses: np.ndarray, registered: np.ndarray | None = None) -> int:
         return write_trajectory(self.trajectory, stamps, poses, registered)
 
+    @property
+    def frame_log(self) -> Path:
+        return self.root / "frame_log.csv"
+
+    def write_frame_log(self, rows: list[tuple[int, float, str]]) -> None:
+        """``frame_log.csv``: per frame streamed, its index, timestamp (s) and what happened to it
+        (a skip reason, or the back-end's decision kind)."""
+        lines = ["index,timestamp,outcome", *(f"{i},{t:.6f},{what}" for i, t, what in rows)]
+        atomic_write_text(self.frame_log, "\n".join(lines) + "\n")
+
     def write_summary(self, summary: dict) -> None:
         write_json(self.summary, summary)
 

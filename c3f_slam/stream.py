@@ -5,7 +5,9 @@ lazily (OpenCV ``VideoCapture`` for videos, :class:`c3f_slam.io.Sequence` for th
 layout) and yields :class:`StreamFrame` items (index, timestamp, RGB uint8, depth in metres or
 None, status). Black frames (mean luma < ``black_threshold``) and saturated frames (at least
 ``saturated_share`` of pixels with luma >= ``saturated_threshold``) are flagged, not
-dropped, so the runtime can skip and report them. A frame that cannot be read (a missing or
+dropped, so the runtime can skip and report them; so are, with a :attr:`FrameStream.quality`
+gate, frames that carry nothing (blurred, dark, washed out, covered, repeated:
+:mod:`c3f_slam.frame_quality`), their cause as the status. A frame that cannot be read (a missing or
 corrupt image file, a video frame that does not decode) is yielded with status
 ``unreadable`` and no pixels (``error`` says why); the runtime skips and counts those up to a
 limit. A video that ends before the frame count its container declares (damaged or cut
@@ -37,6 +39,7 @@ import numpy as np
 from c3f_slam.calibration import Undistortion
 from c3f_slam.camera import FovGuess, PinholeCamera
 from c3f_slam.errors import InputError
+from c3f_slam.frame_quality import FrameQualityGate
 from c3f_slam.io.sequence import Sequence, read_depth_png, read_rgb
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".m4v", ".wmv", ".webm")
@@ -155,6 +158,9 @@ class FrameStream:
         self._thresholds = (black_threshold, saturated_threshold, saturated_share)
         self.sequence: Sequence | None = None
         self.truncation: Truncation | None = None  #: set while iterating a video that ends early
+        #: the frame-quality gate every otherwise usable frame passes, in order (None: none); its
+        #: cause becomes the frame's status (:mod:`c3f_slam.frame_quality`)
+        self.quality: FrameQualityGate | None = None
         if not self.source.exists():
             raise InputError(f"{self.source}: no such file or folder")
         if self.source.is_dir():
@@ -279,12 +285,16 @@ class FrameStream:
         raw = self._iter_video() if self.is_video else self._iter_folder()
         if self.max_frames is not None:
             raw = islice(raw, self.max_frames)
+        if self.quality is not None:
+            self.quality.reset()
         for item in raw:
             if isinstance(item, StreamFrame):
                 yield item
                 continue
             index, stamp, rgb, depth = item
             status, mean = frame_status(rgb, *self._thresholds)
+            if status == OK and self.quality is not None:  # blurred, dark, washed out, covered, repeated
+                status = self.quality.assess(rgb).status
             yield StreamFrame(index, stamp, rgb, depth, status, mean)
 
 

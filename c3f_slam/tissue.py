@@ -226,6 +226,7 @@ def sample_frames(stream, count: int, window: int) -> list[np.ndarray]:
     evenly spread over its first ``window`` frames (its own start and stride), read through a
     copy so the stream itself is untouched."""
     probe = copy.copy(stream)
+    probe.quality = None
     total = window if stream.max_frames is None else min(window, stream.max_frames)
     probe.step = stream.step * max(1, total // max(1, count))
     probe.max_frames = count

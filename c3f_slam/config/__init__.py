@@ -1,7 +1,8 @@
 """The SLAM runtime's settings: one tree of small frozen dataclasses, its presets, and how a
 run reads it (a config file, ``--set part.field=value``, a previous run's summary.json).
 
-- :mod:`.tree`: :class:`SlamConfig`, the root, and :class:`FramesConfig`;
+- :mod:`.tree`: :class:`SlamConfig`, the root;
+- :mod:`.frames`: which frames are read, which carry nothing, the tissue area;
 - :mod:`.tracking`: frontend, match filter, fragments, fallbacks, re-joining;
 - :mod:`.mapping`: keyframe candidates, keyframes, dense refinement, pose graph, optimisation
   schedule, components;
@@ -14,6 +15,7 @@ A leaf of the runtime: it imports only :mod:`c3f_slam.errors` and :mod:`c3f_slam
 (and PyYAML when a file is read), so every part of the runtime and the layers above can use it.
 """
 
+from c3f_slam.config.frames import FrameQualityConfig, FramesConfig, TissueConfig
 from c3f_slam.config.mapping import (
     CandidateConfig,
     ComponentConfig,
@@ -34,14 +36,12 @@ from c3f_slam.config.tracking import (
     MatchFilterConfig,
     RejoinConfig,
 )
-from c3f_slam.config.tree import MODES, PRESET_NAMES, SECTIONS, FramesConfig, SlamConfig, TissueConfig
+from c3f_slam.config.tree import MODES, PRESET_NAMES, SECTIONS, SlamConfig
 
 __all__ = [
-    "MODES", "PAPER_FRAME_PIXELS", "PAPER_MIN_CORRESPONDENCES", "PAPER_RULES", "PREDICTED_DEPTH_RESIDUAL_SHARE",
-    "PRESETS", "PRESET_NAMES",
-    "SECTIONS", "CandidateConfig", "ChecksConfig", "ComponentConfig", "CoverageConfig", "FallbackConfig",
-    "FragmentConfig",
-    "FramesConfig", "FrontendConfig", "FusionConfig", "KeyframeConfig", "MatchFilterConfig", "OptimizationConfig",
-    "PoseGraphConfig", "RefineConfig", "RejoinConfig", "SlamConfig", "TSDFConfig", "TissueConfig", "config_from_dict",
-    "preset",
+    "CandidateConfig", "ChecksConfig", "ComponentConfig", "CoverageConfig", "FallbackConfig", "FragmentConfig",
+    "FrameQualityConfig", "FramesConfig", "FrontendConfig", "FusionConfig", "KeyframeConfig", "MODES",
+    "MatchFilterConfig", "OptimizationConfig", "PAPER_FRAME_PIXELS", "PAPER_MIN_CORRESPONDENCES", "PAPER_RULES",
+    "PREDICTED_DEPTH_RESIDUAL_SHARE", "PRESETS", "PRESET_NAMES", "PoseGraphConfig", "RefineConfig",
+    "RejoinConfig", "SECTIONS", "SlamConfig", "TSDFConfig", "TissueConfig", "config_from_dict", "preset",
 ]

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from c3f_slam.config.checks import at_least, check
+from c3f_slam.config.frames import FramesConfig, TissueConfig
 from c3f_slam.config.mapping import (
     CandidateConfig,
     ComponentConfig,
@@ -40,62 +41,6 @@ from c3f_slam.settings import tree_as_mapping, tree_from_mapping
 
 PRESET_NAMES = ("colon", "room")
 MODES = ("full", "odometry")
-
-
-@dataclass(frozen=True)
-class FramesConfig:
-    """Which frames of the input a run reads (frames of the sequence or video, in order), and
-    how far ahead of the back-end they are read and perceived."""
-
-    stride: int = 1  #: every k-th frame
-    max_frames: int | None = None  #: at most this many of them; None = all
-    #: frames read and perceived (depth, keypoints, descriptors) ahead of the back-end by a worker
-    #: thread, overlapping it; 0 = one after another in the run loop. Same results either way
-    prefetch: int = 2
-    #: threads that perceive frames at once (with prefetch >= 1; at most prefetch + 1 are busy):
-    #: the networks and SIFT of the next frames overlap each other as well as the back-end.
-    #: Same results with any number
-    perception_workers: int = 2
-
-    def __post_init__(self) -> None:
-        at_least(self.stride, 1, "frames.stride")
-        at_least(self.max_frames, 1, "frames.max_frames", "all frames")
-        at_least(self.prefetch, 0, "frames.prefetch")
-        at_least(self.perception_workers, 1, "frames.perception_workers")
-
-
-TISSUE_MODES = ("auto", "off")
-
-
-@dataclass(frozen=True)
-class TissueConfig:
-    """The image area that shows tissue (:mod:`c3f_slam.tissue`): the scope's black border and
-    burned-in overlays are left out of depth, keypoints, fusion and the unseen-wall estimate.
-    Luma levels are 0..255."""
-
-    #: auto: ``file``, else the mask camera.json names (``tissue_mask``), else detected from the
-    #: first frames; off: the whole frame
-    mode: str = "auto"
-    file: str | None = None  #: mask image (PNG of the frame size, white = tissue); None: see ``mode``
-    frames: int = 40  #: frames sampled for detection
-    window: int = 300  #: ... evenly over the first this many frames of the run (5 s of 60 fps video)
-    dark_level: float = 30.0  #: a pixel no sample shows brighter than this is border
-    static_level: float = 3.0  #: a change of luma up to this between two samples is compression noise
-    #: a pixel changing between at least this share of consecutive samples moves with the scene
-    moving_share: float = 0.3
-    overlay_edge: float = 120.0  #: Sobel magnitude of the temporal median at a static overlay's edge
-    margin: float = 0.015  #: the mask is eroded by this share of the smaller image side
-    full_share: float = 0.995  #: a mask covering at least this share of the frame: no border
-
-    def __post_init__(self) -> None:
-        check(self.mode in TISSUE_MODES, f"tissue.mode must be one of {TISSUE_MODES}, got {self.mode!r}")
-        at_least(self.frames, 2, "tissue.frames")
-        at_least(self.window, 2, "tissue.window")
-        for name in ("dark_level", "static_level", "overlay_edge", "margin"):
-            at_least(getattr(self, name), 0.0, f"tissue.{name}")
-        check(0.0 < self.moving_share <= 1.0, f"tissue.moving_share must be in (0, 1], got {self.moving_share}")
-        check(0.0 < self.full_share <= 1.0, f"tissue.full_share must be in (0, 1], got {self.full_share}")
-        check(self.margin < 0.25, f"tissue.margin must be < 0.25, got {self.margin}")
 
 
 @dataclass(frozen=True)

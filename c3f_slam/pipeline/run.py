@@ -7,7 +7,8 @@ the progress bar, the frames fusion re-reads, the back-end) takes one frame at a
 (:mod:`.perception`, a worker thread a few frames ahead of the loop: ``frames.prefetch``) gives,
 inside the frames' tissue area (:mod:`c3f_slam.tissue`: the scope's border and overlays left out),
 its depth (files, or DepthNet ONNX) and its keypoints, descriptors (SIFT or ContraFeat ONNX)
-and 3D points; flagged frames (black / saturated) are skipped and counted, the back-end
+and 3D points; flagged frames (black, saturated, and those the frame-quality gate finds blurred,
+dark, washed out, covered or repeated: ``frames.quality``) are skipped and counted by cause, the back-end
 (:class:`~c3f_slam.pipeline.backend.SlamBackend`) places the frame (its
 :class:`~c3f_slam.pipeline.frame_step.FrameDecision` is counted), and fusion records the
 frame under its fragment. At the end the main map is fused with its final poses, re-reading
@@ -34,6 +35,7 @@ from threadpoolctl import threadpool_limits
 
 from c3f_slam.config import SlamConfig
 from c3f_slam.errors import InputError
+from c3f_slam.frame_quality import QUALITY_CAUSES
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
 from c3f_slam.outputs import RunFolder, RunOutputs
 from c3f_slam.pipeline.backend import BackendFactory, SlamBackend
@@ -57,18 +59,22 @@ from c3f_slam.pipeline.sources import RunInputs, RunSources, open_sources
 from c3f_slam.pipeline.timings import Timings
 from c3f_slam.stream import UNREADABLE, FrameStream, StreamFrame
 
-SKIP_REASONS = ("black", "saturated", "featureless", "unreadable")
+SKIP_REASONS = ("black", "saturated", "featureless", "unreadable", *QUALITY_CAUSES)
 
 
 @dataclass
 class FrameCounts:
     """Frames streamed, processed, skipped by reason, and the back-end's decisions on the
-    processed ones by kind (summary.json; ``frame_decisions``)."""
+    processed ones by kind (summary.json; ``frame_decisions``); what happened to each frame, in
+    order (``frame_log.csv``)."""
 
     frames: int = 0
     processed: int = 0
     skipped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(SKIP_REASONS, 0))
     decisions: DecisionCounts = field(default_factory=DecisionCounts)
+
+    #: per frame streamed: (index, timestamp s, what happened: a skip reason or the decision kind)
+    log: list[tuple[int, float, str]] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "processed": self.processed,
@@ -160,6 +166,7 @@ class SlamRun:
         self.counts.processed += 1
         decision = self.backend.add(FrameInput(feat, item.depth, frame.rgb))
         self.counts.decisions.add(decision)
+        self.counts.log.append((frame.index, frame.timestamp, decision.kind))
         if self.fusion is not None and decision.fragment >= 0:
             with self.timings.stage("fusion"):
                 self._fuse(decision.fragment, item)
@@ -174,6 +181,7 @@ class SlamRun:
 
     def _skip(self, frame: StreamFrame, reason: str) -> None:
         self.counts.skipped[reason] += 1
+        self.counts.log.append((frame.index, frame.timestamp, reason))
         self.backend.skip(frame.index, frame.timestamp)
 
     def _fuse(self, fid: int, item: PerceivedFrame) -> None:
@@ -246,7 +254,8 @@ def run_slam(
     try:
         inputs = inputs.resolved()
         summary.update(descriptors=inputs.descriptors, depth_source=inputs.depth_source)
-        sources = open_sources(sequence, inputs, cfg.frames.stride, cfg.frames.max_frames, cfg.tissue)
+        sources = open_sources(sequence, inputs, cfg.frames.stride, cfg.frames.max_frames, cfg.tissue,
+                               cfg.frames.quality)
         summary.update(sources.summary())
         sources.tissue.write_png(outputs.tissue_mask)
         cfg = cfg.for_frame_size(sources.camera.width, sources.camera.height).for_depth_source(inputs.depth_source)
@@ -326,6 +335,7 @@ def write_run_outputs(outputs: RunOutputs, run: SlamRun | None, summary: dict, t
     """Trajectory, keyframe graph and summary (each atomically); never raises on top of an error."""
     counts = run.counts if run is not None else FrameCounts()
     summary.update(counts.as_dict())
+    outputs.write_frame_log(counts.log)
     summary["wall_seconds"] = time.perf_counter() - t_start
     summary["timings"] = run.timings.as_dict(counts.frames) if run is not None else Timings().as_dict(0)
     try:

@@ -101,6 +101,7 @@ def photometric_agreement(scene: MeshScene, cam: PinholeCamera, T_wc: np.ndarray
 def _frames(sources: RunSources, wanted: set[int]):
     """The stream's frames whose index is in ``wanted`` (read again through a copy of the stream)."""
     stream = copy.copy(sources.stream)
+    stream.quality = None  # the frames the run registered passed it; read them as they are
     for frame in stream:
         if frame.index in wanted and frame.usable:
             yield frame

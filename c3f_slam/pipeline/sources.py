@@ -12,8 +12,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from c3f_slam.camera import FovGuess, PinholeCamera
-from c3f_slam.config import TissueConfig
+from c3f_slam.config import FrameQualityConfig, TissueConfig
 from c3f_slam.errors import InputError
+from c3f_slam.frame_quality import FrameQualityGate
 from c3f_slam.models import DepthModel, DescriptorModel
 from c3f_slam.models.session import DEFAULT_PROVIDERS
 from c3f_slam.pipeline.frontend import (
@@ -150,10 +151,11 @@ class RunSources:
 
 
 def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_frames: int | None = None,
-                 tissue: TissueConfig | None = None) -> RunSources:
+                 tissue: TissueConfig | None = None, quality: FrameQualityConfig | None = None) -> RunSources:
     """Check resolved ``inputs`` (:meth:`RunInputs.resolved`) against ``sequence`` (a sequence
     folder, or a video with model depth), find the frames' tissue area (``tissue``; None: the
-    whole frame) and open the stream and providers. InputError on any mismatch."""
+    whole frame), give the stream its frame-quality gate inside it (``quality``; None or not
+    enabled: none) and open the stream and providers. InputError on any mismatch."""
     descriptors, depth_source = inputs.descriptors, inputs.depth_source
     if descriptors is None or depth_source is None:
         raise ValueError("open_sources needs resolved inputs (RunInputs.resolved())")
@@ -172,6 +174,8 @@ def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_f
         raise InputError("--depth-scale applies to model depth (--depth-model) only")
     mask = (resolve_tissue_mask(stream, tissue, _camera_file(stream, inputs.camera)) if tissue is not None
             else whole_frame(stream.camera.width, stream.camera.height))
+    if quality is not None and quality.enabled:
+        stream.quality = FrameQualityGate(quality, None if mask.whole_frame else mask.pixels)
     describer, depth = make_providers(inputs, stream.camera, mask)
     return RunSources(descriptors, depth_source, stream, describer, depth, mask, inputs.max_bad_frames)
 
