@@ -283,18 +283,18 @@ _DIRECTIONS = tuple(np.array(k, np.float32) for k in (
 
 
 def _sharpness(grey: np.ndarray, inside: np.ndarray, mean_luma: float) -> float:
-    """The share of the image's detail in its finest octave, x 100, in the direction that has the
-    least: per direction, the mean squared second difference inside the mask over that of the
-    image smoothed by a Gaussian of 1 px (the next octave) plus it. Gain and the amount of texture
-    scale both alike, so sharp frames of any content give about the same value; blur removes the
-    finest octave first and lowers it. ``mean_luma`` is not needed."""
+    """The detail of the image's finest octave over the next one's, x 100, in the direction that
+    has the least: per direction, the mean squared second difference inside the mask over that of
+    the image smoothed by a Gaussian of 1 px. Gain and the amount of texture scale both alike, so
+    sharp frames of any content give about the same value; blur removes the finest octave first
+    and lowers it. ``mean_luma`` is not needed."""
     grey = grey.astype(np.float32)
     smooth = cv2.GaussianBlur(grey, (0, 0), 1.0)
     shares = []
     for kernel in _DIRECTIONS:
         f = float(np.mean(np.square(cv2.filter2D(grey, cv2.CV_32F, kernel)[inside])))
         c = float(np.mean(np.square(cv2.filter2D(smooth, cv2.CV_32F, kernel)[inside])))
-        shares.append(f / (f + c) if f + c > 0 else 0.0)
+        shares.append(f / c if c > 0 else 0.0)
     return 100.0 * min(shares)
 
 

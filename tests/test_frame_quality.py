@@ -196,7 +196,8 @@ def test_a_long_blurred_run_restarts_the_reference():
     measured = [gate.assess(view(20 + k, 10 + k / 2, tex=smooth)) for k in range(30)]
     assert [q.status for q in measured[:10]] == [BLURRED] * 10
     assert [q.status for q in measured[10:]] == [OK] * 20
-    assert gate.reference == pytest.approx(np.median([q.sharpness for q in measured[-15:]]))  # the new reference
+    last = measured[-FrameQualityConfig().reference_frames:]
+    assert gate.reference == pytest.approx(np.median([q.sharpness for q in last]))  # the new reference
 
 
 # -- duplicates -------------------------------------------------------------------------------

@@ -22,17 +22,19 @@ class FrameQualityConfig:
     #: long side (px) of the thumbnail the duplicate measures use: at 64 px compression noise is
     #: mostly averaged out while motion keeps its size
     duplicate_size: int = 64
-    #: the sharpness reference: median of the last this many accepted frames (a quarter second at
-    #: 60 fps: follows the content, outvotes a few blurred frames accepted while it fills)
-    reference_frames: int = 15
+    #: the sharpness reference: median of the last this many accepted frames (it follows the
+    #: content: with 15, a close-up approached over 13 frames of a 256-px simulated sequence was
+    #: taken for blur, 11 false flags against 10 true; with 5, none, and the same 10 true)
+    reference_frames: int = 5
     #: accepted frames needed before "blurred" can fire (no reference, no blur)
     min_reference: int = 5
-    #: sharpness / reference below this: blurred. Sharpness is the finest octave's share of the
-    #: detail in the direction with the least (:func:`c3f_slam.frame_quality._sharpness`), so it
-    #: hardly depends on the content: sharp frames of six simulated sequences gave ratios of
-    #: 0.96-1.06 and a real phantom clip >= 0.99, while a Gaussian blur of 1.5 thumbnail px gave
-    #: 0.72-0.88 (on the 446-px phantom frames that is a blur of about 4.5 px; 1.5 px there passes)
-    blur_ratio: float = 0.9
+    #: sharpness / reference below this: blurred. Sharpness is the detail of the finest octave
+    #: over the next one's, in the direction that has the least
+    #: (:func:`c3f_slam.frame_quality._sharpness`), so it hardly depends on the amount of texture:
+    #: sharp frames of six simulated sequences gave ratios of 0.72-1.77 and a real phantom clip
+    #: >= 0.89, a Gaussian blur of 1.5 thumbnail px 0.18-0.30 (on the 446-px phantom frames that
+    #: is a blur of about 4.5 px; 1.5 px there passes)
+    blur_ratio: float = 0.5
     #: this many blurred frames in a row (no frame accepted between): the content changed (e.g.
     #: a smooth close-up), not the focus; the reference restarts from the next frames
     reference_reset: int = 30
