@@ -93,7 +93,7 @@ def under_exposed(rgb: np.ndarray) -> np.ndarray:
     return (rgb * 0.12).astype(np.uint8)
 
 
-def bubbles(rgb: np.ndarray, count: int = 60, seed: int = 0) -> np.ndarray:
+def bubbles(rgb: np.ndarray, count: int = 150, seed: int = 0) -> np.ndarray:
     """``rgb`` under ``count`` small bubbles: a pale rim and a white highlight each."""
     rng = np.random.default_rng(seed)
     out = rgb.copy()
