@@ -197,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
         "a rough reference only (vertices weigh surface area, pixels the image). Jitter: path length over the "
         "length of its 1-s moving average "
         "(1 = smooth). ATE: Sim(3)-aligned RMSE as % of the true path. Checks (after only): "
-        "docs/runtime.md, 'Checks without ground truth'. Frames/s: one run each on this machine.",
+        "the runtime's checks without ground truth (docs/runtime.md). Frames/s: one run each on this machine.",
         "",
         "| case | variant | registered | of usable | near-black vertices | tissue that dark | jitter | true jitter | "
         "ATE % path | tissue area | photometric | map depth | keyframe depth | frames/s |",
