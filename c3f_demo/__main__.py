@@ -1,4 +1,5 @@
-"""``python -m c3f_demo --out DIR [--quick] [--from-scratch] [--overwrite]``."""
+"""``python -m c3f_demo --out DIR [--quick] [--from-scratch] [--overwrite]``, or on your own
+recording ``python -m c3f_demo --video FILE [--camera camera.json | --fov DEG] --out DIR``."""
 
 import sys
 

@@ -3,7 +3,8 @@
 Lengths are metres, frame sizes pixels (square). :func:`demo_config` gives the presets: the
 default and ``quick`` (a few minutes, for CI), each starting from the zoo's models (only the
 test-time training on the held-out sequence trains) or, ``from_scratch``, training both
-networks first.
+networks first. :func:`video_config` gives the run on a user's own video (``--video``): no
+simulator, the video's frames instead of the held-out sequence, no ground truth.
 """
 
 from __future__ import annotations
@@ -99,20 +100,46 @@ class ZooModels:
 
 
 @dataclass(frozen=True)
-class DemoConfig:
-    """All settings of one demo run (their hash decides which stages a rerun may skip)."""
+class VideoConfig:
+    """A user's own video (``--video``) and how it becomes a sequence folder (``ingest`` stage).
 
-    simulate: SimulateConfig = field(default_factory=SimulateConfig)
+    ``path``: the video (absolute); intrinsics from ``camera`` (a camera.json, absolute) or the
+    guess ``fov`` (horizontal field of view, degrees), one of the two. Frames: every k-th, k the
+    smallest that keeps at most ``max_fps`` frames per second of video; at most ``max_frames`` of
+    them (from the start); resized so that the longer side is at most ``max_side`` pixels (never
+    enlarged).
+    """
+
+    path: str
+    camera: str | None = None
+    fov: float | None = None
+    max_fps: float = 30.0
+    max_frames: int = 600
+    max_side: int = 256
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """All settings of one demo run (their hash decides which stages a rerun may skip).
+    ``simulate`` is None for a user's video (``video``)."""
+
+    simulate: SimulateConfig | None = field(default_factory=SimulateConfig)
     depth: DepthTrainConfig = field(default_factory=DepthTrainConfig)
     ttt: TestTimeConfig = field(default_factory=TestTimeConfig)
     features: FeatureTrainConfig = field(default_factory=FeatureTrainConfig)
     report: ReportConfig = field(default_factory=ReportConfig)
     quick: bool = False
     zoo: ZooModels | None = None  #: start from these zoo models; None: train them (``--from-scratch``)
+    video: VideoConfig | None = None  #: a user's own video instead of the simulator (``--video``)
 
     @property
     def from_zoo(self) -> bool:
         return self.zoo is not None
+
+    @property
+    def sequence_frames(self) -> int:
+        """Frames of the sequence SLAM runs on (at most, for a video): for the time estimates."""
+        return self.video.max_frames if self.video else self.simulate.test_frames
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -138,3 +165,12 @@ def demo_config(quick: bool = False, from_scratch: bool = False) -> DemoConfig:
         report=ReportConfig(sample_frames=3, depth_eval_stride=3, pair_frame=10, render_size=240),
         quick=True,
     )
+
+
+def video_config(video: str, camera: str | None = None, fov: float | None = None, quick: bool = False) -> DemoConfig:
+    """The run on a user's video: the zoo's models, test-time training of DepthNet on the video's
+    frames (the demo's preset, ``quick``: 3 steps), SLAM with and without it. ``quick``: at most 24
+    frames of at most 128 px (tests)."""
+    base = demo_config(quick)
+    frames = VideoConfig(video, camera, fov, max_frames=24, max_side=128) if quick else VideoConfig(video, camera, fov)
+    return replace(base, simulate=None, video=frames)

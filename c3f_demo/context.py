@@ -28,12 +28,15 @@ def _predicted(depth_folder: str) -> list[str]:
 def slam_runs(cfg: DemoConfig) -> dict[str, tuple[str, list[str]]]:
     """SLAM configurations of the held-out sequence: name -> (title, ``c3f_slam run`` options;
     ``{models}`` stands for ``DIR/models``). With test-time training on, the paper's configuration
-    uses the tuned DepthNet and ``no_ttt`` the pre-trained one."""
+    uses the tuned DepthNet and ``no_ttt`` the pre-trained one. A user's video (no depth files, no
+    truth) has these two alone."""
     tuned = cfg.ttt.steps > 0
     runs = {"paper": ("predicted depth" + (" after TTT" if tuned else "") + " + ContraFeat (the paper's configuration)",
                       _predicted("depthnet"))}
     if tuned:
         runs["no_ttt"] = ("predicted depth without TTT + ContraFeat", _predicted("depthnet_pretrained"))
+    if cfg.video is not None:
+        return runs
     runs["gt_sift"] = ("ground-truth depth + SIFT (RGB-D reference)",
                        ["--depth-source", "files", "--descriptors", "sift"])
     runs["odometry"] = ("frame-to-frame odometry, predicted depth" + (" after TTT" if tuned else "") + " + ContraFeat",
@@ -58,7 +61,8 @@ class DemoContext:
 
     @property
     def test_seq(self) -> Path:
-        return self.root / "data" / "test" / "heldout"
+        """The sequence SLAM reconstructs: the simulator's held-out one, or the user's video's frames."""
+        return self.root / "data" / "video" if self.cfg.video else self.root / "data" / "test" / "heldout"
 
     @property
     def models(self) -> Path:

@@ -1,5 +1,6 @@
 """Figures of the demo report (PNG files in ``DIR/figures``): sample frames beside predicted and
-true depth, and the mesh renders. Depths in metres (the colour bar is labelled in cm)."""
+true depth, the mesh renders, and for a user's video the tissue mask over a frame and a strip of
+what became of each frame. Depths in metres (the colour bar is labelled in cm)."""
 
 from __future__ import annotations
 
@@ -74,3 +75,50 @@ def mesh_renders(mesh_path: Path, out_stem: Path, size: int, near: np.ndarray | 
         write_png(path, img)
         names.append(path.name)
     return names
+
+
+def mask_overlay(rgb: np.ndarray, mask: np.ndarray, out: Path, side: int = 512) -> str:
+    """``rgb`` (H, W, 3) uint8 with what lies outside the tissue ``mask`` (H, W bool, True =
+    tissue) tinted magenta and the mask's outline in yellow, enlarged by a whole factor towards
+    ``side`` pixels on the longer side; returns the file name."""
+    scale = max(1, round(side / max(mask.shape)))
+    img = rgb.astype(np.float32)
+    img[~mask] = 0.45 * img[~mask] + 0.55 * np.array([255.0, 0.0, 255.0])
+    img = cv2.resize(img.clip(0, 255).astype(np.uint8), None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    big = cv2.resize(mask.astype(np.uint8), None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    contours, _ = cv2.findContours(big, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(img, contours, -1, (255, 230, 0), 2)
+    write_png(out, img)
+    return out.name
+
+
+#: RGB colour of each frame label of :func:`frame_strip` (others: grey shades)
+STRIP_COLOURS = {"registered": (46, 160, 67), "ok": (46, 160, 67), "extended": (46, 160, 67),
+                 "keyframe": (20, 100, 40), "attached": (120, 200, 120), "rejoined": (60, 140, 220),
+                 "lone": (230, 160, 40), "lost": (200, 50, 50), "not registered": (200, 50, 50),
+                 "black": (30, 30, 30), "saturated": (235, 235, 190), "featureless": (170, 110, 40),
+                 "unreadable": (120, 0, 0), "blurred": (140, 90, 210), "dark": (70, 70, 130),
+                 "washed_out": (250, 215, 110), "duplicate": (110, 190, 230), "covered": (210, 100, 170)}
+
+
+def frame_strip(labels: list[str], out: Path, width: int = 900, height: int = 26) -> dict:
+    """A strip of ``labels`` (one per frame, in order: a timeline; or grouped: the counts), each
+    frame an equal share of ``width`` pixels in its label's colour (:data:`STRIP_COLOURS`), with a
+    legend of the counts below. Returns the file name and the counts."""
+    counts: dict[str, int] = {}
+    for lab in labels:
+        counts[lab] = counts.get(lab, 0) + 1
+    others = iter([(150, 150, 150), (110, 110, 110), (190, 190, 190), (80, 80, 80)] * 8)
+    colours = {lab: STRIP_COLOURS.get(lab) or next(others) for lab in counts}
+    img = np.full((height + 26, width, 3), 255, np.uint8)
+    edges = np.linspace(0, width, len(labels) + 1).round().astype(int)
+    for lab, x0, x1 in zip(labels, edges[:-1], edges[1:]):
+        img[:height, x0:max(x1, x0 + 1)] = colours[lab]
+    x = 4
+    for lab, n in counts.items():
+        img[height + 8:height + 20, x:x + 12] = colours[lab]
+        text = f"{lab} {n}"
+        cv2.putText(img, text, (x + 16, height + 19), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (30, 30, 30), 1, cv2.LINE_AA)
+        x += 24 + cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)[0][0]
+    write_png(out, img)
+    return {"figure": out.name, "counts": counts}

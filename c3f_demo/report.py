@@ -18,6 +18,10 @@ from c3f_slam.view.page import layer_table_rows, view_fragment, view_scripts
 #: section ids of the report, in order (the tests check every one is present)
 SECTIONS = ("summary", "models", "deviations", "depth", "matches", "trajectories", "meshes", "view3d",
             "keyframe-graph", "unseen", "timings", "environment", "artefacts")
+#: section ids of the report of a user's video (``--video``): no ground truth, so no depth metrics,
+#: matches against true correspondences, ATE or true coverage
+VIDEO_SECTIONS = ("summary", "input", "models", "tissue", "frames", "trajectories", "meshes", "view3d",
+                  "keyframe-graph", "unseen", "timings", "environment", "artefacts")
 VIDEO_EMBED_MAX = 8_000_000  #: bytes: a larger video is linked beside the report, not embedded
 METRIC_LABELS = {"abs_rel": "Abs Rel", "sq_rel": "Sq Rel (cm)", "rmse": "RMSE (cm)", "rmse_log": "RMSE log",
                  "a1": "δ < 1.25", "a2": "δ < 1.25²", "a3": "δ < 1.25³"}
@@ -40,6 +44,26 @@ ARTEFACTS = [
      "any browser (offline)"),
     ("metrics/*.json, figures/*.png", "the report's numbers and images", "any text editor / image viewer"),
     ("logs/*.log", "the output of every command the demo ran", "any text editor"),
+]
+VIDEO_ARTEFACTS = [
+    ("data/video", "the video's frames as a sequence: rgb/, camera.json, frames.csv (each frame's time in the "
+     "video), ingest.json", "any image viewer / text editor"),
+    ("runs/depthnet_ttt", "test-time training on the video's frames: TensorBoard events, config.yaml, "
+     "checkpoints/last.ckpt, checkpoints/guard.json", "tensorboard --logdir DIR/runs"),
+    ("models/*/*.onnx, export.json", "models/depthnet: the tuned DepthNet (the paper's configuration); "
+     "models/depthnet_pretrained, models/contrafeat: the zoo's files", "python -m c3f_slam inspect FILE"),
+    ("slam/NAME/trajectory.txt", "estimated camera-to-world trajectory (TUM; time = frame of data/video)",
+     "evo (evo_traj tum ...)"),
+    ("slam/NAME/mesh.ply, unseen.ply", "reconstruction; the same with the unseen wall added in blue",
+     "MeshLab / Open3D"),
+    ("slam/NAME/coverage.json, coverage_map.png", "the run's own unseen-wall estimate", "any text editor / image "
+     "viewer"),
+    ("slam/NAME/summary.json, tissue_mask.png, keyframe_graph.json", "run numbers (frames, skipped frames by cause, "
+     "decisions, tissue area), the tissue mask, the keyframe graph", "any text editor / image viewer"),
+    ("slam/NAME/view.html, rerender.mp4, flythrough.mp4", "the 3D view at the full page budget, the input beside "
+     "the re-rendered reconstruction, the fly-through (python -m c3f_slam view)", "any browser (offline)"),
+    ("metrics/slam.json, figures/*.png", "the report's numbers and images", "any text editor / image viewer"),
+    ("logs/*.log", "the output of every command the run made", "any text editor"),
 ]
 
 
@@ -86,7 +110,10 @@ def _models(d: dict) -> str:
                      f"{t.get('steps', 'n/a')} steps, {_num(t.get('wall_s'), 1 / 60, 0)} min", nums])
     guard = d.get("ttt_guard")
     said = ""
-    if guard:
+    if guard and guard.get("best_step") is None and not guard.get("events"):
+        said = (f"<p>Test-time training guard: no check fell within the {guard.get('steps', 'n/a')} steps, so it "
+                "did nothing; the last weights are used.</p>")
+    elif guard:
         events = ", ".join(e["event"] + (f" at step {e['step']}" if "step" in e else "") for e in guard["events"])
         said = (f"<p>Test-time training guard: best weights (lowest photometric term, no ground truth) from step "
                 f"{guard.get('best_step')}; events: {H.esc(events or 'none (no collapse)')}.</p>")
@@ -222,18 +249,23 @@ def _view3d(d: dict, root: Path) -> str:
             "files.</p>" + view_fragment(v["data"]) + H.table(["layer", "data"], layer_table_rows(v["data"]))
             + "<p>The input beside the reconstruction rendered from each frame's estimated pose (same intrinsics; "
               "unseen wall blue), and a fly-through of the final model along the smoothed camera path, rendered "
-              f"on the CPU ({cost}).</p>"
+              f"on the CPU{f' ({cost})' if cost else ''}.</p>"
             + "".join(H.video(root, path, caption, VIDEO_EMBED_MAX) for path, caption in v["videos"]))
 
 
 def _unseen(d: dict, root: Path) -> str:
     u = d["figures"].get("unseen", {})
     if u.get("source") == "run":
+        # the demo measures the truth of every run (it says when it could not); a user's video has none
+        measured = any(r.get("truth") for r in u["runs"]) or d.get("ingest") is None
         out = ["<p>Share of the colon wall each run estimated it did not see, from its own trajectory and depth "
-               "(<code>coverage.json</code>, no ground truth), beside the truth <code>c3f_slam evaluate</code> "
-               "measured for the same run. Maps: the wall unrolled along the explored centreline (cm), unseen in "
-               "blue, seen in the wall's colour (grey: seen but no colour); the true map of the same run below its "
-               "estimate.</p>"]
+               "(<code>coverage.json</code>, no ground truth)"
+               + (", beside the truth <code>c3f_slam evaluate</code> measured for the same run" if measured else "")
+               + ". Maps: the wall unrolled along the explored centreline (cm), unseen in blue, seen in the wall's "
+               "colour (grey: seen but no colour)" + ("; the true map of the same run below its estimate" if measured
+                                                       else "") + ".</p>"]
+        if not measured:
+            out.append(f'<p class="note">{NO_TRUTH}</p>')
         for r in u["runs"]:
             title = H.esc(r["run"])
             if r.get("status") != "ok":
@@ -241,7 +273,7 @@ def _unseen(d: dict, root: Path) -> str:
                 continue
             truth = r.get("truth") or {}
             vs = (f" (truth {_num(truth.get('unseen_share'), 100, 1)} %, error {_num(truth.get('error_pp'), 1, 1)} pp)"
-                  if truth else " (no truth measured)")
+                  if truth else " (no truth measured)" if measured else "")
             segs = [[_num(s["start_m"], 100, 1), _num(s["end_m"], 100, 1), _num(s["unseen_share"], 100, 1)]
                     for s in r.get("segments", [])]
             truth_map = H.image(root / r["truth_map"], "true coverage map", 520) if r.get("truth_map") else ""
@@ -270,33 +302,177 @@ def _environment(d: dict) -> str:
     return H.table(["item", "value"], rows) + f"<p>Settings: <code>{H.esc(json.dumps(d['config']))}</code></p>"
 
 
-def _artefacts() -> str:
+def _artefacts(rows: list[tuple[str, str, str]]) -> str:
     return H.table(["file (in the demo folder)", "what", "open with"],
-                   [[f"<code>{H.esc(a)}</code>", H.esc(b), H.esc(c)] for a, b, c in ARTEFACTS])
+                   [[f"<code>{H.esc(a)}</code>", H.esc(b), H.esc(c)] for a, b, c in rows])
 
 
-def build_report(root: Path, d: dict) -> str:
+def _video_summary(d: dict) -> str:
+    """What ran on the user's video and each configuration's numbers, none of them against a truth."""
+    ing, ttt = d.get("ingest") or {}, d["config"].get("ttt", {})
+    rows = []
+    for name, r in d["metrics"]["slam"].items():
+        title = H.esc(r.get("title", name))
+        if r.get("status") != "ok":
+            rows.append([title, '<span class="fail">FAILED</span>',
+                         f'<span class="fail">{H.esc(r.get("error", "failed"))}</span>', "", "", ""])
+            continue
+        rows.append([title, "ok", _num(r.get("registered_share"), 100, 1), _num(r.get("jitter_ratio"), 1, 2),
+                     _num(r.get("unseen_share"), 100, 1), _num(r.get("path_length_m"), 100, 1)])
+    w, h = ing.get("size", ["?", "?"])
+    tuned = (f"test-time trained the zoo's DepthNet on them ({ttt.get('steps')} steps, self-supervised), "
+             if ttt.get("steps") else "")
+    return (f"<p>Your video <code>{H.esc(Path(ing.get('video', '?')).name)}</code>: {ing.get('frames', 'n/a')} frames "
+            f"({w}x{h} px, every {ing.get('step', '?')} of {_num(ing.get('fps'), 1, 0)} fps), {tuned}exported it "
+            f"to ONNX and reconstructed the frames in {len(rows)} configurations"
+            f"{' (quick preset)' if d['config'].get('quick') else ''}.</p>"
+            + H.table(["configuration", "status", "registered (%)", "jitter ratio", "unseen wall (%)",
+                       "path length (cm, the run's scale)"], rows)
+            + f'<p class="note">{NO_TRUTH}</p>')
+
+
+def _input(d: dict) -> str:
+    """The video, how its frames were sampled and resized, and where the intrinsics came from."""
+    ing = d.get("ingest") or {}
+    cam, limits = ing.get("camera", {}), ing.get("settings", {})
+    hfov = 2 * math.degrees(math.atan(cam["width"] / (2 * cam["fx"]))) if cam.get("fx") else None
+    (sw, sh), (w, h) = ing.get("source_size", ["?", "?"]), ing.get("size", ["?", "?"])
+    statuses = ", ".join(f"{H.esc(k)} {v}" for k, v in (ing.get("statuses") or {}).items())
+    used = (f"{ing.get('frames', 'n/a')}: every {ing.get('step', '?')} from the start (at most "
+            f"{_num(limits.get('max_fps'), 1, 0)} per second of video, at most {limits.get('max_frames', '?')}), "
+            f"{_num(ing.get('seconds'), 1, 1)} s of video, resized to {w}x{h} px; frame status: {statuses}")
+    intrinsics = (f"{H.esc(ing.get('camera_source', 'n/a'))}; after resizing fx {_num(cam.get('fx'), 1, 1)}, "
+                  f"fy {_num(cam.get('fy'), 1, 1)}, cx {_num(cam.get('cx'), 1, 1)}, cy {_num(cam.get('cy'), 1, 1)} "
+                  f"px (horizontal field of view {_num(hfov, 1, 0)} degrees)")
+    rows = [["video", f"<code>{H.esc(ing.get('video', 'n/a'))}</code>, {sw}x{sh} px, {_num(ing.get('fps'), 1, 2)} "
+                      f"fps, {ing.get('video_frames', 'n/a')} frames"],
+            ["frames used", used], ["intrinsics", intrinsics]]
+    if ing.get("truncated"):
+        rows.append(["note", f'<span class="fail">{H.esc(ing["truncated"])}</span>'])
+    guess = "fov guess" in str(ing.get("camera_source", ""))
+    return (H.table(["item", "value"], rows)
+            + ("<p>The intrinsics are a guess from the field of view: lengths and the unseen share depend on it; "
+               "calibrate the scope (<code>python -m c3f_slam calibrate</code>) to trust them.</p>" if guess else ""))
+
+
+def _tissue(d: dict, root: Path) -> str:
+    """The tissue area each run found (summary.json ``tissue_mask``) and the mask over a frame."""
+    rows = []
+    for name, r in d["metrics"]["slam"].items():
+        t = r.get("tissue_mask") or {}
+        rows.append([H.esc(r.get("title", name)), _num(t.get("share"), 100, 1), H.esc(t.get("source", "n/a")),
+                     t.get("frames", ""), _num(t.get("overlay_share"), 100, 2)])
+    fig = d["figures"].get("tissue")
+    whole = any(str((r.get("tissue_mask") or {}).get("source", "")).startswith("whole frame")
+                for r in d["metrics"]["slam"].values())
+    shown = (H.image(root / "figures" / fig["figure"], f"frame {fig['frame']}: outside the tissue area tinted "
+                     "magenta, its outline yellow", 520) if fig else
+             "<p>The runs used the whole frame: no border or overlay was found.</p>" if whole else
+             '<p class="fail">No run got as far as finding the tissue area.</p>')
+    return ("<p>The image area that shows tissue, as the runtime found it before the first frame (the scope's "
+            "border and burned-in overlays left out of depth, keypoints, fusion and the unseen wall; "
+            "<code>tissue_mask.png</code> in each run folder).</p>"
+            + H.table(["configuration", "tissue (% of the image)", "source", "frames used", "overlays (%)"], rows)
+            + shown)
+
+
+def _frames(d: dict, root: Path) -> str:
+    """What became of each frame, per configuration: registered, not registered, skipped per cause."""
+    out = ["<p>Each frame of the run is registered in the main map, processed but not registered (tracking lost "
+           "it, or it is in a component the map could not join), or skipped before tracking (its cause, "
+           "summary.json <code>skipped_*</code>). The back-end's decisions on the processed frames are "
+           "summary.json's <code>frame_decisions</code>.</p>"]
+    for name, r in d["metrics"]["slam"].items():
+        title = H.esc(r.get("title", name))
+        if "frames" not in r:
+            out.append(f'<p class="fail">{title}: no summary.json ({H.esc(r.get("error", ""))})</p>')
+            continue
+        fig = d["figures"].get("frames", {}).get(name)
+        how = ("each frame in order, from the run's frame_log.csv" if (fig or {}).get("kind") == "timeline"
+               else "the counts, grouped (the run wrote no per-frame log)")
+        skipped = ", ".join(f"{H.esc(k)} {v}" for k, v in (r.get("skipped") or {}).items())
+        decisions = ", ".join(f"{H.esc(k)} {v}" for k, v in (r.get("frame_decisions") or {}).items())
+        out.append(f"<h3>{title}: {_num(r.get('registered_share'), 100, 1)} % registered "
+                   f"({_num(r.get('registered_share_of_usable'), 100, 1)} % of the frames not skipped)</h3>"
+                   + H.table(["frames", "processed", "registered", "skipped by cause", "decisions"],
+                             [[r.get("frames"), r.get("processed"), r.get("registered_frames"), skipped, decisions]])
+                   + (H.image(root / "figures" / fig["figure"], how) if fig else ""))
+    return "".join(out)
+
+
+def _jitter(d: dict) -> str:
+    """The jitter ratio of each configuration's trajectory (no ground truth needed)."""
+    rows = [[H.esc(r.get("title", name)), _num(r.get("jitter_ratio"), 1, 2), _num(r.get("path_length_m"), 100, 1),
+             _num(r.get("seconds"), 1, 1)]
+            for name, r in d["metrics"]["slam"].items() if r.get("status") == "ok"]
+    return ("<p>Jitter ratio: the camera path's length over the length of its 1-s moving average "
+            "(<code>c3f_slam.trajectory_metrics.jitter_ratio</code>, each frame at its time in the video). 1 is a "
+            "smooth path; a scope moves smoothly at this time scale, so a ratio well above 1 is shake of the "
+            "estimate (wrong matches, depth that changes scale from frame to frame). It says nothing of drift or "
+            "of a wrong scale, which stay smooth.</p>"
+            + H.table(["configuration", "jitter ratio", "path length (cm, the run's scale)", "seconds of video"], rows)
+            if rows else '<p class="fail">No configuration gave a trajectory.</p>')
+
+
+#: what the numbers of a user's video can and cannot say (the report says it where they are shown)
+NO_TRUTH = ("Without ground truth these numbers describe the map, not its accuracy: the registered share and the "
+            "jitter ratio say how much of the video the map holds and how smoothly its camera moves, and the unseen "
+            "share is measured on the map's own wall model, so a wrong depth scale, wrong intrinsics or a trajectory "
+            "that drifts smoothly would change the geometry without showing here. Compare the two configurations "
+            "with each other; the simulator's accuracy figures (the demo, docs/zoo.md) do not transfer to this "
+            "video.")
+
+
+def build_report(root: Path, d: dict, variant: str = "demo") -> str:
     """HTML of the report. ``d``: ``config`` (DemoConfig.as_dict), ``metrics`` (slam, depth, matches:
     the evaluate stage's JSON), ``figures`` (depth, meshes, unseen), ``timings`` [(stage, s, status)],
     ``environment`` {name: value}, ``view`` (optional, :func:`c3f_demo.report_stage.view_entry`); image
-    and video paths are relative to ``root``."""
+    and video paths are relative to ``root``. ``variant`` ``video``: a user's video, without the
+    ground-truth sections (:data:`VIDEO_SECTIONS`; ``metrics`` has ``slam`` alone, as
+    :func:`c3f_demo.video.run_metrics` gives it, ``figures`` adds ``tissue`` and ``frames``, ``ingest``
+    is the ingest stage's record)."""
+    parts = _video_parts(d, root) if variant == "video" else _demo_parts(d, root)
+    tail = view_scripts() if (d.get("view") or {}).get("data") else ""
+    title = ("C3Fusion report: " + Path((d.get("ingest") or {}).get("video", "video")).name if variant == "video"
+             else "C3Fusion demo report")
+    return H.page(title, [H.section(sid, *parts[sid]) for sid in parts], tail)
+
+
+def _shared_parts(d: dict, root: Path) -> dict[str, tuple[str, str]]:
+    """The sections both variants have: models, meshes, 3D view, unseen surface, times, environment."""
+    return {"models": ("Models", _models(d)), "meshes": ("Reconstructed meshes", _meshes(d, root)),
+            "view3d": ("3D view and videos", _view3d(d, root)), "unseen": ("Unseen surface", _unseen(d, root)),
+            "timings": ("Time per stage", _timings(d)), "environment": ("Versions, machine, seeds", _environment(d))}
+
+
+def _demo_parts(d: dict, root: Path) -> dict[str, tuple[str, str]]:
+    """The demo's sections (:data:`SECTIONS`), in order."""
     ate = lambda r: f"ATE {_num(r.get('ate_sim3_m'), 100, 2)} cm, path {_num(r.get('gt_length_m'), 100, 1)} cm"  # noqa: E731
     parts = {
+        **_shared_parts(d, root),
         "summary": ("Summary", _summary(d)),
-        "models": ("Models", _models(d)),
         "deviations": ("Deviations from the paper", _deviations(d)),
         "depth": ("Depth", _depth(d, root)),
         "matches": ("Matches: SIFT vs ContraFeat", _matches(d, root)),
         "trajectories": ("Trajectories vs ground truth", _per_run(d, root, "trajectory.png", ate)),
-        "meshes": ("Reconstructed meshes", _meshes(d, root)),
-        "view3d": ("3D view and videos", _view3d(d, root)),
         "keyframe-graph": ("Keyframe connectivity graph", _per_run(
             d, root, "keyframe_graph.png", lambda r: "",
             {"odometry": "No keyframe graph: frame-to-frame odometry chains each frame to the one before."})),
-        "unseen": ("Unseen surface", _unseen(d, root)),
-        "timings": ("Time per stage", _timings(d)),
-        "environment": ("Versions, machine, seeds", _environment(d)),
-        "artefacts": ("Files in this folder", _artefacts()),
+        "artefacts": ("Files in this folder", _artefacts(ARTEFACTS)),
     }
-    tail = view_scripts() if (d.get("view") or {}).get("data") else ""
-    return H.page("C3Fusion demo report", [H.section(sid, *parts[sid]) for sid in SECTIONS], tail)
+    return {sid: parts[sid] for sid in SECTIONS}
+
+
+def _video_parts(d: dict, root: Path) -> dict[str, tuple[str, str]]:
+    """The sections of a user's video (:data:`VIDEO_SECTIONS`), in order."""
+    parts = {
+        **_shared_parts(d, root),
+        "summary": ("Summary", _video_summary(d)),
+        "input": ("The video", _input(d)),
+        "tissue": ("Tissue area", _tissue(d, root)),
+        "frames": ("Frames: registered and skipped", _frames(d, root)),
+        "trajectories": ("Trajectory smoothness", _jitter(d)),
+        "keyframe-graph": ("Keyframe connectivity graph", _per_run(d, root, "keyframe_graph.png", lambda r: "")),
+        "artefacts": ("Files in this folder", _artefacts(VIDEO_ARTEFACTS)),
+    }
+    return {sid: parts[sid] for sid in VIDEO_SECTIONS}

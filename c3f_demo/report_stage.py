@@ -1,5 +1,6 @@
 """The ``report`` stage: figures (depth samples, mesh renders, coverage), the environment, then
-``DIR/report.html`` (:func:`c3f_demo.report.build_report`)."""
+``DIR/report.html`` (:func:`c3f_demo.report.build_report`); :class:`VideoReport`, its variant on
+a user's video (no ground truth)."""
 
 from __future__ import annotations
 
@@ -11,12 +12,14 @@ import subprocess
 from pathlib import Path
 
 from c3f_demo.context import REPO, DemoContext
-from c3f_demo.figures import depth_samples, mesh_renders
+from c3f_demo.figures import depth_samples, frame_strip, mask_overlay, mesh_renders
 from c3f_demo.report import build_report
 from c3f_demo.stages import Stage
+from c3f_demo.video import frame_log, run_metrics
 from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.io.atomic import atomic_write_text
+from c3f_slam.outputs import write_json
 
 PACKAGES = ("c3fusion", "torch", "lightning", "onnxruntime", "open3d", "numpy", "opencv-python-headless")
 
@@ -37,7 +40,8 @@ def environment(cfg) -> dict:
         env["git commit"] = "unknown"
     s = cfg.simulate
     env["seeds"] = (f"simulator {[seed for _, seed in s.train]} (train), {s.test[1]} (held-out); "
-                    f"DepthNet {cfg.depth.seed}; ContraFeat {cfg.features.seed}")
+                    f"DepthNet {cfg.depth.seed}; ContraFeat {cfg.features.seed}" if s is not None
+                    else f"DepthNet test-time training {cfg.ttt.seed}")
     return env
 
 
@@ -69,6 +73,8 @@ def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
     if estimates:
         return {"source": "run", "runs": estimates}
     seq, runs = Sequence(ctx.test_seq), []
+    if not seq.has_poses:  # a user's video: no truth to fall back on
+        return {}
     for name in ok:
         renders = mesh_renders(ctx.slam_dir(name) / "coverage.ply", ctx.root / "figures" / f"coverage_{name}",
                                ctx.cfg.report.render_size, near=seq.poses[:, :3, 3])
@@ -78,12 +84,13 @@ def unseen_figures(ctx: DemoContext, slam: dict) -> dict:
     return {"source": "ground_truth", "runs": runs} if runs else {}
 
 
-def view_entry(ctx: DemoContext, slam: dict) -> dict | None:
+def view_entry(ctx: DemoContext, slam: dict, views: dict[str, str | None] | None = None) -> dict | None:
     """The 3D view of the paper's configuration (else the first that worked): ``slam/NAME/view.html``
-    and its videos written by :func:`c3f_slam.view.build.write_view`, and the viewer's data at the
-    report's budget; None when no configuration worked."""
+    and its videos, written here by :func:`c3f_slam.view.build.write_view` or, given ``views`` (run
+    -> None or the error of the ``view`` stage's ``python -m c3f_slam view``), as that stage wrote
+    them; and the viewer's data at the report's budget. None when no configuration worked."""
     from c3f_slam.view.budget import REPORT_BUDGET
-    from c3f_slam.view.build import CAPTIONS, write_view
+    from c3f_slam.view.build import CAPTIONS, FLYTHROUGH, RERENDER, write_view
     from c3f_slam.view.page import view_data
     from c3f_slam.view.scene import run_layers
 
@@ -93,13 +100,18 @@ def view_entry(ctx: DemoContext, slam: dict) -> dict | None:
     name = "paper" if "paper" in ok else ok[0]
     entry = {"run": name, "title": slam[name]["title"]}
     try:
-        res = write_view(ctx.slam_dir(name), progress=False)
+        if views is None:
+            videos = write_view(ctx.slam_dir(name), progress=False).videos
+        elif views.get(name, "not run") is not None:
+            raise InputError(views.get(name, "not run"))
+        else:
+            videos = {v: {} for v in (RERENDER, FLYTHROUGH) if (ctx.slam_dir(name) / v).is_file()}
     except InputError as exc:
         return {**entry, "error": str(exc)}
     entry["data"] = view_data(run_layers(ctx.slam_dir(name), REPORT_BUDGET))
     entry["budget_triangles"] = REPORT_BUDGET.triangles
-    entry["videos"] = [(f"slam/{name}/{v}", f"{v}: {CAPTIONS[v]}") for v in res.videos]
-    entry["render_ms"] = {v: r["ms_per_frame"] for v, r in res.videos.items()}
+    entry["videos"] = [(f"slam/{name}/{v}", f"{v}: {CAPTIONS[v]}") for v in videos]
+    entry["render_ms"] = {v: r["ms_per_frame"] for v, r in videos.items() if "ms_per_frame" in r}
     return entry
 
 
@@ -128,21 +140,84 @@ class Report(Stage):
         return 40.0  # figures, and the 3D view's videos (about 45 ms per rendered frame)
 
     def run(self, ctx, done=None):
-        timings = (done or {}).get("timings", [])
         metrics = {k: json.loads((ctx.root / "metrics" / f"{k}.json").read_text())
                    for k in ("slam", "depth", "matches")}
         figs = ctx.root / "figures"
         figures = {"depth": depth_samples(ctx.test_seq, depth_columns(ctx.models), ctx.cfg.report.sample_frames,
                                           figs / "depth_samples.png"),
-                   "meshes": {n: mesh_renders(ctx.slam_dir(n) / "mesh.ply", figs / f"mesh_{n}",
-                                              ctx.cfg.report.render_size)
-                              for n, r in metrics["slam"].items() if r.get("status") == "ok"},
-                   "unseen": unseen_figures(ctx, metrics["slam"])}
-        notes = (done or {}).get("notes", {})
-        models = {k: notes[k] for k in ("train_depth", "train_features") if (notes.get(k) or {}).get("zoo")}
-        data = {"config": ctx.cfg.as_dict(), "metrics": metrics, "figures": figures,
-                "timings": [*timings, ("report", float("nan"), "this stage (running)")],
-                "environment": environment(ctx.cfg), "zoo": models, "ttt_guard": (notes.get("ttt_depth") or {}).get(
-                    "guard"), "view": view_entry(ctx, metrics["slam"])}
+                   "meshes": mesh_figures(ctx, metrics["slam"]), "unseen": unseen_figures(ctx, metrics["slam"])}
+        data = report_data(ctx, done, metrics, figures)
         atomic_write_text(ctx.root / "report.html", build_report(ctx.root, data))
+        return {"report": "report.html"}
+
+
+def mesh_figures(ctx: DemoContext, slam: dict) -> dict[str, list[str]]:
+    """Renders of each configuration's mesh that worked (:func:`mesh_renders`), by configuration."""
+    return {n: mesh_renders(ctx.slam_dir(n) / "mesh.ply", ctx.root / "figures" / f"mesh_{n}",
+                            ctx.cfg.report.render_size)
+            for n, r in slam.items() if r.get("status") == "ok"}
+
+
+def report_data(ctx: DemoContext, done: dict | None, metrics: dict, figures: dict,
+                views: dict[str, str | None] | None = None) -> dict:
+    """The inputs of :func:`build_report` the demo and the video report share: settings, metrics,
+    figures, the time per stage, environment, zoo models, what the test-time training guard did,
+    the 3D view (:func:`view_entry`)."""
+    notes = (done or {}).get("notes", {})
+    models = {k: notes[k] for k in ("train_depth", "train_features") if (notes.get(k) or {}).get("zoo")}
+    return {"config": ctx.cfg.as_dict(), "metrics": metrics, "figures": figures,
+            "timings": [*(done or {}).get("timings", []), ("report", float("nan"), "this stage (running)")],
+            "environment": environment(ctx.cfg), "zoo": models,
+            "ttt_guard": (notes.get("ttt_depth") or {}).get("guard"), "view": view_entry(ctx, metrics["slam"], views)}
+
+
+def tissue_figure(ctx: DemoContext, slam: dict) -> dict | None:
+    """The tissue mask of the first run that wrote one (``tissue_mask.png``, written before its first
+    frame, so also by a run that failed later) drawn over the middle frame of the sequence
+    (:func:`mask_overlay`); None when no run wrote one."""
+    import cv2
+
+    for name in slam:
+        path = ctx.slam_dir(name) / "tissue_mask.png"
+        if path.is_file():
+            seq = Sequence(ctx.test_seq)
+            mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 127
+            frame = len(seq) // 2
+            return {"run": name, "frame": frame,
+                    "figure": mask_overlay(seq.read_rgb(frame), mask, ctx.root / "figures" / "tissue_mask.png")}
+    return None
+
+
+def frame_figures(ctx: DemoContext, slam: dict) -> dict[str, dict]:
+    """Per configuration, the strip of what became of its frames: the timeline of its
+    ``frame_log.csv`` when the run wrote one, else the counts (summary.json) grouped."""
+    out = {}
+    for name, r in slam.items():
+        labels = frame_log(ctx.slam_dir(name))
+        kind = "timeline" if labels is not None else "counts"
+        if labels is None:
+            labels = [lab for lab, n in (r.get("frame_counts") or {}).items() for _ in range(n)]
+        if labels:
+            out[name] = {"kind": kind, **frame_strip(labels, ctx.root / "figures" / f"frames_{name}.png")}
+    return out
+
+
+class VideoReport(Report):
+    """``DIR/report.html`` of a user's video: the demo's report without its ground-truth sections
+    (:func:`c3f_demo.report.build_report`, variant ``video``), with the tissue mask, the frames per
+    cause, the registered share and the jitter ratio of each run (``metrics/slam.json``)."""
+
+    upstream = ("view",)
+
+    def run(self, ctx, done=None):
+        notes = (done or {}).get("notes", {})
+        runs = notes.get("slam", {}).get("runs", {})
+        slam = {name: run_metrics(ctx, name, runs.get(name, {"title": title, "status": "failed", "error": "not run"}))
+                for name, (title, _) in ctx.slam_runs.items()}
+        write_json(ctx.root / "metrics" / "slam.json", slam)
+        figures = {"meshes": mesh_figures(ctx, slam), "unseen": unseen_figures(ctx, slam),
+                   "tissue": tissue_figure(ctx, slam), "frames": frame_figures(ctx, slam)}
+        data = report_data(ctx, done, {"slam": slam}, figures, (notes.get("view") or {}).get("views", {}))
+        data["ingest"] = notes.get("ingest", {})
+        atomic_write_text(ctx.root / "report.html", build_report(ctx.root, data, variant="video"))
         return {"report": "report.html"}

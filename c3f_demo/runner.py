@@ -11,19 +11,31 @@ from c3f_demo.config import DemoConfig
 from c3f_demo.context import DemoContext, StageFailed, check_out_dir
 from c3f_demo.evaluation import Evaluate
 from c3f_demo.progress import StageLine, time_table
-from c3f_demo.report_stage import Report
+from c3f_demo.report_stage import Report, VideoReport
 from c3f_demo.stages import Export, Simulate, Slam, Stage, TestTimeTrain, TrainDepth, TrainFeatures
 from c3f_demo.state import DemoState, stage_key
+from c3f_demo.video import Ingest, View
 
 STAGES: tuple[Stage, ...] = (Simulate(), TrainDepth(), TestTimeTrain(), TrainFeatures(), Export(), Slam(),
                              Evaluate(), Report())
+#: the stages on a user's video (``--video``): its frames instead of the simulator, no evaluation
+#: against a truth, the 3D views, the report without ground truth
+VIDEO_STAGES: tuple[Stage, ...] = (Ingest(), TrainDepth(), TestTimeTrain(), TrainFeatures(), Export(), Slam(),
+                                   View(), VideoReport())
 
 
-def downstream(name: str) -> list[str]:
-    """``name`` and every stage that reads from it, directly or not (STAGES is in run order)."""
+def stages_for(cfg: DemoConfig) -> tuple[Stage, ...]:
+    """The stages of ``cfg``, in run order: :data:`VIDEO_STAGES` on a video, else :data:`STAGES`."""
+    return VIDEO_STAGES if cfg.video else STAGES
+
+
+def downstream(name: str, cfg: DemoConfig | None = None) -> list[str]:
+    """``name`` and every stage of ``cfg`` (default: the demo's) that reads from it, directly or not
+    (the stages are in run order)."""
+    cfg = cfg or DemoConfig()
     names = [name]
-    for stage in STAGES:
-        if stage.name not in names and any(u in names for u in stage.upstream):
+    for stage in stages_for(cfg):
+        if stage.name not in names and any(u in names for u in stage.inputs(cfg)):
             names.append(stage.name)
     return names
 
@@ -44,19 +56,20 @@ def run_demo(root: Path, cfg: DemoConfig, overwrite: bool = False, stream=None) 
     ctx = DemoContext(root, cfg)
     keys: dict[str, str] = {}
     timings: list[tuple[str, float, str]] = []
-    for k, stage in enumerate(STAGES, 1):
-        key = keys[stage.name] = stage_key(stage.settings(cfg), [keys[u] for u in stage.upstream])
+    stages = stages_for(cfg)
+    for k, stage in enumerate(stages, 1):
+        key = keys[stage.name] = stage_key(stage.settings(cfg), [keys[u] for u in stage.inputs(cfg)])
         if state.is_done(stage.name, key):
             timings.append((stage.name, state.stages[stage.name]["seconds"], "skipped (done earlier, same settings)"))
-            print(f"[{k}/{len(STAGES)}] {stage.name:<15} skipped: done earlier with the same settings",
+            print(f"[{k}/{len(stages)}] {stage.name:<15} skipped: done earlier with the same settings",
                   file=stream, flush=True)
             continue
-        state.forget(downstream(stage.name))
+        state.forget(downstream(stage.name, cfg))
         stage.clean(ctx)
         done = {"notes": {n: state.notes(n) for n in state.stages}, "timings": list(timings)}
         start = time.monotonic()
         try:
-            with StageLine(k, len(STAGES), stage.name, stage.estimate_s(cfg), stage.probe(ctx), stream):
+            with StageLine(k, len(stages), stage.name, stage.estimate_s(cfg), stage.probe(ctx), stream):
                 notes = stage.run(ctx, done)
         except KeyboardInterrupt:
             raise DemoInterrupted(f"interrupted in stage {stage.name}; the stages before it are kept, "
@@ -69,4 +82,4 @@ def run_demo(root: Path, cfg: DemoConfig, overwrite: bool = False, stream=None) 
     return timings
 
 
-__all__ = ["STAGES", "DemoInterrupted", "StageFailed", "run_demo"]
+__all__ = ["STAGES", "VIDEO_STAGES", "DemoInterrupted", "StageFailed", "run_demo", "stages_for"]

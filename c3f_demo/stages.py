@@ -27,6 +27,11 @@ class Stage:
     name = ""
     upstream: tuple[str, ...] = ()
 
+    def inputs(self, cfg: DemoConfig) -> tuple[str, ...]:
+        """The stages this one reads from for ``cfg``: ``upstream``, where the sequence stage
+        ``simulate`` is ``ingest`` on a user's video."""
+        return tuple("ingest" if u == "simulate" and cfg.video else u for u in self.upstream)
+
     def settings(self, cfg: DemoConfig) -> dict:
         return {}
 
@@ -396,7 +401,7 @@ class Slam(Stage):
 
     def estimate_s(self, cfg):
         n = len(slam_runs(cfg))  # 2 at a time
-        return (n * 8.0 + cfg.simulate.test_frames * (0.05 + (n - 1) * 0.25)) / 2
+        return (n * 8.0 + cfg.sequence_frames * (0.05 + (n - 1) * 0.25)) / 2
 
     def probe(self, ctx):
         return lambda: sum(ctx.slam_dir(n).is_dir() for n in ctx.slam_runs) / (len(ctx.slam_runs) + 1)
