@@ -259,6 +259,26 @@ class RunFolder:
             self.staging = None
 
 
+class FrameLog:
+    """``frame_log.csv`` of a run, written as the frames come (memory stays flat however long the
+    video): per frame streamed, its index, timestamp (s) and what happened to it (a skip reason, or
+    the back-end's decision kind). The run folder is published whole, so a line is never seen half
+    written."""
+
+    HEADER = "index,timestamp,outcome"
+
+    def __init__(self, path: str | Path) -> None:
+        self.file = open(path, "w", encoding="utf-8")  # noqa: SIM115 - closed by close()
+        self.file.write(self.HEADER + "\n")
+
+    def write(self, index: int, timestamp: float, outcome: str) -> None:
+        self.file.write(f"{index},{timestamp:.6f},{outcome}\n")
+
+    def close(self) -> None:
+        if not self.file.closed:
+            self.file.close()
+
+
 class RunOutputs:
     """The files of one runtime run in ``root`` (created on first write)."""
 
@@ -323,12 +343,6 @@ class RunOutputs:
     @property
     def frame_log(self) -> Path:
         return self.root / "frame_log.csv"
-
-    def write_frame_log(self, rows: list[tuple[int, float, str]]) -> None:
-        """``frame_log.csv``: per frame streamed, its index, timestamp (s) and what happened to it
-        (a skip reason, or the back-end's decision kind)."""
-        lines = ["index,timestamp,outcome", *(f"{i},{t:.6f},{what}" for i, t, what in rows)]
-        atomic_write_text(self.frame_log, "\n".join(lines) + "\n")
 
     def write_summary(self, summary: dict) -> None:
         write_json(self.summary, summary)

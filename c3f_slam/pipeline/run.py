@@ -37,7 +37,7 @@ from c3f_slam.config import SlamConfig
 from c3f_slam.errors import InputError
 from c3f_slam.frame_quality import QUALITY_CAUSES
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
-from c3f_slam.outputs import RunFolder, RunOutputs
+from c3f_slam.outputs import FrameLog, RunFolder, RunOutputs
 from c3f_slam.pipeline.backend import BackendFactory, SlamBackend
 from c3f_slam.pipeline.components import (
     ComponentEntry,
@@ -65,16 +65,12 @@ SKIP_REASONS = ("black", "saturated", "featureless", "unreadable", *QUALITY_CAUS
 @dataclass
 class FrameCounts:
     """Frames streamed, processed, skipped by reason, and the back-end's decisions on the
-    processed ones by kind (summary.json; ``frame_decisions``); what happened to each frame, in
-    order (``frame_log.csv``)."""
+    processed ones by kind (summary.json; ``frame_decisions``)."""
 
     frames: int = 0
     processed: int = 0
     skipped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(SKIP_REASONS, 0))
     decisions: DecisionCounts = field(default_factory=DecisionCounts)
-
-    #: per frame streamed: (index, timestamp s, what happened: a skip reason or the decision kind)
-    log: list[tuple[int, float, str]] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "processed": self.processed,
@@ -99,6 +95,7 @@ class SlamRun:
                  factory: BackendFactory, progress: bool) -> None:
         self.cfg, self.sources, self.timings, self.outputs = cfg, sources, timings, outputs
         self.counts = FrameCounts()
+        self.log = FrameLog(outputs.frame_log)  #: what happened to each frame, written as it happens
         self.components: list[ComponentEntry] | None = None  #: after finish(): the map's components
         self.backend: SlamBackend | None = None
         self.frames: FusionFrames | None = None
@@ -166,7 +163,7 @@ class SlamRun:
         self.counts.processed += 1
         decision = self.backend.add(FrameInput(feat, item.depth, frame.rgb))
         self.counts.decisions.add(decision)
-        self.counts.log.append((frame.index, frame.timestamp, decision.kind))
+        self.log.write(frame.index, frame.timestamp, decision.kind)
         if self.fusion is not None and decision.fragment >= 0:
             with self.timings.stage("fusion"):
                 self._fuse(decision.fragment, item)
@@ -181,7 +178,7 @@ class SlamRun:
 
     def _skip(self, frame: StreamFrame, reason: str) -> None:
         self.counts.skipped[reason] += 1
-        self.counts.log.append((frame.index, frame.timestamp, reason))
+        self.log.write(frame.index, frame.timestamp, reason)
         self.backend.skip(frame.index, frame.timestamp)
 
     def _fuse(self, fid: int, item: PerceivedFrame) -> None:
@@ -212,6 +209,7 @@ class SlamRun:
     def close(self) -> None:
         """Free the resources (BLAS limit, progress bar, fusion's frame cache, the back-end's
         keyframe cache); the back-end's trajectory and stats stay readable."""
+        self.log.close()
         if self._blas is not None:
             self._blas.restore_original_limits()
             self._blas = None
@@ -335,7 +333,6 @@ def write_run_outputs(outputs: RunOutputs, run: SlamRun | None, summary: dict, t
     """Trajectory, keyframe graph and summary (each atomically); never raises on top of an error."""
     counts = run.counts if run is not None else FrameCounts()
     summary.update(counts.as_dict())
-    outputs.write_frame_log(counts.log)
     summary["wall_seconds"] = time.perf_counter() - t_start
     summary["timings"] = run.timings.as_dict(counts.frames) if run is not None else Timings().as_dict(0)
     try:
