@@ -230,18 +230,25 @@ def _with_black_run(src: Path, dst: Path, after: int, n_black: int) -> Path:
     return dst
 
 
-@pytest.mark.parametrize("appearance_only", [False, True], ids=["all-keyframes", "appearance-top-3"])
+@pytest.mark.parametrize("appearance_only", [False, True, None], ids=["all-keyframes", "appearance-top-3", "linked"])
 def test_black_run_relocalises_to_the_map(seq, tmp_path, appearance_only):
-    """After the black frames the first keyframe has no odometry link; it joins the map by
-    matching earlier keyframes: all of them (small map), or, with the candidates cut to the
-    appearance top 3 (no recent, no spatial ones), through the global appearance score alone."""
+    """With the track broken at skipped frames (``rejoin.across_skipped`` false), the first
+    keyframe after the black frames has no odometry link; it joins the map by matching earlier
+    keyframes: all of them (small map), or, with the candidates cut to the appearance top 3 (no
+    recent, no spatial ones), through the global appearance score alone. By default (``linked``)
+    the frame after them is matched to the last one before them and the track goes on."""
     after, n_black = FRAMES // 2, 5
     dst = _with_black_run(seq, tmp_path / "black", after, n_black)
     extra = dict(candidates={"max_candidates": 3, "recent": 0, "spatial": 0}) if appearance_only else {}
+    if appearance_only is not None:
+        extra["rejoin"] = {"across_skipped": False}
     cfg = slam_preset("colon", fusion={"enabled": False}, **CFG, **extra)
     s = run_slam(dst, tmp_path / "out", cfg, progress=False)
     assert s["skipped_black"] == n_black
-    assert s["relocalised_keyframes"] >= 1  # a keyframe with no odometry link joined the map
+    if appearance_only is None:
+        assert s["tracking_breaks"] == 0 and s["relocalised_keyframes"] == 0
+    else:
+        assert s["relocalised_keyframes"] >= 1  # a keyframe with no odometry link joined the map
     st, P = read_tum(tmp_path / "out" / "trajectory.txt")
     resumed = np.arange(after + 1 + n_black, FRAMES + n_black) / 30.0
     assert np.isin(np.round(resumed, 6), np.round(st, 6)).mean() >= 0.9  # frames after the gap registered

@@ -19,12 +19,16 @@ K = np.array([[30.0, 0.0, 16.0], [0.0, 30.0, 16.0], [0.0, 0.0, 1.0]])
 DEPTH = np.full((32, 32), 0.03)
 
 
-def _slam(world: PlaceWorld, reuse: bool, candidates: dict | None = None, **keyframes) -> FragmentSlam:
+def _slam(world: PlaceWorld, reuse: bool, candidates: dict | None = None, skips_break: bool = False,
+          **keyframes) -> FragmentSlam:
     """Graded matches (40 inliers at the same place, one fewer per place of distance) and 40
     consecutive correspondences needed to stay in a fragment: moving to another place opens
-    a fragment, a frame at an already mapped place can continue that place's fragment."""
+    a fragment, a frame at an already mapped place can continue that place's fragment.
+    ``skips_break``: a skipped frame breaks the track (``rejoin.across_skipped`` false), so that
+    ``skip`` stands for lost tracking."""
     cfg = slam_preset("colon", fragments={"min_correspondences": 40}, fusion={"enabled": False},
-                                   keyframes={"reuse": reuse, **keyframes}, candidates=candidates or {})
+                                   keyframes={"reuse": reuse, **keyframes}, candidates=candidates or {},
+                                   rejoin={"across_skipped": not skips_break})
     slam = FragmentSlam(cfg, K)
     world.use(slam)
     return slam
@@ -85,7 +89,7 @@ def test_attach_needs_the_fragment_rules_overlap():
     90 degrees, its points outside the keyframe's view) makes a keyframe of its own."""
     world = PlaceWorld(4, reach=3, seed=2, graded=True)
     turned = world.poses[1] @ np.array([[0, 0, 1, 0], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], float)
-    slam = _slam(world, True)
+    slam = _slam(world, True, skips_break=True)
     for k, p in enumerate([0, 1, 2]):
         slam.add(FrameInput(world.frame(k, p), DEPTH))
     # a frame at place 1, matched with the right relative pose but turned 90 deg
@@ -114,7 +118,7 @@ def test_attached_revisit_merges_a_lone_component():
     component), then back over 6, 5, 4: the revisit of place 4 hangs off its keyframe and its
     match to place 3 (now visible) merges the two components without a new keyframe."""
     world = PlaceWorld(8, reach=1, seed=3, graded=True)
-    slam = _slam(world, True, candidates={"max_candidates": None})
+    slam = _slam(world, True, candidates={"max_candidates": None}, skips_break=True)
     hide = {"on": True}
 
     def match(a: FrameFeatures, b: FrameFeatures) -> tuple[PairMatch | None, int]:
@@ -163,9 +167,10 @@ def test_a_wrong_keyframe_match_does_not_attach_against_the_odometry(check):
     """Places 0-5 are mapped; a frame at the new place 6 (linked to place 5 by odometry)
     gets a wrong, strong match to keyframe 0 (identity pose, all points). It disagrees with
     the odometry by 3 cm, so the frame makes a keyframe of its own and the wrong edge is
-    pruned by the optimisation; without the agreement check it would hang off keyframe 0."""
+    pruned by the optimisation; without the agreement check it would hang off keyframe 0 (where
+    the host's match alone puts it: ``reuse_odometry_weight`` 0)."""
     world = PlaceWorld(8, reach=3, seed=4, graded=True)
-    over = {} if check else dict(reuse_max_offset=1.0, reuse_max_angle_deg=180.0)
+    over = {} if check else dict(reuse_max_offset=1.0, reuse_max_angle_deg=180.0, reuse_odometry_weight=0.0)
     slam = _slam(world, True, **over)
     inner = world.match
 
@@ -207,7 +212,7 @@ def test_no_attach_to_the_keyframe_the_overlap_test_just_failed():
     active keyframe (here: same place, but its depth disagrees with the keyframe's) must not
     hang off that very keyframe."""
     world = PlaceWorld(3, reach=2, seed=5, graded=True)
-    slam = _slam(world, True)
+    slam = _slam(world, True, skips_break=True)
     slam.add(FrameInput(world.frame(0, 0), DEPTH))
     slam.add(FrameInput(world.frame(1, 0), DEPTH))  # appended to the keyframe's fragment
     slam.add(FrameInput(world.frame(2, 0), DEPTH * 2.0 / 3.0))

@@ -37,11 +37,20 @@ class KeyframeConfig:
     reuse: bool = True  #: a fragment that revisits a mapped place hangs off that place's keyframe
     reuse_max_offset: float = 0.005  #: metres: a reuse must agree with the odometry link this well ...
     reuse_max_angle_deg: float = 10.0  #: ... and within this angle
+    #: where a reusing fragment's first frame goes relative to its host keyframe: 0 = where the
+    #: host's match puts it, 1 = where the odometry link from the frame before puts it (when there
+    #: is one into the host's component), in between: that share of the way from the first to the
+    #: second. The two disagree by up to ``reuse_max_offset``; on predicted depth by about 0.5 mm,
+    #: which the host's match alone (0) turned into steps of the path: on the phantom clip 0.5 took
+    #: its jitter ratio from 2.61 to 2.24 (docs/design.md, Smooth trajectories on predicted depth)
+    reuse_odometry_weight: float = 0.5
     cache: bool = True  #: stored features on disk under OUT/.keyframe_cache (same results, flat RAM)
 
     def __post_init__(self) -> None:
         at_least(self.keypoints, 10, "keyframes.keypoints")
         at_least(self.max_loop_edges, 0, "keyframes.max_loop_edges", "keep all")
+        check(0.0 <= self.reuse_odometry_weight <= 1.0,
+              f"keyframes.reuse_odometry_weight must be in [0, 1], got {self.reuse_odometry_weight}")
         check(self.reuse_max_offset >= 0 and 0 <= self.reuse_max_angle_deg <= 180,
                "keyframes.reuse_max_offset must be >= 0 (metres) and keyframes.reuse_max_angle_deg in [0, 180], "
                f"got {self.reuse_max_offset}, {self.reuse_max_angle_deg}")

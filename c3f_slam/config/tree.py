@@ -6,11 +6,12 @@ read), ``tissue`` (the image area that shows tissue), ``frontend`` (keypoints, r
 ``keyframes`` (what a keyframe keeps, revisits), ``rejoin`` (bridging tracking breaks),
 ``fallback`` (guided and dense matching where sparse matching fails), ``refine`` (dense
 refinement of keyframe edges), ``posegraph``, ``optimization`` (the global schedule),
-``components`` (those written beside the main map), ``fusion``, ``coverage`` (the unseen-wall
-estimate) and ``checks`` (the run's agreement with itself, no ground truth). Each group
-validates its own fields (InputError naming ``part.field``). The presets are complete instances
-of this tree (:mod:`c3f_slam.config.presets`); a run's ``summary.json`` records the tree it ran
-with (:meth:`SlamConfig.as_dict`), and :func:`c3f_slam.config.presets.config_from_dict` reads it
+``smoothing`` (the camera path on predicted depth), ``components`` (those written beside the
+main map), ``fusion``, ``coverage`` (the unseen-wall estimate) and ``checks`` (the run's
+agreement with itself, no ground truth). Each group validates its own fields (InputError naming
+``part.field``). The presets are complete instances of this tree
+(:mod:`c3f_slam.config.presets`); a run's ``summary.json`` records the tree it ran with
+(:meth:`SlamConfig.as_dict`), and :func:`c3f_slam.config.presets.config_from_dict` reads it
 back.
 
 In Python, parts may be changed as dicts of their fields::
@@ -36,6 +37,7 @@ from c3f_slam.config.mapping import (
     RefineConfig,
 )
 from c3f_slam.config.outputs import ChecksConfig, CoverageConfig, FusionConfig
+from c3f_slam.config.smoothing import SmoothingConfig
 from c3f_slam.config.tracking import FallbackConfig, FragmentConfig, FrontendConfig, MatchFilterConfig, RejoinConfig
 from c3f_slam.settings import tree_as_mapping, tree_from_mapping
 
@@ -62,6 +64,7 @@ class SlamConfig:
     refine: RefineConfig = field(default_factory=RefineConfig)
     posegraph: PoseGraphConfig = field(default_factory=PoseGraphConfig)
     optimization: OptimizationConfig = field(default_factory=OptimizationConfig)
+    smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
     components: ComponentConfig = field(default_factory=ComponentConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     coverage: CoverageConfig = field(default_factory=CoverageConfig)
@@ -93,8 +96,9 @@ class SlamConfig:
     def for_depth_source(self, depth_source: str) -> SlamConfig:
         """This config with the thresholds that derive from the depth source (``files`` |
         ``model``) resolved (``match_filter.residual_relative_tolerance``:
-        :meth:`MatchFilterConfig.for_depth_source`)."""
-        return replace(self, match_filter=self.match_filter.for_depth_source(depth_source))
+        :meth:`MatchFilterConfig.for_depth_source`; ``smoothing``: :meth:`SmoothingConfig.for_depth_source`)."""
+        return replace(self, match_filter=self.match_filter.for_depth_source(depth_source),
+                       smoothing=self.smoothing.for_depth_source(depth_source))
 
     def as_dict(self) -> dict:
         """The tree as nested plain dicts (summary.json's ``config``; ``config_from_dict`` reads it back)."""

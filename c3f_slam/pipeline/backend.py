@@ -47,12 +47,24 @@ class FrameLog:
         self.node.append(-1)
         self.rel.extend(self._UNSET)
 
-    def settle(self, row0: int, node: int, poses: np.ndarray) -> None:
-        """Rows ``row0 ..`` (a closed fragment's frames, in order) hang off ``node`` with
-        node-from-frame ``poses`` (n, 4, 4)."""
+    def settle(self, row0: int, node: int, poses: np.ndarray, rows: list[int] | None = None) -> None:
+        """A closed fragment's frames, in order, hang off ``node`` with node-from-frame ``poses``
+        (n, 4, 4): rows ``row0 ..``, or ``rows`` where skipped frames lie between them."""
         n = len(poses)
+        if rows is not None and rows[-1] - rows[0] != n - 1:  # not one run of rows
+            if len(rows) != n:
+                raise ValueError(f"{len(rows)} rows for {n} poses")
+            for r, P in zip(rows, np.asarray(poses, np.float64)):
+                self.node[r] = node
+                self.rel[16 * r:16 * r + 16] = array("d", np.ascontiguousarray(P).tobytes())
+            return
         self.node[row0:row0 + n] = array("q", [node]) * n
         self.rel[16 * row0:16 * (row0 + n)] = array("d", np.ascontiguousarray(poses, np.float64).tobytes())
+
+    def set_node_poses(self, rows: np.ndarray, poses: np.ndarray) -> None:
+        """Replace the node-from-frame poses of settled ``rows`` (any order) by ``poses`` (n, 4, 4)."""
+        for r, P in zip(np.asarray(rows).tolist(), np.asarray(poses, np.float64)):
+            self.rel[16 * r:16 * r + 16] = array("d", np.ascontiguousarray(P).tobytes())
 
     def fragments(self) -> np.ndarray:
         """Fragment id per row (-1: not placed), int64, a copy (a view would pin the array)."""

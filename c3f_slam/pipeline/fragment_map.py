@@ -24,8 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from c3f_slam.config import SlamConfig
+from c3f_slam.geometry import invert_pose
 from c3f_slam.outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog
 from c3f_slam.pipeline.components import MapComponent
@@ -36,6 +38,7 @@ from c3f_slam.pipeline.keyframe_edges import KeyframeEdge, link_across_break, li
 from c3f_slam.pipeline.keyframe_store import KeyframeStore
 from c3f_slam.pipeline.retrieval import KeyframeRetrieval
 from c3f_slam.pipeline.schedule import OptimizationSchedule
+from c3f_slam.pipeline.smoothing import smooth_poses
 from c3f_slam.posegraph import PoseGraph
 from c3f_slam.posegraph.components import Components
 
@@ -72,6 +75,7 @@ class FragmentMap:
         self.sparse = Components() if cfg.fallback.dense else None
         self.active: Fragment | None = None
         self._active_row = -1  # log row of the active fragment's first frame
+        self._active_rows: list[int] = []  # log rows of its frames (skipped frames may lie between)
         self._last_row = -1  # log row of the last placed frame
         self._main_node = -1  # once chosen (choose_main): a node of the main component
 
@@ -88,6 +92,7 @@ class FragmentMap:
         local = act.add_frame(feat, link, extra)
         self.log.append(feat.index, feat.timestamp, act.id, local)
         self._last_row = len(self.log) - 1
+        self._active_rows.append(self._last_row)
         return act.id
 
     def close_active(self) -> None:
@@ -101,7 +106,8 @@ class FragmentMap:
         self.counts.intra_pruned += frag.pruned
         assert frag.rel_poses is not None
         poses = frag.rel_poses if frag.base is None else frag.base @ frag.rel_poses
-        self.log.settle(self._active_row, frag.node, poses)
+        self.log.settle(self._active_row, frag.node, poses, self._active_rows)
+        self._active_rows = []
 
     def start_fragment(self, index: int, stamp: float) -> int:
         """Log the first frame of a new fragment (after :meth:`close_active`); returns its id.
@@ -109,6 +115,7 @@ class FragmentMap:
         fid = self.counts.fragments
         self.counts.fragments += 1
         self._active_row = self._last_row = len(self.log)
+        self._active_rows = [self._active_row]
         self.log.append(index, stamp, fid, 0)
         return fid
 
@@ -136,15 +143,23 @@ class FragmentMap:
         number of components merged."""
         return link_new_keyframe(self.graph, node, edges, dense_information, self.sparse, information)
 
-    def attach(self, fid: int, frame: FrameInput, reason: str, keep: list[KeyframeEdge]) -> int:
+    def attach(self, fid: int, frame: FrameInput, reason: str, keep: list[KeyframeEdge],
+               odometry: KeyframeEdge | None = None) -> int:
         """Fragment ``fid`` hung off the keyframe of ``keep[0]`` (the host, a revisit): no new
-        node, the host's match as its base and the other edges of ``keep`` (host-k loop edges;
-        :func:`~c3f_slam.pipeline.reuse.revisit_edges`). Returns the number of components merged."""
+        node, the host's match as its base (moved ``keyframes.reuse_odometry_weight`` of the way
+        to where the ``odometry`` edge puts the frame, when it reaches the host's component) and
+        the other edges of ``keep`` (host-k loop edges; :func:`~c3f_slam.pipeline.reuse.revisit_edges`).
+        Returns the number of components merged."""
         host, m_host = keep[0].k, keep[0].match
         merged = link_revisit(self.graph, keep, self.sparse)
         self.counts.attached += 1
         self.frag_node.append(host)
-        self.active = Fragment(fid, frame.features, frame.depth, reason, node=host, base=m_host.T_ij)
+        base = m_host.T_ij
+        w = self.cfg.keyframes.reuse_odometry_weight
+        if w > 0 and odometry is not None and self.graph.connected(odometry.k, host):
+            by_odometry = invert_pose(self.graph.pose(host)) @ self.graph.pose(odometry.k) @ odometry.match.T_ij
+            base = blend_poses(base, by_odometry, w)
+        self.active = Fragment(fid, frame.features, frame.depth, reason, node=host, base=base)
         return merged
 
     def join_break(self, tail_node: int, T_ij: np.ndarray, points_j: np.ndarray) -> None:
@@ -173,6 +188,24 @@ class FragmentMap:
         for node in others[:rule.max_written]:
             self.schedule.finish(len(self.keyframes), node)
         self.choose_main()  # pruning may have split the main component
+        self.smooth_paths()
+
+    def smooth_paths(self) -> None:
+        """Refit every component's frame poses, in stream order, under the constant-velocity
+        motion prior (``smoothing.motion_prior_s``, :func:`~c3f_slam.pipeline.smoothing.smooth_poses`):
+        the frames stay hung off their nodes, with new node-from-frame poses. Nothing at tau 0.
+        Call it after the last optimisation (every fragment closed); O(frames)."""
+        rule = self.cfg.smoothing
+        if rule.prior_s <= 0:
+            return
+        stamps = np.frombuffer(self.log.stamp, np.float64)
+        for _, rows in self._frame_groups():
+            nodes = [self.log.node[r] for r in rows.tolist()]
+            world = np.stack([self.graph.pose(k) @ self.log.node_pose(r) for k, r in zip(nodes, rows.tolist())])
+            smooth = smooth_poses(stamps[rows], world, rule.prior_s, rule.max_gap_s, rule.robust_k,
+                                  rule.robust_iterations)
+            node_inv = np.stack([invert_pose(self.graph.pose(k)) for k in nodes])
+            self.log.set_node_poses(rows, node_inv @ smooth)
 
     def close(self) -> None:
         """Free the keyframe store's file and cache folder (if any); the trajectory, graph and
@@ -290,6 +323,16 @@ class FragmentMap:
             "keyframe_memory_bytes": self.keyframe_memory_bytes(),
             "keyframe_disk_bytes": self.keyframes.disk_bytes,
         }
+
+
+def blend_poses(A: np.ndarray, B: np.ndarray, w: float) -> np.ndarray:
+    """The pose ``w`` of the way from ``A`` to ``B`` (4x4; 0: A, 1: B): A exp(w log(A^-1 B)),
+    the rotation along the geodesic, the translation straight."""
+    D = invert_pose(A) @ B
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(w * Rotation.from_matrix(D[:3, :3]).as_rotvec()).as_matrix()
+    out[:3, 3] = w * D[:3, 3]
+    return A @ out
 
 
 def frame_groups(fragment: np.ndarray, frag_node: array, graph: PoseGraph) -> list[tuple[int, np.ndarray]]:

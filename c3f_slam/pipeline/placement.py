@@ -169,7 +169,8 @@ class FragmentPlacer:
         features, only the edges of :func:`revisit_edges` (as host-k edges)."""
         prev_frag = new.prev_frag
         keep = revisit_edges(self.map.graph, edges, host, prev_frag is not None and prev_frag.base is None)
-        merged = self.map.attach(new.fid, new.frame, new.reason, keep)
+        odometry = next((e for e in edges if e.kind == EdgeKind.ODOMETRY), None)
+        merged = self.map.attach(new.fid, new.frame, new.reason, keep, odometry)
         if not any(e.kind == EdgeKind.ODOMETRY for e in edges) and prev_frag is not None:
             self.counts.relocalised += 1
         self.map.after_keyframe(host, len(keep) > 1 or merged > 0)

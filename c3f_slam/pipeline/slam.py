@@ -78,9 +78,11 @@ class FragmentSlam:
 
     # ------------------------------------------------------------------ per frame
     def skip(self, index: int, stamp: float) -> None:
-        """A frame that was not processed (black / saturated / featureless)."""
+        """A frame that was not processed (black / saturated / featureless / repeated ...). The
+        next frame is still matched to the last processed one (``rejoin.across_skipped``;
+        False: the track breaks here), without the motion prior of guided matching."""
         self.map.skip(index, stamp)
-        self.gap = True
+        self.gap = self.gap or not self.cfg.rejoin.across_skipped
         self.recovery.gap()
 
     def add(self, frame: FrameInput) -> FrameDecision:
