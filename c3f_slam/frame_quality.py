@@ -157,7 +157,7 @@ class FrameQualityGate:
         mean_luma = float(luma.mean())
         if not masks.all_inside:  # outside the mask: a constant, so it can change nothing
             grey[~masks.inside] = mean_luma
-        sharpness = _sharpness(grey, masks.laplacian, mean_luma)
+        sharpness = _sharpness(grey, masks.laplacian)
         reference = self.reference
         ratio = None if reference is None else sharpness / max(reference, 1e-12)
         small = cv2.resize(grey, masks.dup, interpolation=cv2.INTER_AREA)
@@ -282,12 +282,12 @@ _DIRECTIONS = tuple(np.array(k, np.float32) for k in (
     [[1, 0, 0], [0, -2, 0], [0, 0, 1]], [[0, 0, 1], [0, -2, 0], [1, 0, 0]]))
 
 
-def _sharpness(grey: np.ndarray, inside: np.ndarray, mean_luma: float) -> float:
+def _sharpness(grey: np.ndarray, inside: np.ndarray) -> float:
     """The detail of the image's finest octave over the next one's, x 100, in the direction that
     has the least: per direction, the mean squared second difference inside the mask over that of
     the image smoothed by a Gaussian of 1 px. Gain and the amount of texture scale both alike, so
     sharp frames of any content give about the same value; blur removes the finest octave first
-    and lowers it. ``mean_luma`` is not needed."""
+    and lowers it."""
     grey = grey.astype(np.float32)
     smooth = cv2.GaussianBlur(grey, (0, 0), 1.0)
     shares = []
