@@ -1,16 +1,22 @@
 """``python -m c3f_demo.ingest VIDEO --out SEQ``: a video's frames as a sequence folder that the
 training data modules and the SLAM runtime read (docs/datasets.md, Sequence layout).
 
-``SEQ`` gets ``rgb/NNNNNN.png``, ``camera.json`` (pinhole), ``frames.csv`` (per frame: its
-index in the video and its time in seconds) and ``ingest.json`` (what was read and how). Frames
-are read with the runtime's own reader (:class:`c3f_slam.stream.FrameStream`: intrinsics from
-``--camera``, the ``--fov`` guess, or ``camera.json`` beside the video; a distorted lens is
-undistorted to a pinhole camera), every k-th (k the smallest that keeps at most ``--max-fps``
-frames per second of video), at most ``--max-frames`` from the start, resized (area
+``SEQ`` gets ``rgb/NNNNNN.png``, ``camera.json`` (pinhole), ``times.txt`` (each frame's time in
+the video, seconds: the runtime's motion prior and jitter ratio work in seconds), ``frames.csv``
+(per frame: its index in the video and its time), ``tissue_mask.png`` named by camera.json's
+``tissue_mask`` when the video shows a border or overlays, and ``ingest.json`` (what was read and
+how). Frames are read with the runtime's own reader (:class:`c3f_slam.stream.FrameStream`:
+intrinsics from ``--camera``, the ``--fov`` guess, or ``camera.json`` beside the video; a
+distorted lens is undistorted to a pinhole camera), every k-th (k the smallest that keeps at most
+``--max-fps`` frames per second of video), at most ``--max-frames`` from the start, resized (area
 interpolation) so that the longer side is at most ``--max-side`` pixels; the intrinsics follow.
-Black and saturated frames are kept (the SLAM run skips and counts them). The folder is built
-in a hidden folder beside ``SEQ`` and moved into place when complete, so an error or Ctrl-C
-never leaves half a sequence. Bad input: one ``error:`` line, exit status 2.
+The tissue area is the runtime's (:func:`c3f_slam.tissue.resolve_tissue_mask`: a mask named by
+the camera file, else found from the first frames). A frame that repeats the previous picture (a
+re-encoded video; the runtime's frame-quality gate says ``duplicate``) is not written: it carries
+nothing, and test-time training would learn from a pair with no motion; ``ingest.json`` counts
+them. Other frames the gate flags (blurred, dark, ...) are written: the SLAM run skips and counts
+them. The folder is built in a hidden folder beside ``SEQ`` and moved into place when complete,
+so an error or Ctrl-C never leaves half a sequence. Bad input: one ``error:`` line, exit status 2.
 """
 
 from __future__ import annotations
@@ -24,10 +30,13 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
 from c3f_slam.cli_parser import OneLineParser
 from c3f_slam.errors import InputError
 
 FRAMES_CSV = "frames.csv"  #: per frame of the sequence: frame, video_frame, time_s
+TISSUE_MASK = "tissue_mask.png"  #: the tissue area at the sequence's frame size (255 = tissue)
 RECORD = "ingest.json"  #: what the ingest read and wrote
 
 
@@ -66,8 +75,11 @@ def ingest(video: str | Path, out: str | Path, camera: str | Path | None = None,
     """Write the sequence folder ``out`` from ``video`` (module docstring); returns ``ingest.json``'s record."""
     import cv2
 
+    from c3f_slam.config import FrameQualityConfig, TissueConfig
+    from c3f_slam.frame_quality import DUPLICATE, FrameQualityGate
     from c3f_slam.io.atomic import move_into_place, staging_dir
     from c3f_slam.io.sequence import SequenceWriter
+    from c3f_slam.tissue import resolve_tissue_mask
 
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -79,25 +91,32 @@ def ingest(video: str | Path, out: str | Path, camera: str | Path | None = None,
     stream = open_video(video, camera, fov, step, max_frames)
     size = target_size(stream.camera.width, stream.camera.height, max_side)
     cam = stream.camera.resize(*size)
+    tissue = resolve_tissue_mask(stream, TissueConfig(), stream.camera_file)
+    stream.quality = FrameQualityGate(FrameQualityConfig(), tissue.pixels)
     tmp = staging_dir(out)
     rows, statuses = [], {}
     try:
         writer = SequenceWriter(tmp, cam)
-        for k, frame in enumerate(stream):
+        for frame in stream:
+            statuses[frame.status] = statuses.get(frame.status, 0) + 1
+            if frame.status == DUPLICATE or frame.rgb is None:  # a repeat, or a frame that does not decode
+                continue
             rgb = frame.rgb if size == (stream.camera.width, stream.camera.height) else cv2.resize(
                 frame.rgb, size, interpolation=cv2.INTER_AREA)
-            writer.write_frame(k, rgb)
-            rows.append((k, frame.index, round(frame.timestamp, 6)))
-            statuses[frame.status] = statuses.get(frame.status, 0) + 1
+            writer.write_frame(len(rows), rgb)
+            rows.append((len(rows), frame.index, round(frame.timestamp, 6)))
         if len(rows) < 3:
-            raise InputError(f"--video {video}: {len(rows)} frame(s) decoded, at least 3 needed")
-        writer.finish()
+            raise InputError(f"--video {video}: {len(rows)} distinct frame(s) decoded, at least 3 needed")
+        writer.finish(timestamps=np.array([r[2] for r in rows]))
+        mask = write_tissue_mask(tmp, tissue, size)
         with (tmp / FRAMES_CSV).open("w", newline="") as fh:
             csv.writer(fh).writerows([("frame", "video_frame", "time_s"), *rows])
         record = {"video": str(Path(video).resolve()), "fps": probe.video_fps, "video_frames": probe.n_source_frames,
                   "step": step, "frames": len(rows), "seconds": rows[-1][2] - rows[0][2],
                   "source_size": [stream.camera.width, stream.camera.height], "size": list(size),
                   "camera_source": stream.camera_source, "camera": cam.to_dict(), "statuses": statuses,
+                  "repeats_dropped": statuses.get(DUPLICATE, 0),
+                  "tissue_mask": {**tissue.summary(), "file": mask},
                   "truncated": stream.truncation.message(Path(video)) if stream.truncation else None,
                   "settings": {"max_fps": max_fps, "max_frames": max_frames, "max_side": max_side}}
         (tmp / RECORD).write_text(json.dumps(record, indent=2) + "\n")
@@ -105,6 +124,23 @@ def ingest(video: str | Path, out: str | Path, camera: str | Path | None = None,
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return record
+
+
+def write_tissue_mask(seq: Path, tissue, size: tuple[int, int]) -> str | None:
+    """The tissue area (a :class:`c3f_slam.tissue.TissueMask` of the source frames) at the
+    sequence's frame ``size`` as ``seq/tissue_mask.png``, named by its camera.json's
+    ``tissue_mask``; nothing when it is the whole frame. Returns the file name or None."""
+    import cv2
+
+    if tissue.whole_frame:
+        return None
+    pixels = cv2.resize(tissue.pixels.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) * 255
+    if not cv2.imwrite(str(seq / TISSUE_MASK), pixels):
+        raise OSError(f"could not write {seq / TISSUE_MASK}")
+    camera_json = seq / "camera.json"
+    camera = json.loads(camera_json.read_text())
+    camera_json.write_text(json.dumps({**camera, "tissue_mask": TISSUE_MASK}, indent=2) + "\n")
+    return TISSUE_MASK
 
 
 def read_times(seq: str | Path) -> dict[int, float]:

@@ -12,15 +12,12 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import math
 from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
-
 from c3f_demo.config import DemoConfig, VideoConfig
 from c3f_demo.context import DemoContext
-from c3f_demo.ingest import RECORD, open_video, read_times
+from c3f_demo.ingest import RECORD, open_video
 from c3f_demo.stages import Stage
 from c3f_slam.errors import InputError
 
@@ -110,19 +107,17 @@ class View(Stage):
         return {"views": {n: None if exc is None else str(exc) for n, exc in failed.items()}}
 
 
-def jitter(run: Path, seq: Path) -> dict:
+def jitter(run: Path) -> dict:
     """The trajectory's jitter ratio (:func:`c3f_slam.trajectory_metrics.jitter_ratio`: path length
     over the length of its 1-s moving average; 1 = smooth) and path length (metres, the run's own
-    scale), each frame at its time in the video (``frames.csv``)."""
+    scale); the run's timestamps are the frames' times in the video (the sequence's times.txt)."""
     from c3f_slam.io import read_tum
     from c3f_slam.trajectory_metrics import jitter_ratio, path_length
 
     stamps, poses = read_tum(run / "trajectory.txt")
-    times = read_times(seq)
-    t = np.array([times.get(int(round(s)), math.nan) for s in stamps])
     positions = poses[:, :3, 3]
-    return {"jitter_ratio": jitter_ratio(positions, t), "path_length_m": path_length(positions),
-            "seconds": float(np.nanmax(t) - np.nanmin(t)) if len(t) else 0.0}
+    return {"jitter_ratio": jitter_ratio(positions, stamps), "path_length_m": path_length(positions),
+            "seconds": float(stamps.max() - stamps.min()) if len(stamps) else 0.0}
 
 
 def frame_log(run: Path) -> list[str] | None:
@@ -164,7 +159,7 @@ def run_metrics(ctx: DemoContext, name: str, note: dict) -> dict:
     res["frame_counts"] = frame_counts(s)
     if res["status"] == "ok":
         try:
-            res |= jitter(ctx.slam_dir(name), ctx.test_seq)
+            res |= jitter(ctx.slam_dir(name))
         except InputError as exc:
             res["jitter_error"] = str(exc)
     return res

@@ -3,7 +3,10 @@
 A sample is a tuple of frames around a centre frame t, by default (t-1, t, t+1) with a
 configurable stride, pre-processed as the paper does (docs/design.md, Pre-processing): centre
 crop, resize (intrinsics follow), specular mask (Y > 0.9, 13-px dilation) and inpainting of the
-masked pixels.
+masked pixels. A sequence of the project's layout whose camera.json names a ``tissue_mask``
+(a scope's border and overlays: ``python -m c3f_demo.ingest`` writes one for a video) is seen as
+the runtime sees it: the pixels outside the tissue area are filled with a continuation of the
+tissue before the network sees them, and are left out of the losses with the specular ones.
 The settings groups (split, sampling, frames, loader) are those of :mod:`datamodules.config`.
 
 Batch layout (``F`` = frames per sample, in ``sampling.frame_offsets`` order; t is at index
@@ -13,7 +16,8 @@ Batch layout (``F`` = frames per sample, in ``sampling.frame_offsets`` order; t 
 key                   shape / type                 meaning
 ====================  ===========================  =========================================
 ``image``             (B, F, 3, H, W) float32      RGB in [0, 1], specular pixels inpainted
-``specular``          (B, F, 1, H, W) bool         specular mask (True = highlight)
+``specular``          (B, F, 1, H, W) bool         True = left out of the losses: a
+                                                  highlight, or outside the tissue area
 ``K``                 (B, 3, 3) float32            intrinsics of the resized frames, pixels
 ``depth``             (B, F, 1, H, W) float32      ground-truth depth, metres, 0 = none (opt.)
 ``pose``              (B, F, 4, 4) float32         ground-truth camera-to-world, metres (opt.)
@@ -40,8 +44,9 @@ from torch.utils.data import DataLoader, Dataset
 
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
-from c3f_slam.preprocess import center_crop_resize, prepare_network_input
+from c3f_slam.preprocess import center_crop_resize, on_grid, prepare_network_input
 from c3f_slam.settings import as_config, settings_as_dicts
+from c3f_slam.tissue import camera_mask_file, read_mask_png
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.formats import SequenceFormat, find_sequences
 from datamodules.resumable import ResumableLoader, ResumableSampler
@@ -68,6 +73,16 @@ class FrameSource(Protocol):
     def pose(self, i: int) -> np.ndarray: ...
 
 
+def tissue_of(seq: FrameSource) -> np.ndarray | None:
+    """(H, W) bool tissue area of a sequence of the project's layout whose camera.json names a
+    ``tissue_mask`` (True = tissue), else None (every pixel is tissue)."""
+    root = getattr(seq, "root", None)
+    path = camera_mask_file(Path(root) / "camera.json") if root is not None else None
+    if path is None:
+        return None
+    return read_mask_png(path, seq.camera.width, seq.camera.height, f"tissue mask of sequence {seq.name!r}")
+
+
 class FrameTupleDataset(Dataset):
     """Tuples of frames (the centre t and t + offset * stride) from several sequences.
 
@@ -91,6 +106,7 @@ class FrameTupleDataset(Dataset):
         self.frames = frames
         self.load_depth = load_depth and all(s.has_depth for s in self.sequences)
         self.load_poses = load_poses and all(s.has_poses for s in self.sequences)
+        self.tissue = [tissue_of(s) for s in self.sequences]
         span = max(self.offsets) - min(self.offsets)
         self.index: list[tuple[int, int]] = []
         for si, seq in enumerate(self.sequences):
@@ -105,9 +121,16 @@ class FrameTupleDataset(Dataset):
     def __len__(self) -> int:
         return len(self.index)
 
-    def _frame(self, seq: FrameSource, i: int) -> tuple[np.ndarray, np.ndarray, PinholeCamera, np.ndarray | None]:
+    def _frame(self, seq: FrameSource, i: int, tissue: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, PinholeCamera, np.ndarray | None]:
+        """Frame ``i``: network input, the mask of pixels left out of the losses, intrinsics, depth."""
         crop, size = self.frames.crop, self.frames.size
-        rgb, mask, cam = prepare_network_input(seq.read_rgb(i), seq.camera, crop, size, self.frames.specular)
+        rgb, mask, cam = prepare_network_input(seq.read_rgb(i), seq.camera, crop, size, self.frames.specular,
+                                               tissue=tissue)
+        if tissue is not None:
+            box = seq.camera.center_crop_box(*crop) if crop is not None else (0, 0, seq.camera.width,
+                                                                              seq.camera.height)
+            mask = mask | ~on_grid(tissue, box, (cam.width, cam.height))
         depth = None
         if self.load_depth:
             d = seq.read_depth(i)
@@ -123,7 +146,7 @@ class FrameTupleDataset(Dataset):
         images, masks, depths = [], [], []
         cam = None
         for i in frames:
-            rgb, mask, cam, depth = self._frame(seq, i)
+            rgb, mask, cam, depth = self._frame(seq, i, self.tissue[si])
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
             masks.append(torch.from_numpy(mask)[None])
             if depth is not None:

@@ -113,3 +113,32 @@ def test_nan_depth_rejected(tmp_path):
         FrameTupleDataset([seq], FramesConfig(size=None))[0]
 
 
+
+
+def test_a_scope_border_named_by_camera_json_is_filled_and_left_out_of_the_losses(plane_dataset, tmp_path):
+    """A sequence whose camera.json names a tissue mask (a video's, written by the ingest) is seen
+    as the runtime sees it: no black border in the network input, and the border in the mask of
+    pixels the losses leave out."""
+    import json
+    import shutil
+
+    seq_dir = shutil.copytree(plane_dataset / "plane0", tmp_path / "scoped")
+    seq = Sequence(seq_dir)
+    h, w = seq.camera.height, seq.camera.width
+    tissue = np.zeros((h, w), np.uint8)
+    cv2.circle(tissue, (w // 2, h // 2), int(0.45 * min(w, h)), 255, -1)
+    for p in seq.rgb_paths:  # the border black, as a scope's
+        img = cv2.imread(str(p))
+        img[tissue == 0] = 0
+        cv2.imwrite(str(p), img)
+    cv2.imwrite(str(seq_dir / "tissue_mask.png"), tissue)
+    bare = FrameTupleDataset([Sequence(seq_dir)], FramesConfig(size=None))[0]
+    cam = json.loads((seq_dir / "camera.json").read_text())
+    (seq_dir / "camera.json").write_text(json.dumps({**cam, "tissue_mask": "tissue_mask.png"}))
+    scoped = FrameTupleDataset([Sequence(seq_dir)], FramesConfig(size=None))[0]
+    outside = torch.from_numpy(tissue == 0)
+    assert float(bare["image"][1][:, outside].max()) == 0.0  # without the mask: the black border
+    assert float(scoped["image"][1][:, outside].mean()) > 0.1  # with it: the tissue continued
+    assert scoped["specular"][:, 0][:, outside].all() and not bare["specular"][:, 0][:, outside].any()
+    inside = torch.from_numpy(cv2.erode(tissue, np.ones((5, 5), np.uint8)) > 0)
+    assert torch.equal(scoped["image"][1][:, inside], bare["image"][1][:, inside])

@@ -82,6 +82,45 @@ def test_ingest_with_fov_guess_writes_a_sequence(tmp_path):
     assert not list(tmp_path.glob(".seq.partial-*"))  # no staging folder left
 
 
+def test_ingest_drops_repeats_keeps_video_times_and_records_the_tissue_area(tiny_video, tmp_path):
+    """A re-encoded video that shows each picture twice: the repeats are not written, each frame
+    keeps its time in the video (times.txt: what the runtime's motion prior and jitter ratio read),
+    and the scope's border is found once and named by camera.json, where the runtime and the
+    training data modules read it."""
+    from c3f_slam.io import Sequence
+    from c3f_slam.tissue import camera_mask_file, read_mask_png
+
+    cap, frames = cv2.VideoCapture(str(tiny_video)), []
+    while (ok_frame := cap.read())[0]:
+        frames.append(cv2.cvtColor(ok_frame[1], cv2.COLOR_BGR2RGB))
+    cap.release()
+    doubled = write_video([f for f in frames for _ in range(2)], tmp_path / "doubled.mp4", 20.0)
+    shutil.copy(tiny_video.parent / "camera.json", tmp_path / "camera.json")
+    rec = ingest(doubled, tmp_path / "seq", max_fps=30, max_side=96)
+    seq = Sequence(tmp_path / "seq")
+    assert rec["repeats_dropped"] >= 15 and len(seq) == 2 * len(frames) - rec["repeats_dropped"]
+    assert seq.timestamps is not None and seq.timestamps[-1] == pytest.approx(rec["seconds"] + seq.timestamps[0])
+    assert np.all(np.diff(seq.timestamps) >= 1 / 20 - 1e-6)  # a kept frame every 1/20 s or more
+    mask = read_mask_png(camera_mask_file(seq.root / "camera.json"), seq.camera.width, seq.camera.height)
+    assert 0.5 < mask.mean() < 0.95 and rec["tissue_mask"]["file"] == "tissue_mask.png"
+    assert not mask[0, 0] and mask[48, 48]  # the octagon's corner is border, the centre tissue
+
+
+def test_a_sequence_reads_its_times_and_refuses_bad_ones_in_one_line(tmp_path):
+    from c3f_slam.io import Sequence, SequenceWriter
+
+    writer = SequenceWriter(tmp_path / "s", PinholeCamera(8, 8, 8.0, 8.0, 3.5, 3.5))
+    for k in range(3):
+        writer.write_frame(k, np.zeros((8, 8, 3), np.uint8))
+    writer.finish(timestamps=np.array([0.5, 0.55, 0.65]))
+    assert Sequence(tmp_path / "s").timestamps == pytest.approx([0.5, 0.55, 0.65])
+    for text, why in (("0.5\n0.55\n", "2 times for 3 frames"), ("0.5\n0.5\n0.6\n", "increase"),
+                      ("0.5\nx\n0.6\n", "not a list of times")):
+        (tmp_path / "s" / "times.txt").write_text(text)
+        with pytest.raises(InputError, match=why):
+            Sequence(tmp_path / "s")
+
+
 def test_options_of_a_video(tmp_path):
     """The camera.json beside the video is taken when neither --camera nor --fov is given."""
     video = tmp_path / "v.mp4"

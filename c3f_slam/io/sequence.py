@@ -7,6 +7,8 @@
       depth/NNNNNN.png        optional, uint16, ``depth_scale`` units per metre, 0 = no depth
       camera.json             width, height, fx, fy, cx, cy, optional distortion, depth_scale
       poses.txt               optional, TUM, camera-to-world, metres, one line per frame
+      times.txt               optional, without poses.txt: each frame's time, seconds, one line
+                              per frame (a video's frames keep their times: see read_times)
       mesh.ply                optional ground-truth surface
 
 Frames are matched between ``rgb/`` and ``depth/`` by file stem. Depth is returned in
@@ -27,6 +29,29 @@ from c3f_slam.io.atomic import atomic_write, atomic_write_text
 from c3f_slam.io.tum import read_tum, write_tum
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+TIMES = "times.txt"  #: a sequence's frame times (seconds), when it has no poses.txt
+
+
+def read_times(path: str | Path, n_frames: int) -> np.ndarray:
+    """(n_frames,) float64 seconds from a times file (one number per line, ``#`` comments);
+    InputError naming the file when a line is not a number, the count is not ``n_frames`` or
+    the times do not increase."""
+    path = Path(path)
+    lines = [ln.split("#", 1)[0].strip() for ln in path.read_text().splitlines()]
+    try:
+        t = np.array([float(ln) for ln in lines if ln], dtype=np.float64)
+    except ValueError as exc:
+        raise InputError(f"{path}: not a list of times in seconds ({exc})") from None
+    if len(t) != n_frames:
+        raise InputError(f"{path}: {len(t)} times for {n_frames} frames")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise InputError(f"{path}: the times must be finite and increase from frame to frame")
+    return t
+
+
+def write_times(path: str | Path, timestamps: np.ndarray) -> None:
+    """A times file (:func:`read_times`), microsecond precision, written atomically."""
+    atomic_write_text(Path(path), "# time of each frame, seconds\n" + "".join(f"{t:.6f}\n" for t in timestamps))
 
 
 def read_rgb(path: str | Path) -> np.ndarray:
@@ -107,6 +132,8 @@ class Sequence:
                     f"{pose_file}: {len(poses)} poses for {len(self.rgb_paths)} frames in {rgb_dir}"
                 )
             self.timestamps, self.poses = stamps, poses
+        elif (self.root / TIMES).is_file():
+            self.timestamps = read_times(self.root / TIMES, len(self.rgb_paths))
 
     # ------------------------------------------------------------------ access
     @property
@@ -192,11 +219,14 @@ class SequenceWriter:
         self._n = max(self._n, index + 1)
 
     def finish(self, poses: np.ndarray | None = None, timestamps: np.ndarray | None = None) -> None:
-        """Write camera.json and (if given) poses.txt, camera-to-world."""
+        """Write camera.json and (if given) poses.txt, camera-to-world; ``timestamps`` (seconds)
+        without ``poses``: times.txt."""
         import json
 
         if poses is not None:
             if timestamps is None:
                 timestamps = np.arange(len(poses), dtype=np.float64)
             write_tum(self.root / "poses.txt", timestamps, poses)
+        elif timestamps is not None:
+            write_times(self.root / TIMES, np.asarray(timestamps, dtype=np.float64))
         atomic_write_text(self.root / "camera.json", json.dumps(self.camera.to_dict(), indent=2) + "\n")
