@@ -2,7 +2,7 @@
 
 A self-supervised DepthNet predicts depth only up to a scale (nothing in the photometric
 losses ties it to metres); the CPU-trained networks of this project predict 0.14-0.17 of the
-true depth (benchmarks/results/depth_motion.md), while the SLAM runtime's thresholds are in
+true depth (docs/lab_notes/2026-11-22-depth-motion.md), while the SLAM runtime's thresholds are in
 metres. When the training data have true depth (the simulator, UTS-synthetic, SimCol3D), the
 exporter measures the factor and records it in the depth model's metadata
 (``depth.metric_scale``); ``c3f_slam run`` multiplies the model's depth by it unless

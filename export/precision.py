@@ -8,7 +8,7 @@
   activations uint8 with ranges calibrated on real training frames (MinMax over the
   ``calibration`` inputs); inputs and outputs stay float32. Convolutions run in int8 where the
   CPU has the instructions (VNNI): 1.3-1.8x faster than float32 at one thread for the zoo's nets
-  on the machine of ``benchmarks/results/lighter_models.md``.
+  on the project's 2-core machine (docs/export.md, Lighter models: float16 and int8).
 
 The reduced precisions cannot meet the float32 parity tolerance (1e-4 absolute), so their parity
 check compares the mean absolute difference to PyTorch's float32 output relative to the mean

@@ -7,7 +7,9 @@ averaged over the sequences, and where the precision goes (near misses vs gross 
 the pairwise tolerance follows it (2 x residual, as in ``MatchFilterConfig()``, the colon's).
 
     python -m benchmarks.studies.contrafeat_eval --data DIR/test --checkpoint A.ckpt --checkpoint B.ckpt \
-        --max-residual-mm 1.0 0.5 --out benchmarks/results/contrafeat_eval.md
+        --max-residual-mm 1.0 0.5 --out /tmp/contrafeat_eval.md
+
+Findings so far: docs/lab_notes/2026-11-22-contrafeat-precision.md.
 """
 
 from __future__ import annotations

@@ -15,7 +15,9 @@ between the pixels 4 px apart around it (horizontally or vertically, the larger)
   over frames: the depth's overall relief, against which the edges are compared.
 
     python -m benchmarks.studies.depth_edges SEQ [SEQ ...] --depth-model zoo:c3f-depth-r18w32 \
-        [--depth-model OTHER.onnx ...] --report benchmarks/results/depth_edges.md
+        [--depth-model OTHER.onnx ...] --report /tmp/depth_edges.md
+
+Findings so far: docs/lab_notes/2026-12-06-depth-edges.md.
 """
 
 from __future__ import annotations

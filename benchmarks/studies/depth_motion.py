@@ -22,7 +22,9 @@ there: the true depth agrees within 5 %), and for each such surface point it com
   swamps the motion.
 
     python -m benchmarks.studies.depth_motion SEQ --depth-model runs/exported/full_warm800/depthnet.onnx \
-        [--depth-model OTHER.onnx ...] --gaps 1 10 30 --pairs 60 --report benchmarks/results/depth_motion.md
+        [--depth-model OTHER.onnx ...] --gaps 1 10 30 --pairs 60 --report /tmp/depth_motion.md
+
+Findings so far: docs/lab_notes/2026-11-22-depth-motion.md.
 """
 
 from __future__ import annotations

@@ -16,7 +16,9 @@ depth (the model's recorded metric scale applied), and reports per sequence
   motion that the scale change alone makes is larger than the real one.
 
     python -m benchmarks.studies.depth_scale_wobble SEQ [SEQ ...] --depth-model zoo:c3f-depth-r18w32 \
-        [--depth-model OTHER.onnx ...] --report benchmarks/results/depth_scale_wobble.md
+        [--depth-model OTHER.onnx ...] --report /tmp/depth_scale_wobble.md
+
+Findings so far: docs/lab_notes/2026-12-06-depth-scale-wobble.md.
 
 ``--slam OUT`` instead runs ``c3f_slam run`` on the one SEQ in model mode with
 ``--depth-model`` and ``--feature-model``, in this process, with every frame's predicted depth

@@ -17,7 +17,9 @@ CPU and scales the milestones with it (the report says which were used).
 
     python -m benchmarks.studies.depthnet_ttt --base-config runs/full/tb/version_0/config.yaml \\
         --base-ckpt runs/full/tb/version_0/checkpoints/last.ckpt --sequence data/test0 --epochs 10 \\
-        --work /tmp/ttt --out benchmarks/results/depthnet_ttt.md
+        --work /tmp/ttt --out /tmp/depthnet_ttt.md
+
+Findings so far: docs/lab_notes/2026-12-01-depthnet-ttt.md.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 weights by a criterion that needs no ground truth.
 
 The paper's objective, run on one sequence from good weights, can drift to a flat depth (its
-depth-consistency term is lowest there; ``benchmarks/results/depthnet_diagnosis.md``). The guard
+depth-consistency term is lowest there; docs/lab_notes/2026-11-22-depthnet-diagnosis.md). The guard
 watches ``train/depth_cv`` (spatial std / mean of the predicted depth, logged every step by
 DepthNet) and ``train/ph`` (the minimum-reprojection photometric term, which a flat depth does
 not lower). Every ``every`` steps it compares the recent mean spread with the spread of the

@@ -62,7 +62,7 @@ class RefineConfig:
     (:mod:`c3f_slam.pipeline.refine`). Lengths in metres: ``voxels`` coarse to fine (the
     preset's scale: room cm, colon mm), one ICP per voxel size with ``iterations`` each. Off by
     default for both presets: it did not lower the ATE on a synthetic room sequence nor on a
-    simulator colon one (benchmarks/results/slam_dense_refine.md)."""
+    simulator colon one (docs/lab_notes/2026-12-02-slam-dense-refine.md)."""
 
     enabled: bool = False  #: refine each new keyframe's edges
     voxels: tuple[float, ...] = (0.002, 0.001, 0.0005)  #: voxel sizes, coarse to fine (metres)

@@ -205,7 +205,8 @@ class FallbackConfig:
     and keyframe matches that reach across it re-place the side after it, so that the pose
     graph prunes a wrong one. Off by default: on the simulator's colon frames Open3D's dense
     odometry is off by about the inter-frame motion itself, and such results pass the
-    residual checks (benchmarks/results/slam_tracking.md).
+    residual checks (docs/design.md, Tracking breaks; measured in
+    docs/lab_notes/2026-12-02-slam-fallback-pairs.md).
     """
 
     guided: bool = True  #: match again near where the last motion puts each keypoint

@@ -70,7 +70,8 @@ class SlamConfig:
     coverage: CoverageConfig = field(default_factory=CoverageConfig)
     checks: ChecksConfig = field(default_factory=ChecksConfig)
     #: BLAS threads NumPy may use during a run (threadpoolctl); None = the library's setting.
-    #: 1: the matrices are small (benchmarks/results/slam_blas_threads.md)
+    #: 1: the matrices are small (docs/design.md, Scaling to long sequences; measured in
+    #: docs/lab_notes/2026-11-22-slam-blas-threads.md)
     blas_threads: int | None = 1
 
     def __post_init__(self) -> None:
