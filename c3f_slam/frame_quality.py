@@ -16,7 +16,9 @@ changes no measure at all.
 Thresholds are relative where absolute values do not transfer between videos: sharpness (gain-free)
 is compared with the running median of the last accepted frames. A duplicate is a frame whose
 difference to the last accepted one is not motion: the part of the difference that local motion
-explains is at the level compression noise leaves, far below what the slowest real motion gives.
+explains is at the level compression noise leaves, far below what the slowest real motion gives
+(an absolute level, and a share of the recent accepted frames' motion: compression noise does not
+grow with the frame's size as motion does).
 Exposure thresholds are in luma 0..255 (BT.601), an absolute scale. A flagged frame changes
 neither reference (the sharpness median, the last accepted picture), so slow motion accumulates
 against the last accepted frame until the next frame is no duplicate.
@@ -130,6 +132,7 @@ class FrameQualityGate:
         self._masks: _Masks | None = None
         self._frame_shape: tuple[int, int] | None = None
         self._reference: deque[float] = deque(maxlen=self.cfg.reference_frames)
+        self._motions: deque[float] = deque(maxlen=self.cfg.reference_frames)  # of accepted frames
         self._accepted: np.ndarray | None = None  # duplicate thumbnail of the last accepted frame
         self._rejected: np.ndarray | None = None  # ... of the last rejected picture since then
         self._blurred_run = 0
@@ -137,6 +140,7 @@ class FrameQualityGate:
     def reset(self) -> None:
         """Forget every frame seen (a new video)."""
         self._reference.clear()
+        self._motions.clear()
         self._accepted = self._rejected = None
         self._blurred_run = 0
 
@@ -178,7 +182,7 @@ class FrameQualityGate:
         )
         status = self._status(quality, self._is_duplicate(to_accepted), self._is_duplicate(to_rejected))
         status = status if self.cfg.enabled else OK
-        self._update(status, sharpness, small)
+        self._update(status, sharpness, small, None if to_accepted is None else to_accepted[1])
         return replace(quality, status=status)
 
     # -- internals ---------------------------------------------------------------------------
@@ -208,9 +212,15 @@ class FrameQualityGate:
                       dup_gradient.astype(np.float32), bool(inside.all()))
 
     def _is_duplicate(self, difference: tuple[float, float] | None) -> bool:
-        """Whether a (mean |diff|, motion rms) difference is no more than compression noise."""
-        return (difference is not None and difference[1] < self.cfg.duplicate_motion
-                and difference[0] < self.cfg.duplicate_luma)
+        """Whether a (mean |diff|, motion rms) difference is no more than compression noise: its
+        motion under ``duplicate_motion`` or under ``duplicate_motion_share`` of the accepted
+        frames' median motion, and its mean difference under ``duplicate_luma``."""
+        if difference is None or difference[0] >= self.cfg.duplicate_luma:
+            return False
+        limit = self.cfg.duplicate_motion
+        if self.cfg.duplicate_motion_share > 0 and len(self._motions) >= self.cfg.min_reference:
+            limit = max(limit, self.cfg.duplicate_motion_share * float(np.median(np.fromiter(self._motions, float))))
+        return difference[1] < limit
 
     def _status(self, q: FrameQuality, copy_of_accepted: bool, copy_of_rejected: bool) -> str:
         """The first cause that applies, in the order of :data:`QUALITY_CAUSES`' comment."""
@@ -227,9 +237,11 @@ class FrameQualityGate:
             return BLURRED
         return DUPLICATE if copy_of_accepted else OK
 
-    def _update(self, status: str, sharpness: float, small: np.ndarray) -> None:
+    def _update(self, status: str, sharpness: float, small: np.ndarray, motion: float | None) -> None:
         if status == OK:
             self._reference.append(sharpness)
+            if motion is not None:
+                self._motions.append(motion)
             self._accepted, self._rejected = small, None
             self._blurred_run = 0
             return

@@ -217,6 +217,18 @@ def test_a_repeat_of_the_previous_frame_is_a_duplicate(repeat):
     assert q.duplicate_motion < 0.3 and q.duplicate_distance < 1.0
 
 
+def test_a_noisier_repeat_of_a_fast_moving_scope_is_a_duplicate_by_its_share_of_the_motion():
+    """JPEG at quality 30 leaves more than the absolute noise level, but far less than the 6 px
+    a frame moves here: a duplicate by the share of the accepted frames' median motion, and not
+    without that criterion."""
+    for share, expected in ((FrameQualityConfig().duplicate_motion_share, DUPLICATE), (0.0, OK)):
+        gate = warmed_gate(cfg=FrameQualityConfig(duplicate_motion_share=share), step=6.0)
+        previous = view(200, 100)
+        assert gate.assess(previous).status == OK
+        q = gate.assess(jpeg(previous, 30))
+        assert q.duplicate_motion > FrameQualityConfig().duplicate_motion and q.status == expected
+
+
 @pytest.mark.parametrize("shift", [(2.0, 0.0), (0.0, 3.0), (2.0, 2.0)])
 def test_a_frame_moved_by_a_few_pixels_is_no_duplicate(shift):
     gate = warmed_gate()

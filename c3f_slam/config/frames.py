@@ -57,6 +57,12 @@ class FrameQualityConfig:
     #: up until a frame passes (at 640 px, below about 0.4 px per frame: every second or third)
     duplicate_motion: float = 0.3
     duplicate_luma: float = 1.5  #: ... and the mean |difference| (luma) below this: a duplicate
+    #: a frame is also a duplicate when its motion is below this share of the median motion of the
+    #: last reference_frames accepted frames (each against the one accepted before it); 0 = off.
+    #: Compression noise does not scale with a frame's size as motion does: the simulator's repeats
+    #: (JPEG quality 85) leave motion 0.23-0.66 at 128 px, where its frames move 1.5 and more. On
+    #: the phantom clip every new picture moves >= 0.40 of that median and the repeats <= 0.27
+    duplicate_motion_share: float = 0.25
     #: a specular highlight: at least this much brighter (luma) than its 5x5 opening and at least
     #: highlight_level bright; "covered" when at least covered_share of the mask lies within
     #: thumb_size / 20 px of one (many small highlights spread over the view: bubbles). The
@@ -86,6 +92,8 @@ class FrameQualityConfig:
         _fraction(self.washed_share, name + "washed_share")
         at_least(self.duplicate_motion, 0.0, name + "duplicate_motion")
         at_least(self.duplicate_luma, 0.0, name + "duplicate_luma")
+        check(0.0 <= self.duplicate_motion_share < 1.0,
+              f"{name}duplicate_motion_share must be in [0, 1) (0 = off), got {self.duplicate_motion_share}")
         _luma(self.highlight_contrast, name + "highlight_contrast")
         _luma(self.highlight_level, name + "highlight_level")
         _fraction(self.covered_share, name + "covered_share")
