@@ -106,10 +106,7 @@ class ContraFeat(C3FModule):
         self.save_hyperparameters()
         self.network_config, self.loss_config, self.evaluation_config = network, loss, evaluation
         self.filter_cfg = evaluation.match_filter()
-        self.net = ContraFeatNet(
-            network.backbone_layers, network.descriptor_dim, network.fpn_channels, network.stem_channels,
-            network.pretrained_path, network.head_channels, network.backbone_width,
-        )
+        self.net = ContraFeatNet(network)
         self.kp_settings, self.gt_settings = keypoints, ground_truth
         self.dense_settings = DenseSettings(loss.dense_points, loss.dense_spacing, keypoints.border)
         self._counts: dict[str, MatchCounts] = {}

@@ -87,10 +87,7 @@ class DepthNet(C3FModule):
         self.pose_warmup_steps, self.warmup_adapts_norm = pose_warmup_steps, warmup_adapts_norm
         self.network_config, self.loss_config, self.evaluation_config = network, loss, evaluation
         self.augment_config = augment
-        self.depth_net = DepthNetwork(network.encoder_layers, network.dcn, network.num_scales, network.min_depth,
-                                      network.max_depth, network.pretrained_path, network.encoder_width)
-        self.pose_net = PoseNetwork(network.pose_encoder_layers, network.pose_pretrained_path,
-                                    network.pose_translation_scale, network.pose_encoder_width)
+        self.depth_net, self.pose_net = DepthNetwork(network), PoseNetwork(network)
         self.objective = SelfSupervisedLoss(loss)
         self.eval_range = (evaluation.min_depth or network.min_depth, evaluation.max_depth or network.max_depth)
 

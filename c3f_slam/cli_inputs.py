@@ -41,7 +41,7 @@ def add_input_options(r: argparse.ArgumentParser, threads_help: str = RUN_THREAD
                    help="multiply the --depth-model depth by this factor (self-supervised depth is known up to "
                         "a scale, the thresholds are in metres); default: the factor the exporter measured on the "
                         "training data (metadata depth.metric_scale), else 1")
-    r.add_argument("--max-bad-frames", type=int, default=10,
+    r.add_argument("--max-bad-frames", type=int,
                    help="unreadable frames (missing or corrupt files, undecodable video frames) skipped and counted "
                         "(summary.json skipped_unreadable); one more fails the run (default 10)")
 
@@ -64,8 +64,9 @@ def inputs_from_args(args: argparse.Namespace, threads: int | None = None):
     if args.threads is not None and args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     camera = FovGuess(args.fov) if args.fov is not None else args.camera
+    given = {} if args.max_bad_frames is None else {"max_bad_frames": args.max_bad_frames}  # else RunInputs'
     return RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, camera,
-                     threads or args.threads, args.depth_scale, args.max_bad_frames, check_providers(args.providers))
+                     threads or args.threads, args.depth_scale, providers=check_providers(args.providers), **given)
 
 
 __all__ = ["RUN_THREADS_HELP", "add_input_options", "inputs_from_args", "settings_from_args"]

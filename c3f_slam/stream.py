@@ -48,6 +48,10 @@ OK, BLACK, SATURATED, UNREADABLE = "ok", "black", "saturated", "unreadable"
 #: a video is truncated when it yields fewer frames than its container declares, beyond this
 #: many (some containers round their frame count)
 FRAME_COUNT_SLACK = 1
+#: a frame whose mean luma (0..255) is below this is black
+BLACK_THRESHOLD = 5.0
+#: a frame with at least SATURATED_SHARE of its pixels at a luma of SATURATED_THRESHOLD or more is saturated
+SATURATED_THRESHOLD, SATURATED_SHARE = 250.0, 0.9
 
 
 @dataclass(frozen=True)
@@ -70,7 +74,8 @@ class StreamFrame:
 
 
 def frame_status(
-    rgb: np.ndarray, black_threshold: float = 5.0, saturated_threshold: float = 250.0, saturated_share: float = 0.9
+    rgb: np.ndarray, black_threshold: float = BLACK_THRESHOLD, saturated_threshold: float = SATURATED_THRESHOLD,
+    saturated_share: float = SATURATED_SHARE,
 ) -> tuple[str, float]:
     """("ok" | "black" | "saturated", mean luma 0..255) of an RGB uint8 frame."""
     luma = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
@@ -144,9 +149,9 @@ class FrameStream:
         step: int = 1,
         max_frames: int | None = None,
         fps: float | None = None,
-        black_threshold: float = 5.0,
-        saturated_threshold: float = 250.0,
-        saturated_share: float = 0.9,
+        black_threshold: float = BLACK_THRESHOLD,
+        saturated_threshold: float = SATURATED_THRESHOLD,
+        saturated_share: float = SATURATED_SHARE,
     ) -> None:
         self.source = Path(source)
         if start < 0 or step < 1 or (max_frames is not None and max_frames < 0):

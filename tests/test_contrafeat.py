@@ -14,7 +14,7 @@ import torchvision
 
 from c3f_models.cli import main
 from c3f_models.config import OptimConfig
-from c3f_models.contrafeat.config import ContraFeatLossConfig, MatchEvaluationConfig
+from c3f_models.contrafeat.config import ContraFeatLossConfig, ContraFeatNetworkConfig, MatchEvaluationConfig
 from c3f_models.contrafeat.loss import batch_info_nce, info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
 from c3f_models.contrafeat.pairs import GroundTruthSettings, KeypointSettings
@@ -29,13 +29,18 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY = dict(fpn_channels=16, stem_channels=8, head_channels=32)
 
 
+def tiny_net(pretrained_path: Path | None = None) -> ContraFeatNet:
+    """A ContraFeatNet with narrow FPN, stem and head (128-d descriptors)."""
+    return ContraFeatNet(ContraFeatNetworkConfig(pretrained_path=pretrained_path, **TINY))
+
+
 @pytest.fixture(autouse=True)
 def _threads():
     torch.manual_seed(0)
 
 
 def test_network_full_resolution_unit_norm():
-    net = ContraFeatNet(**TINY).eval()
+    net = tiny_net().eval()
     x = torch.rand(2, 3, 45, 61)  # not a multiple of 32
     with torch.no_grad():
         y = net(x)
@@ -77,19 +82,19 @@ def test_info_nce_lower_for_matching_than_shuffled():
 
 def test_pretrained_weights_local_file(tmp_path):
     with pytest.raises(InputError, match="file not found"):
-        ContraFeatNet(pretrained_path=tmp_path / "missing.pth", **TINY)
+        tiny_net(tmp_path / "missing.pth")
     bad = tmp_path / "bad.pth"
     bad.write_text("not weights")
     with pytest.raises(InputError, match="not a torch weights file"):
-        ContraFeatNet(pretrained_path=bad, **TINY)
+        tiny_net(bad)
     r34 = tmp_path / "r34.pth"
     torch.save(torchvision.models.resnet34(weights=None).state_dict(), r34)
     with pytest.raises(InputError, match="does not fit"):
-        ContraFeatNet(pretrained_path=r34, **TINY)
+        tiny_net(r34)
     ref = torchvision.models.resnet18(weights=None)
     good = tmp_path / "r18.pth"
     torch.save(ref.state_dict(), good)
-    net = ContraFeatNet(pretrained_path=good, **TINY)
+    net = tiny_net(good)
     torch.testing.assert_close(net.layer3[0].conv1.weight, ref.layer3[0].conv1.weight)
 
 
@@ -103,9 +108,9 @@ def test_pretrained_from_depthnet_checkpoint(tmp_path, dcn):
     torch.save({"state_dict": depth.state_dict(), "global_step": 3}, ckpt)
     if dcn:
         with pytest.raises(InputError, match="unexpected keys"):
-            ContraFeatNet(pretrained_path=ckpt, **TINY)
+            tiny_net(ckpt)
         return
-    net = ContraFeatNet(pretrained_path=ckpt, **TINY)
+    net = tiny_net(ckpt)
     enc = depth.depth_net.encoder
     torch.testing.assert_close(net.layer4[1].conv2.weight, enc.layer4[1].conv2.weight)
     torch.testing.assert_close(net.bn1.running_var, enc.bn1.running_var)

@@ -387,8 +387,7 @@ def test_configs_instantiate(name):
         assert isinstance(model, DepthNet)
     else:  # building ResNet50+DCN takes a while: check the groups instead
         assert args["network"]["encoder_layers"] == 50 and args["network"]["dcn"] is True
-        data_args = cfg["data"]["init_args"]
-        assert data_args["frames"]["size"] == [224, 224] and data_args["loader"]["batch_size"] == 16
+        assert data.frames_config.size == (224, 224) and data.loader_config.batch_size == 16  # the defaults
         assert cfg["trainer"]["max_epochs"] == 40
 
 

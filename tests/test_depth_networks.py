@@ -7,6 +7,9 @@ import torch
 import torchvision
 from torch import nn
 
+from c3f_models.contrafeat.config import ContraFeatNetworkConfig
+from c3f_models.contrafeat.network import ContraFeatNet
+from c3f_models.depth.config import DepthNetworkConfig
 from c3f_models.depth.dcn import DeformConv, deformable_stages
 from c3f_models.depth.decoder import depth_to_disp, disp_to_depth
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
@@ -27,7 +30,7 @@ def test_disp_depth_conversion_bounds_and_inverse():
 
 @pytest.mark.parametrize("size", [(32, 32), (48, 40)])
 def test_depth_network_scales_and_range(size):
-    net = DepthNetwork(18, dcn=False, num_scales=4, min_depth=0.001, max_depth=0.3)
+    net = DepthNetwork(DepthNetworkConfig(num_scales=4, min_depth=0.001, max_depth=0.3))
     x = torch.rand(2, 3, *size)
     disps = net(x)
     assert [tuple(d.shape[-2:]) for d in disps][0] == size
@@ -74,7 +77,7 @@ def test_deformable_conv_under_mixed_precision():
 
 
 def test_posenet_outputs_small_rigid_transforms():
-    pose = PoseNetwork(18)
+    pose = PoseNetwork(DepthNetworkConfig(pose_translation_scale=0.01))
     a, b = torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32)
     T = pose(a, b)
     assert T.shape == (2, 4, 4)
@@ -82,7 +85,7 @@ def test_posenet_outputs_small_rigid_transforms():
     assert torch.allclose(R @ R.transpose(1, 2), torch.eye(3).expand(2, 3, 3), atol=1e-5)
     assert torch.equal(T[:, 3], torch.tensor([0.0, 0, 0, 1]).expand(2, 4))
     assert float(T[:, :3, 3].detach().abs().max()) < 0.1  # Monodepth2's 0.01 output scaling
-    small = PoseNetwork(18, translation_scale=1e-3)
+    small = PoseNetwork(DepthNetworkConfig(pose_translation_scale=1e-3))
     small.load_state_dict(pose.state_dict())
     assert torch.allclose(small(a, b)[:, :3, 3], T[:, :3, 3] / 10, atol=1e-7)
 
@@ -110,7 +113,7 @@ def test_pretrained_weights_load_into_depth_encoder(resnet18_file):
 
 def test_pretrained_weights_for_two_frame_posenet(resnet18_file):
     path, state = resnet18_file
-    pose = PoseNetwork(18, pretrained_path=path)
+    pose = PoseNetwork(DepthNetworkConfig(pose_pretrained_path=str(path)))
     w = pose.encoder.conv1.weight
     assert w.shape == (64, 6, 7, 7)
     assert torch.allclose(w[:, :3], state["conv1.weight"] / 2) and torch.allclose(w[:, 3:], state["conv1.weight"] / 2)
@@ -130,7 +133,7 @@ def test_pretrained_errors_are_clear(tmp_path, resnet18_file):
     other = tmp_path / "other.pth"
     torch.save({"weight": torch.zeros(3)}, other)
     with pytest.raises(InputError, match="model.network.pretrained_path: .*other.pth does not fit"):
-        DepthNetwork(18, pretrained_path=other)
+        DepthNetwork(DepthNetworkConfig(pretrained_path=str(other)))
     with pytest.raises(InputError, match="encoder_layers must be one of"):
         ResnetEncoder(20)
 
@@ -146,15 +149,12 @@ def test_narrow_encoder_widths_and_weights(layers):
 
 
 def test_narrow_networks_and_their_errors(resnet18_file):
-    from c3f_models.contrafeat.network import ContraFeatNet
-    from c3f_models.depth.config import DepthNetworkConfig
-
-    depth = DepthNetwork(18, num_scales=2, width=16)
+    depth = DepthNetwork(DepthNetworkConfig(num_scales=2, encoder_width=16))
     assert depth(torch.rand(1, 3, 64, 64))[0].shape == (1, 1, 64, 64)
-    pose = PoseNetwork(18, width=16)
+    pose = PoseNetwork(DepthNetworkConfig(pose_encoder_width=16))
     assert pose.encoder.conv1.weight.shape == (16, 6, 7, 7)
     assert pose(torch.rand(2, 3, 64, 64), torch.rand(2, 3, 64, 64)).shape == (2, 4, 4)
-    desc = ContraFeatNet(18, descriptor_dim=8, fpn_channels=16, stem_channels=8, backbone_width=16)
+    desc = ContraFeatNet(ContraFeatNetworkConfig(descriptor_dim=8, fpn_channels=16, stem_channels=8, backbone_width=16))
     assert desc(torch.rand(1, 3, 64, 64)).shape == (1, 8, 64, 64)
     path, _ = resnet18_file
     with pytest.raises(InputError, match="does not fit this ResNet.*wrong-shaped"):
@@ -162,4 +162,4 @@ def test_narrow_networks_and_their_errors(resnet18_file):
     with pytest.raises(InputError, match="model.network.encoder_width must be a multiple of 8"):
         DepthNetworkConfig(encoder_width=20)
     with pytest.raises(InputError, match="model.network.backbone_width: a ResNet's width must be a multiple of 8"):
-        ContraFeatNet(18, backbone_width=12)
+        ContraFeatNet(ContraFeatNetworkConfig(backbone_width=12))

@@ -27,6 +27,7 @@ from tests.scenes import plane_texture, render_plane
 CAM = PinholeCamera.from_fov(96, 80, 90.0)
 K = CAM.K
 DIST = 0.05  # the plane z_w = 5 cm
+RADIUS = 2.0  # px, the ground-truth and correctness radius (ContraFeat's default)
 
 
 def _pose(rotvec, t):
@@ -69,8 +70,8 @@ def test_sift_cap_strongest_unique():
 
 def test_sift_bad_input():
     with pytest.raises(InputError):
-        detect_sift(np.zeros((8, 8, 4), np.uint8))
-    assert len(detect_sift(np.zeros((32, 32), np.uint8))) == 0
+        detect_sift(np.zeros((8, 8, 4), np.uint8), None)
+    assert len(detect_sift(np.zeros((32, 32), np.uint8), None)) == 0
 
 
 # ---------------------------------------------------------------- depth sampling
@@ -98,7 +99,7 @@ def test_gt_identity_with_itself():
     img, depth = _render(T)
     kp = detect_sift(img, 200, contrast_threshold=0.01).xy
     assert len(kp) > 20
-    gt = ground_truth_matches(kp, kp, depth, depth, K, T, T)
+    gt = ground_truth_matches(kp, kp, depth, depth, K, T, T, RADIUS)
     assert np.array_equal(gt, np.stack([np.arange(len(kp))] * 2, axis=1))
 
 
@@ -135,18 +136,18 @@ def test_gt_occluded_point_has_no_match():
     _, d_j = _render(T_wj)
     kp_i = np.array([[30.0, 40.0], [60.0, 30.0], [50.0, 60.0]])
     uv = _analytic_projection(kp_i, T_wi, T_wj)
-    gt = ground_truth_matches(kp_i, uv, d_i, d_j, K, T_wi, T_wj)
+    gt = ground_truth_matches(kp_i, uv, d_i, d_j, K, T_wi, T_wj, RADIUS)
     assert gt.tolist() == [[0, 0], [1, 1], [2, 2]]
     occluded = d_j.copy()
     u, v = np.round(uv[1]).astype(int)
     occluded[v - 3 : v + 4, u - 3 : u + 4] = 0.02  # a nearer surface (fold) in front of point 1
-    gt, proj = ground_truth_matches(kp_i, uv, d_i, occluded, K, T_wi, T_wj, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, uv, d_i, occluded, K, T_wi, T_wj, RADIUS, return_projection=True)
     assert gt.tolist() == [[0, 0], [2, 2]]
     assert proj.visible.tolist() == [True, False, True]
     # no depth in i: no match either
     d_hole = d_i.copy()
     d_hole[35:46, 25:36] = 0
-    assert ground_truth_matches(kp_i, uv, d_hole, d_j, K, T_wi, T_wj).tolist() == [[1, 1], [2, 2]]
+    assert ground_truth_matches(kp_i, uv, d_hole, d_j, K, T_wi, T_wj, RADIUS).tolist() == [[1, 1], [2, 2]]
 
 
 def test_gt_nearest_within_radius_one_to_one():
@@ -156,7 +157,7 @@ def test_gt_nearest_within_radius_one_to_one():
     kp_j = np.array([[40.2, 40.0], [70.0, 23.5]])  # i1 loses 40.2 to i0; i2 is 3.5 px away
     assert ground_truth_matches(kp_i, kp_j, d, d, K, T, T, pixel_radius=2.0).tolist() == [[0, 0]]
     assert ground_truth_matches(kp_i, kp_j, d, d, K, T, T, pixel_radius=4.0).tolist() == [[0, 0], [2, 1]]
-    assert ground_truth_matches(kp_i, np.zeros((0, 2)), d, d, K, T, T).shape == (0, 2)
+    assert ground_truth_matches(kp_i, np.zeros((0, 2)), d, d, K, T, T, RADIUS).shape == (0, 2)
 
 
 # ---------------------------------------------------------------- descriptors
@@ -385,10 +386,10 @@ def test_precision_recall_counts():
     rng = np.random.default_rng(7)
     kp_i = rng.uniform([20, 20], [70, 60], (30, 2))
     kp_j = _analytic_projection(kp_i, T_wi, T_wj)
-    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, RADIUS, return_projection=True)
     assert len(gt) == 30
     found = np.array([[0, 0], [1, 1], [2, 3], [3, 2]])
-    c, correct = evaluate_matches(found, kp_j, gt, proj)
+    c, correct = evaluate_matches(found, kp_j, gt, proj, RADIUS)
     assert correct.tolist() == [True, True, False, False]
     assert (c.found, c.correct, c.recalled, c.ground_truth) == (4, 2, 2, 30)
     assert np.isclose(c.precision, 0.5) and np.isclose(c.recall, 2 / 30)
@@ -397,7 +398,7 @@ def test_precision_recall_counts():
     assert np.isnan(MatchCounts().precision) and MatchCounts.from_array(total.to_array()) == total
     # perfect descriptors: everything found and correct, and the kpf keeps it
     desc = rng.normal(size=(30, 8))
-    ev = match_and_evaluate(desc, desc, kp_i, kp_j, d_i, d_j, K, gt, proj, metric="l2")
+    ev = match_and_evaluate(desc, desc, kp_i, kp_j, d_i, d_j, K, gt, proj, pixel_radius=RADIUS, metric="l2")
     assert ev.counts.precision == 1 and ev.counts.recall == 1
     assert ev.filter.accepted and ev.kpf_counts.recall == 1 and ev.kpf_counts.precision == 1
 
@@ -423,12 +424,12 @@ def test_near_misses_split_wrong_matches():
     # j: 0 re-detected exactly; 1 only 3 px away (no counterpart within 2 px); 2 exactly,
     # plus a keypoint 4 px from it; 3 far from everything
     kp_j = np.array([proj_j[0], proj_j[1] + [3.0, 0.0], proj_j[2], proj_j[2] + [0.0, 4.0], [5.0, 5.0]])
-    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, RADIUS, return_projection=True)
     assert sorted(gt[:, 0].tolist()) == [0, 2]
     found = np.array([[0, 0], [1, 1], [2, 3], [3, 4]])
-    c, correct = evaluate_matches(found, kp_j, gt, proj)
+    c, correct = evaluate_matches(found, kp_j, gt, proj, RADIUS)
     assert correct.tolist() == [True, False, False, False]
-    near, lonely = near_misses(found, kp_j, proj, correct)
+    near, lonely = near_misses(found, kp_j, proj, correct, RADIUS)
     assert near.tolist() == [False, True, True, False]  # 3 px and 4 px off are near; match 3 is gross
     assert lonely.tolist() == [False, True, False, False]  # 2's counterpart existed, 1's did not
     assert (c.near_misses, c.near_misses_without_counterpart, c.gross_errors) == (2, 1, 1)
@@ -436,7 +437,7 @@ def test_near_misses_split_wrong_matches():
     assert np.isclose(c.near_miss_share, 2 / 3) and np.isclose(c.no_counterpart_share, 1 / 3)
     assert np.isnan(MatchCounts().near_miss_share)
     # a tighter near radius makes the 4 px miss gross
-    near, _ = near_misses(found, kp_j, proj, correct, near_radius=3.5)
+    near, _ = near_misses(found, kp_j, proj, correct, RADIUS, near_radius=3.5)
     assert near.tolist() == [False, True, False, False]
     assert MatchCounts.from_array(c.to_array()) == c
 

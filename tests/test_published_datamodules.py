@@ -98,7 +98,7 @@ def test_data_set_configs_compose_with_the_paper_model(published, model, data, m
     cfg = yaml.safe_load((ROOT / "configs" / data).read_text())["data"]
     assert type(cli.datamodule).__name__ == cfg["class_path"].rsplit(".", 1)[1]
     frames = cfg["init_args"]["frames"]
-    assert frames["size"] == [224, 224] and frames["crop"] == PAPER_CROPS[layout]
+    assert frames["size"] == [224, 224] and frames.get("crop") == PAPER_CROPS[layout]  # no crop: the default
     if model.startswith("depthnet"):
         net, optim = cli.model.network_config, cli.model.optim_config
         assert (net.encoder_layers, net.dcn, optim.lr, list(optim.milestones)) == (50, True, 1e-4, [16, 24, 32])

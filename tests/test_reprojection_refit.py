@@ -15,6 +15,7 @@ from c3f_slam.matching import MatchFilterConfig, kabsch
 from c3f_slam.matching.reprojection import refine_by_reprojection
 
 K = np.array([[60.0, 0, 64], [0, 60.0, 64], [0, 0, 1]])  # 128 px, about 93 deg
+HUBER = MatchFilterConfig().reprojection_huber_px  # pixels
 
 
 def _pair(rng, n: int = 40):
@@ -49,7 +50,7 @@ def test_refit_recovers_an_exact_transform_from_a_wrong_start():
     start = T.copy()
     start[:3, :3] = g.axis_angle_to_matrix(np.array([0.01, -0.02, 0.015])) @ T[:3, :3]
     start[:3, 3] += [5e-4, -3e-4, 4e-4]
-    np.testing.assert_allclose(refine_by_reprojection(start, p_i, p_j, K), T, atol=1e-7)
+    np.testing.assert_allclose(refine_by_reprojection(start, p_i, p_j, K, HUBER), T, atol=1e-7)
 
 
 def test_refit_beats_the_3d_fit_when_the_depth_is_the_noisy_part():
@@ -62,7 +63,7 @@ def test_refit_beats_the_3d_fit_when_the_depth_is_the_noisy_part():
         q_i, q_j = _on_rays(p_i, rng, 0.05, 0.3), _on_rays(p_j, rng, 0.05, 0.3)
         T0 = kabsch(q_j, q_i)
         err["kabsch"].append(_errors(T0, T))
-        err["refit"].append(_errors(refine_by_reprojection(T0, q_i, q_j, K), T))
+        err["refit"].append(_errors(refine_by_reprojection(T0, q_i, q_j, K, HUBER), T))
     mean = {k: np.mean(v, axis=0) for k, v in err.items()}
     assert mean["refit"][0] < 0.7 * mean["kabsch"][0], mean  # 0.08x with this seed
     assert mean["refit"][1] < 0.5 * mean["kabsch"][1], mean  # 0.15x
@@ -72,12 +73,12 @@ def test_refit_keeps_the_start_when_it_cannot_improve():
     rng = np.random.default_rng(2)
     T, p_j, p_i = _pair(rng, n=2)
     start = np.eye(4)
-    assert np.array_equal(refine_by_reprojection(start, p_i, p_j, K), start)  # fewer than 3 points
+    assert np.array_equal(refine_by_reprojection(start, p_i, p_j, K, HUBER), start)  # fewer than 3 points
     T, p_j, p_i = _pair(rng)
-    assert np.array_equal(refine_by_reprojection(T, p_i, p_j, K), T)  # already exact: no lower cost
+    assert np.array_equal(refine_by_reprojection(T, p_i, p_j, K, HUBER), T)  # already exact: no lower cost
     bad = p_j.copy()
     bad[:, 2] = np.nan  # no depth anywhere
-    assert np.array_equal(refine_by_reprojection(start, p_i, bad, K), start)
+    assert np.array_equal(refine_by_reprojection(start, p_i, bad, K, HUBER), start)
 
 
 def test_reprojection_refit_setting():

@@ -67,7 +67,7 @@ def test_perception_runs_beside_the_loop():
             assert on_frame0.wait(timeout=20), "frame 1 was not perceived while the loop was on frame 0"
         return PerceivedFrame(frame)
 
-    with Prefetcher(_frames(3), perceive, prefetch=1) as frames:
+    with Prefetcher(_frames(3), perceive, prefetch=1, workers=1) as frames:
         for item in frames:
             if item.frame.index == 0:
                 on_frame0.set()
@@ -102,7 +102,7 @@ def test_an_error_arrives_at_its_frame(prefetch, workers):
 
 def test_leaving_the_loop_stops_the_worker():
     rec = _Recorder()
-    pre = Prefetcher(_frames(10_000), rec, prefetch=2)
+    pre = Prefetcher(_frames(10_000), rec, prefetch=2, workers=1)
     with pre as frames:
         for item in frames:
             if item.frame.index == 3:
@@ -116,7 +116,7 @@ def test_leaving_the_loop_stops_the_worker():
                 break
     assert pre._thread is None and pre._pool is None and len(rec.seen) <= 3 + 1 + 2 + 1
     with pytest.raises(ValueError, match="prefetch must be >= 0"):
-        Prefetcher(_frames(1), rec, -1)
+        Prefetcher(_frames(1), rec, -1, 1)
     with pytest.raises(ValueError, match="workers must be >= 1"):
         Prefetcher(_frames(1), rec, 2, 0)
 

@@ -29,8 +29,10 @@ import torch
 
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
+from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.contrafeat.graphs import DescriptorGraph
 from c3f_models.contrafeat.network import ContraFeatNet
+from c3f_models.depth.config import DepthNetworkConfig
 from c3f_models.depth.graphs import DepthGraph, PoseGraph
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
 from export.graphs import OPSET, OPSET_DEFORM
@@ -41,15 +43,15 @@ def graphs(size: int, small: bool):
     """(label, module, input names, output name, opset, example inputs) for each net."""
     x = torch.rand(1, 3, size, size)
     if small:
-        depth = DepthGraph(DepthNetwork(18, False, 1))
+        depth = DepthGraph(DepthNetwork(DepthNetworkConfig(num_scales=1)))
         yield "DepthNet (ResNet18, no DCN)", depth, ("image",), "depth", OPSET, (x,)
     else:
-        depth = DepthGraph(DepthNetwork(50, True, 1))
+        depth = DepthGraph(DepthNetwork(DepthNetworkConfig(encoder_layers=50, dcn=True, num_scales=1)))
         yield "DepthNet (ResNet50 + DCN)", depth, ("image",), "depth", OPSET_DEFORM, (x,)
-    yield ("PoseNet (ResNet18, 2 frames)", PoseGraph(PoseNetwork(18)), ("image_a", "image_b"), "T_ba", OPSET,
-           (x, torch.rand_like(x)))
-    cf = (ContraFeatNet(18, 128, 64, 16, head_channels=64) if small
-          else ContraFeatNet(18, 128, 128, 32, head_channels=128))
+    pose = PoseGraph(PoseNetwork(DepthNetworkConfig()))
+    yield "PoseNet (ResNet18, 2 frames)", pose, ("image_a", "image_b"), "T_ba", OPSET, (x, torch.rand_like(x))
+    cf = ContraFeatNet(ContraFeatNetworkConfig(fpn_channels=64, stem_channels=16, head_channels=64) if small
+                       else ContraFeatNetworkConfig(head_channels=128))
     yield (f"ContraFeat (ResNet18 FPN, 128-d{', small' if small else ''})", DescriptorGraph(cf), ("image",),
            "descriptors", OPSET, (x,))
 

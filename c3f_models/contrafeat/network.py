@@ -16,67 +16,60 @@ or a DepthNet checkpoint whose depth encoder is the same ResNet without DCN.
 from __future__ import annotations
 
 from collections import OrderedDict
-from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 from torchvision.ops import FeaturePyramidNetwork
 
+from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.depth.resnet import IMAGENET_MEAN, IMAGENET_STD, build_resnet, load_pretrained
 from c3f_slam.errors import InputError
 
 BACKBONES = (18, 34)  # basic-block ResNets: the FPN takes their layer1..layer4 widths
 
 
+def head_channels(config: ContraFeatNetworkConfig) -> int:
+    """The hidden channels of the 1x1 head (``head_channels``, null: ``descriptor_dim``); InputError
+    for a backbone depth or a channel count the network cannot take."""
+    if config.backbone_layers not in BACKBONES:
+        raise InputError(f"model.network.backbone_layers must be one of {list(BACKBONES)}, got "
+                         f"{config.backbone_layers}")
+    head = config.head_channels or config.descriptor_dim
+    if min(config.descriptor_dim, config.fpn_channels, config.stem_channels, head) < 1:
+        raise InputError("model.network.descriptor_dim, fpn_channels, stem_channels and head_channels must be "
+                         "positive")
+    return head
+
+
 class ContraFeatNet(nn.Module):
     """Dense descriptor network (FPN on ResNet, full resolution, unit-norm descriptors).
 
     Args:
-        backbone_layers: ResNet depth (18 in the paper; 34 also accepted).
-        backbone_width: channels of the ResNet's first stage (64: the standard ResNet).
-        descriptor_dim: output channels c (128 in the paper).
-        fpn_channels: channels of the FPN levels.
-        stem_channels: channels of the full-resolution stem that restores pixel detail.
-        head_channels: hidden channels of the full-resolution 1x1 head (default: descriptor_dim).
-        pretrained_path: local torchvision ResNet state dict, a DepthNet checkpoint (its depth
-            encoder, same depth, no DCN), or None (from scratch).
+        config: the ResNet (``backbone_layers`` 18 or 34, ``backbone_width``), the channels of the
+            descriptors (c), the FPN levels, the full-resolution stem and 1x1 head (null:
+            ``descriptor_dim``), and ``pretrained_path``: a local torchvision ResNet state dict, a
+            DepthNet checkpoint (its depth encoder, same depth, no DCN), or None (from scratch).
     """
 
-    def __init__(
-        self,
-        backbone_layers: int = 18,
-        descriptor_dim: int = 128,
-        fpn_channels: int = 128,
-        stem_channels: int = 32,
-        pretrained_path: str | Path | None = None,
-        head_channels: int | None = None,
-        backbone_width: int = 64,
-    ) -> None:
+    def __init__(self, config: ContraFeatNetworkConfig) -> None:
         super().__init__()
-        if backbone_layers not in BACKBONES:
-            raise InputError(f"model.network.backbone_layers must be one of {list(BACKBONES)}, got {backbone_layers}")
-        head_channels = head_channels or descriptor_dim
-        if min(descriptor_dim, fpn_channels, stem_channels, head_channels) < 1:
-            raise InputError("model.network.descriptor_dim, fpn_channels, stem_channels and head_channels must be "
-                             "positive")
-        net = build_resnet(backbone_layers, "model.network.backbone_layers", backbone_width,
-                           "model.network.backbone_width")
-        if pretrained_path:
-            load_pretrained(net, pretrained_path, option="model.network.pretrained_path")
+        head, stem, w = head_channels(config), config.stem_channels, config.backbone_width
+        net = build_resnet(config.backbone_layers, "model.network.backbone_layers", w, "model.network.backbone_width")
+        if config.pretrained_path:
+            load_pretrained(net, config.pretrained_path, option="model.network.pretrained_path")
         self.conv1, self.bn1, self.relu, self.maxpool = net.conv1, net.bn1, net.relu, net.maxpool
         self.layer1, self.layer2, self.layer3, self.layer4 = net.layer1, net.layer2, net.layer3, net.layer4
-        w = backbone_width
-        self.fpn = FeaturePyramidNetwork([w, w, 2 * w, 4 * w, 8 * w], fpn_channels)
+        self.fpn = FeaturePyramidNetwork([w, w, 2 * w, 4 * w, 8 * w], config.fpn_channels)
         self.stem = nn.Sequential(
-            nn.Conv2d(3, stem_channels, 3, padding=1), nn.ReLU(inplace=True),
-            nn.Conv2d(stem_channels, stem_channels, 3, padding=1), nn.ReLU(inplace=True),
+            nn.Conv2d(3, stem, 3, padding=1), nn.ReLU(inplace=True),
+            nn.Conv2d(stem, stem, 3, padding=1), nn.ReLU(inplace=True),
         )
         self.head = nn.Sequential(
-            nn.Conv2d(fpn_channels + stem_channels, head_channels, 1), nn.ReLU(inplace=True),
-            nn.Conv2d(head_channels, descriptor_dim, 1),
+            nn.Conv2d(config.fpn_channels + stem, head, 1), nn.ReLU(inplace=True),
+            nn.Conv2d(head, config.descriptor_dim, 1),
         )
-        self.descriptor_dim = descriptor_dim
+        self.descriptor_dim = config.descriptor_dim
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import torch
 from torch import nn
 
+from c3f_models.depth.config import DepthNetworkConfig
 from c3f_models.depth.decoder import DepthDecoder, disp_to_depth
 from c3f_models.depth.resnet import ResnetEncoder
 from c3f_models.geometry import pose_from_axis_angle
@@ -16,29 +15,17 @@ class DepthNetwork(nn.Module):
     """Single-frame depth: ResNet encoder (optionally deformable) + multi-scale disparity decoder.
 
     Args:
-        num_layers: encoder depth (18, 34, 50).
-        dcn: deformable convs in conv3-conv5.
-        num_scales: disparity heads at scales 0..num_scales-1.
-        min_depth, max_depth: depth range in metres that the sigmoid maps onto.
-        pretrained_path: local torchvision ResNet state dict for the encoder.
-        width: channels of the encoder's first stage (64: the standard ResNet).
+        config: the encoder (``encoder_layers``, ``dcn`` in conv3-conv5, ``encoder_width``,
+            ``pretrained_path``), the disparity heads at scales 0..``num_scales``-1 and the depth
+            range ``min_depth``..``max_depth`` (metres) that the sigmoid maps onto.
     """
 
-    def __init__(
-        self,
-        num_layers: int = 18,
-        dcn: bool = False,
-        num_scales: int = 4,
-        min_depth: float = 1e-3,
-        max_depth: float = 0.3,
-        pretrained_path: str | Path | None = None,
-        width: int = 64,
-    ) -> None:
+    def __init__(self, config: DepthNetworkConfig) -> None:
         super().__init__()
-        self.encoder = ResnetEncoder(num_layers, dcn, 1, pretrained_path, option="model.network.pretrained_path",
-                                     width=width)
-        self.decoder = DepthDecoder(self.encoder.num_ch_enc, scales=range(num_scales))
-        self.min_depth, self.max_depth = float(min_depth), float(max_depth)
+        self.encoder = ResnetEncoder(config.encoder_layers, config.dcn, 1, config.pretrained_path,
+                                     option="model.network.pretrained_path", width=config.encoder_width)
+        self.decoder = DepthDecoder(self.encoder.num_ch_enc, scales=range(config.num_scales))
+        self.min_depth, self.max_depth = float(config.min_depth), float(config.max_depth)
 
     def forward(self, image: torch.Tensor) -> list[torch.Tensor]:
         """(B, 3, H, W) RGB in [0, 1] -> disparities (sigmoid) per scale, finest first."""
@@ -56,7 +43,7 @@ class PoseDecoder(nn.Module):
     (metres); Monodepth2 uses 0.01 for both.
     """
 
-    def __init__(self, num_ch_enc: int, rotation_scale: float = 0.01, translation_scale: float = 0.01) -> None:
+    def __init__(self, num_ch_enc: int, translation_scale: float, rotation_scale: float = 0.01) -> None:
         super().__init__()
         self.squeeze = nn.Conv2d(num_ch_enc, 256, 1)
         self.convs = nn.Sequential(
@@ -81,21 +68,17 @@ class PoseNetwork(nn.Module):
     Call it with the frames in temporal order (earlier first), as Monodepth2 does.
 
     Args:
-        num_layers: encoder depth (18 in the paper).
-        pretrained_path: local torchvision ResNet state dict; its first conv is repeated for
-            the 6-channel input and halved.
-        translation_scale: metres per unit of the raw translation output.
-        width: channels of the encoder's first stage (64: the standard ResNet).
+        config: the encoder (``pose_encoder_layers``, ``pose_encoder_width``,
+            ``pose_pretrained_path``: a local torchvision ResNet state dict whose first conv is
+            repeated for the 6-channel input and halved) and ``pose_translation_scale``, metres per
+            unit of the raw translation output.
     """
 
-    def __init__(
-        self, num_layers: int = 18, pretrained_path: str | Path | None = None, translation_scale: float = 0.01,
-        width: int = 64,
-    ) -> None:
+    def __init__(self, config: DepthNetworkConfig) -> None:
         super().__init__()
-        self.encoder = ResnetEncoder(num_layers, False, 2, pretrained_path, option="model.network.pose_pretrained_path",
-                                     width=width)
-        self.decoder = PoseDecoder(self.encoder.num_ch_enc[-1], translation_scale=translation_scale)
+        self.encoder = ResnetEncoder(config.pose_encoder_layers, False, 2, config.pose_pretrained_path,
+                                     option="model.network.pose_pretrained_path", width=config.pose_encoder_width)
+        self.decoder = PoseDecoder(self.encoder.num_ch_enc[-1], config.pose_translation_scale)
 
     def forward(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) frames a and b -> (B, 4, 4) rigid transform T_ba."""

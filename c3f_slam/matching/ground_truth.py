@@ -83,7 +83,7 @@ def ground_truth_matches(
     K: np.ndarray,
     T_wi: np.ndarray,
     T_wj: np.ndarray,
-    pixel_radius: float = 2.0,
+    pixel_radius: float,
     depth_tolerance: float = 0.05,
     K_j: np.ndarray | None = None,
     depth_sampling: str = "bilinear",
@@ -97,6 +97,8 @@ def ground_truth_matches(
     is on the same surface, not across a depth edge). Matches are one-to-one: a keypoint
     of j claimed by several keypoints of i goes to the closest projection. Rows are sorted
     by the index in i. With ``return_projection`` the :class:`Projection` comes too.
+    ``pixel_radius`` has no default: it is the caller's setting (ContraFeat's
+    ``model.ground_truth.pixel_radius``).
     """
     kp_i = np.asarray(kp_i, dtype=np.float64).reshape(-1, 2)
     kp_j = np.asarray(kp_j, dtype=np.float64).reshape(-1, 2)

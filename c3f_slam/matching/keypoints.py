@@ -81,7 +81,7 @@ def _strongest_per_location(
 
 def detect_sift(
     image: np.ndarray,
-    max_keypoints: int | None = 1024,
+    max_keypoints: int | None,
     mask: np.ndarray | None = None,
     descriptors: bool = True,
     contrast_threshold: float = 0.04,
@@ -94,7 +94,7 @@ def detect_sift(
 
     Args:
         image: (H, W[, 3]) RGB, uint8 or float in [0, 1].
-        max_keypoints: cap per frame (None = no cap).
+        max_keypoints: cap per frame (None = no cap; the caller's setting, e.g. ``frontend.max_keypoints``).
         mask: optional (H, W) bool; keypoints only where True (e.g. not specular).
         descriptors: also compute the 128-d SIFT descriptors (the SIFT baseline).
         contrast_threshold, edge_threshold, sigma, n_octave_layers: OpenCV SIFT settings.

@@ -14,6 +14,9 @@ miss *without counterpart* has no keypoint of j within ``pixel_radius`` of a's p
 all (SIFT did not re-detect it), so no correct match existed for a; a metric filter whose
 residual threshold is wider than the correctness radius cannot reject it. The other wrong
 matches (far off, or a not visible in j) are gross errors.
+
+``pixel_radius`` has no default here: it is the caller's setting (ContraFeat's
+``model.ground_truth.pixel_radius``).
 """
 
 from __future__ import annotations
@@ -89,7 +92,7 @@ def classify_matches(
     kp_j: np.ndarray,
     gt_matches: np.ndarray,
     projection: Projection,
-    pixel_radius: float = 2.0,
+    pixel_radius: float,
 ) -> np.ndarray:
     """(M,) bool: which found matches (M, 2) are correct (see the module docstring)."""
     matches = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
@@ -109,7 +112,7 @@ def near_misses(
     kp_j: np.ndarray,
     projection: Projection,
     correct: np.ndarray,
-    pixel_radius: float = 2.0,
+    pixel_radius: float,
     near_radius: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Which wrong matches are near misses, and which of those had no counterpart (module docstring).
@@ -139,7 +142,7 @@ def evaluate_matches(
     kp_j: np.ndarray,
     gt_matches: np.ndarray,
     projection: Projection,
-    pixel_radius: float = 2.0,
+    pixel_radius: float,
     accepted: bool = True,
     near_radius: float | None = None,
 ) -> tuple[MatchCounts, np.ndarray]:
@@ -180,10 +183,11 @@ def match_and_evaluate(
     K: np.ndarray,
     gt_matches: np.ndarray,
     projection: Projection,
+    *,
+    pixel_radius: float,
     metric: str = "cosine",
     ratio: float | None = None,
     filter_cfg: MatchFilterConfig | None = None,
-    pixel_radius: float = 2.0,
     depth_sampling: str = "bilinear",
     near_radius: float | None = None,
 ) -> PairEvaluation:

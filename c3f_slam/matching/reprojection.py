@@ -78,12 +78,14 @@ def refine_by_reprojection(
     p_i: np.ndarray,
     p_j: np.ndarray,
     K: np.ndarray,
-    huber_px: float = 1.0,
+    huber_px: float,
     iterations: int = 10,
 ) -> np.ndarray:
     """``T_ij`` (4x4, p_i = T_ij p_j) refitted to the symmetric reprojection error of the
     corresponding camera points ``p_i``, ``p_j`` (N, 3, metres, positive depth) under the 3x3
-    intrinsics ``K``; the input transform when fewer than 3 points or no lower cost is found."""
+    intrinsics ``K``, Huber threshold ``huber_px`` pixels (the run's
+    ``match_filter.reprojection_huber_px``); the input transform when fewer than 3 points or no
+    lower cost is found."""
     p_i = np.asarray(p_i, dtype=np.float64).reshape(-1, 3)
     p_j = np.asarray(p_j, dtype=np.float64).reshape(-1, 3)
     T0 = np.asarray(T_ij, dtype=np.float64)

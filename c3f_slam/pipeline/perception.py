@@ -83,11 +83,12 @@ _DONE = object()
 class Prefetcher:
     """Perceived frames of ``frames`` in order. ``prefetch`` 0: perceived in the caller's loop;
     k >= 1: by worker threads, at most k frames ahead of the caller: one thread reads the frames
-    and perceives them itself (``workers`` 1) or hands each to a pool of ``workers`` threads. Use
-    as a context manager (or call :meth:`close`) so that an early exit stops the workers."""
+    and perceives them itself (``workers`` 1) or hands each to a pool of ``workers`` threads. A
+    run passes its ``frames.prefetch`` and ``frames.perception_workers``
+    (:class:`c3f_slam.config.FramesConfig`, where their defaults are). Use as a context manager
+    (or call :meth:`close`) so that an early exit stops the workers."""
 
-    def __init__(self, frames: Iterable[StreamFrame], perceive: Perception, prefetch: int = 0,
-                 workers: int = 1) -> None:
+    def __init__(self, frames: Iterable[StreamFrame], perceive: Perception, prefetch: int, workers: int) -> None:
         if prefetch < 0:
             raise ValueError(f"prefetch must be >= 0, got {prefetch}")
         if workers < 1:

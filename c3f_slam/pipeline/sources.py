@@ -82,7 +82,7 @@ def default_threads() -> int:
     """onnxruntime threads per model when none are given: the machine's cores less one, which the
     back-end uses while perception runs ahead of it (at least 1). On 2 cores: 1, which made whole
     model-mode runs 1.3x faster than 2 threads at 128 px and equal at 224 px
-    (benchmarks/results/slam_speed.md)."""
+    (docs/lab_notes/2026-12-05-slam-speed.md)."""
     return max(1, (os.cpu_count() or 2) - 1)
 
 
@@ -119,7 +119,7 @@ class RunSources:
     describer: DescriptorProvider
     depth: DepthProvider
     tissue: TissueMask  #: the frames' tissue area (:mod:`c3f_slam.tissue`)
-    max_bad_frames: int = 10  #: RunInputs.max_bad_frames
+    max_bad_frames: int  #: RunInputs.max_bad_frames
 
     @property
     def camera(self) -> PinholeCamera:
