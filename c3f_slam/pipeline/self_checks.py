@@ -18,8 +18,8 @@ spread) and compared, inside the tissue area, with what the run made of them:
 Renders are made at most ``checks.size_px`` pixels on the long side (Open3D ray casting, CPU).
 Each value is reported per frame or pair and as a median in summary.json's ``checks``; the
 settings part is ``checks``. The jitter of the trajectory (``jitter_ratio``) is in the same
-place. None of them needs ground truth; the ``self_checks`` benchmark study shows how each
-moves with the error it stands for.
+place. None of them needs ground truth; how each moves with the error it stands for (and where it
+does not): docs/runtime.md, Checks without ground truth.
 """
 
 from __future__ import annotations
