@@ -72,6 +72,7 @@ def _loader_state(ckpt: dict) -> dict:
 
 
 @pytest.mark.e2e
+@pytest.mark.long
 def test_ddp_fit_on_two_cpu_processes_resumes_and_exports(plane_dataset, tmp_path, monkeypatch):
     out = tmp_path / "run"
     r = _torchrun([*_options(plane_dataset, out), "--trainer.max_steps", "2"])

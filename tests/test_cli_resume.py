@@ -54,6 +54,7 @@ def _resume_equals_uninterrupted(data: Path, tmp_path: Path, steps: int) -> None
 
 
 @pytest.mark.e2e
+@pytest.mark.long
 def test_fit_3_plus_3_resumed_equals_6_uninterrupted(plane_dataset, tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT)
     _resume_equals_uninterrupted(plane_dataset, tmp_path, 3)

@@ -17,7 +17,7 @@ from c3f_models.zoo.cli import main as zoo_main
 from c3f_models.zoo.recipes import RECIPES, quick
 from c3f_slam import zoo
 
-pytestmark = pytest.mark.e2e  # every test here runs the project's commands end to end
+pytestmark = [pytest.mark.e2e, pytest.mark.long]  # every test here runs the project's commands end to end, for minutes
 
 NAME = "c3f-depth-r18w32"
 
