@@ -18,8 +18,9 @@
 ``--depth-source`` / ``--descriptors`` default to the models given: model depth with
 ``--depth-model``, ContraFeat with ``--feature-model``, else files and SIFT. Every other
 setting of a run is one of the settings tree (:mod:`c3f_slam.config`): ``--preset``, then
-``--config``, then ``--set`` (and the older flags that are its aliases,
-:mod:`c3f_slam.cli_settings`) in order; ``--print-config`` shows the result.
+``--config``, then ``--set`` in order (:mod:`c3f_slam.cli_settings`; the older tuning flags
+were removed, and giving one names the ``--set`` that replaces it); ``--print-config`` shows
+the result.
 
 Bad input prints one line ``error: <message>`` and exits with status 2; the outputs so far
 (summary.json with the error, trajectory) are still written.

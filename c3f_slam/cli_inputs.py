@@ -47,7 +47,7 @@ def add_input_options(r: argparse.ArgumentParser, threads_help: str = RUN_THREAD
 
 
 def settings_from_args(args: argparse.Namespace):
-    """The run's settings tree (preset, --config, --set and aliases) and the replayed summary, if any."""
+    """The run's settings tree (preset, --config, --set) and the replayed summary, if any."""
     from c3f_slam.config.loading import read_config_file, resolve_config
 
     config = read_config_file(args.config) if args.config else None

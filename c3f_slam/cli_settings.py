@@ -1,23 +1,23 @@
-"""The settings options of ``python -m c3f_slam run``: ``--config``, ``--set``, ``--print-config``,
-and the older tuning flags kept for one release as aliases of ``--set``.
+"""The settings options of ``python -m c3f_slam run`` (and ``batch``): ``--preset``, ``--config``,
+``--set``, ``--print-config``.
 
-Each alias appends the ``part.field=value`` items it stands for to the same ordered list as
-``--set`` (so the last one given wins); its value is checked at once by the settings group it
-changes, and a bad one is one ``error: argument --FLAG: ...`` line. Defaults, ranges and meanings
-live only in the dataclasses (:mod:`c3f_slam.config`); ``--print-config`` shows them.
+Defaults, ranges and meanings live only in the dataclasses (:mod:`c3f_slam.config`);
+``--print-config`` shows them. The older tuning flags that were aliases of ``--set`` are gone
+(:data:`REMOVED`): giving one is a usage error, one ``error: --FLAG was removed: use --set ...``
+line and exit status 2, and ``--help`` no longer lists them.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
-from c3f_slam.config import PAPER_RULES, PRESET_NAMES, PRESETS
-from c3f_slam.errors import InputError
-from c3f_slam.settings import set_path
+from c3f_slam.config import PAPER_RULES, PRESET_NAMES
 
-ToSets = Callable[[Any], list[str]]
+
+def _sets(*items: str) -> str:
+    return " ".join(f"--set {item}" for item in items)
 
 
 def _paper_rules() -> list[str]:
@@ -27,68 +27,65 @@ def _paper_rules() -> list[str]:
     return [f"{part}.{name}={text(v)}" for part, fs in PAPER_RULES.items() for name, v in fs.items()]
 
 
-def _none_if_zero(path: str) -> ToSets:
-    return lambda v: [f"{path}={'none' if v == 0 else v}"]
+def _switch(flag: str, path: str) -> dict[str, str]:
+    return {flag: _sets(f"{path}=true"), f"--no-{flag[2:]}": _sets(f"{path}=false")}
 
 
-def _to(*paths: str) -> ToSets:
-    return lambda v: [f"{p}={v}" for p in paths]
+#: the former tuning flags (aliases of ``--set`` until they were removed): the flag as it was
+#: given (with its value's form) -> what replaces it
+REMOVED: dict[str, str] = {
+    "--baseline odometry": _sets("mode=odometry"),
+    "--stride K": _sets("frames.stride=K"),
+    "--max-frames N": _sets("frames.max_frames=N"),
+    "--no-mesh": _sets("fusion.enabled=false"),
+    "--no-coverage": _sets("coverage.enabled=false"),
+    "--coverage-segment M": _sets("coverage.segment=M"),
+    "--min-correspondences N": _sets("fragments.min_correspondences=N"),
+    "--min-overlap X": _sets("fragments.min_overlap=X"),
+    "--max-keypoints N": _sets("frontend.max_keypoints=N", "keyframes.keypoints=N"),
+    "--ratio R": _sets("frontend.ratio=R") + "; for --ratio 0, " + _sets("frontend.ratio=none"),
+    "--max-keyframe-candidates N": _sets("candidates.max_candidates=N") + "; for --max-keyframe-candidates 0 "
+                                   "(the paper's rules), " + _sets(*_paper_rules()),
+    "--max-loop-edges-per-keyframe N": _sets("keyframes.max_loop_edges=N") + "; for 0 (all), "
+                                       + _sets("keyframes.max_loop_edges=none"),
+    **_switch("--reuse-keyframes", "keyframes.reuse"),
+    **_switch("--dense-fallback", "fallback.dense"),
+    **_switch("--dense-refine", "refine.enabled"),
+    **_switch("--guided-matching", "fallback.guided"),
+    "--component-min-frames N": _sets("components.min_frames=N") + " (0 = none, also for a negative N)",
+    "--blas-threads N": _sets("blas_threads=N") + "; for --blas-threads 0 (the BLAS library's setting), "
+                        + _sets("blas_threads=none"),
+}
 
 
-#: (flag, argparse type or None for a switch, what it sets, note); ``--no-X`` switches take False
-ALIASES: tuple[tuple[str, Any, ToSets, str], ...] = (
-    ("--baseline", "odometry", _to("mode"), "the frame-to-frame odometry baseline"),
-    ("--stride", int, _to("frames.stride"), ""),
-    ("--max-frames", int, _to("frames.max_frames"), ""),
-    ("--no-mesh", None, lambda v: ["fusion.enabled=false"], "no TSDF fusion, so no unseen-wall estimate"),
-    ("--no-coverage", None, lambda v: ["coverage.enabled=false"], ""),
-    ("--coverage-segment", float, _to("coverage.segment"), "metres"),
-    ("--min-correspondences", int, _to("fragments.min_correspondences"), ""),
-    ("--min-overlap", float, _to("fragments.min_overlap"), ""),
-    ("--max-keypoints", int, _to("frontend.max_keypoints", "keyframes.keypoints"), "both"),
-    ("--ratio", float, _none_if_zero("frontend.ratio"), "0 = none"),
-    ("--max-keyframe-candidates", int, lambda v: _paper_rules() if v == 0 else [f"candidates.max_candidates={v}"],
-     "0 = the paper's literal rules: --set " + " ".join(_paper_rules())),
-    ("--max-loop-edges-per-keyframe", int, _none_if_zero("keyframes.max_loop_edges"), "0 = none: all"),
-    ("--reuse-keyframes", bool, _to("keyframes.reuse"), ""),
-    ("--dense-fallback", bool, _to("fallback.dense"), ""),
-    ("--dense-refine", bool, _to("refine.enabled"), ""),
-    ("--guided-matching", bool, _to("fallback.guided"), ""),
-    ("--component-min-frames", int, lambda v: [f"components.min_frames={max(v, 0)}"], "negative = 0"),
-    ("--blas-threads", int, _none_if_zero("blas_threads"), "0 = none: the BLAS library's setting"),
-)
+def removed_message(usage: str) -> str:
+    """The one line for the removed flag ``usage`` (a key of :data:`REMOVED`)."""
+    return f"{usage} was removed: use {REMOVED[usage]}"
 
 
 class _SetItems(argparse.Action):
-    """Append ``part.field=value`` items to ``namespace.set`` (``--set`` itself, or an alias
-    whose ``to_sets`` turns its value into items, each checked against the colon preset)."""
+    """``--set``: append a ``part.field=value`` item to ``namespace.set`` (checked when the tree is built)."""
 
-    def __init__(self, option_strings: Sequence[str], dest: str, to_sets: ToSets | None = None,
-                 switch: bool = False, **kw: Any) -> None:
-        self.to_sets, self.switch = to_sets, switch
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        namespace.set = [*(getattr(namespace, "set", None) or []), values]
+
+
+class _Removed(argparse.Action):
+    """A removed flag (hidden from ``--help``): one ``error:`` line naming its replacement, exit status 2."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, usage: str = "", **kw: Any) -> None:
+        self.usage = usage
         super().__init__(option_strings, dest, **kw)
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
-        items = list(getattr(namespace, "set", None) or [])
-        if self.to_sets is None:
-            items.append(values)
-        else:
-            if self.switch:  # --X: True, --no-X: False (a --no-... switch alone ignores it)
-                values = not (option_string or "").startswith("--no-")
-            new = self.to_sets(values)
-            for item in new:
-                path, _, value = item.partition("=")
-                try:
-                    set_path(PRESETS["colon"], path, value)
-                except InputError as exc:
-                    raise argparse.ArgumentError(self, str(exc)) from None
-            items.extend(new)
-        namespace.set = items
+        parser.error(removed_message(self.usage))
 
 
 def add_settings_options(r: argparse.ArgumentParser) -> None:
-    """``--preset``, ``--config``, ``--set``, ``--print-config`` and the aliases, on the run parser."""
+    """``--preset``, ``--config``, ``--set``, ``--print-config`` on the run (or batch) parser, and
+    the removed flags as hidden options that say what replaces them."""
     g = r.add_argument_group("settings (every setting, its default and meaning: --print-config)")
     g.add_argument("--preset", choices=PRESET_NAMES,
                    help="the settings the others start from: colon (millimetre scale, default) or room (centimetre)")
@@ -100,23 +97,10 @@ def add_settings_options(r: argparse.ArgumentParser) -> None:
                         "(after --config; repeatable, the last wins)")
     g.add_argument("--print-config", action="store_true",
                    help="print the settings this command line gives (YAML, each with its type and meaning) and exit")
-    a = r.add_argument_group("aliases of --set, kept for one release")
-    for flag, kind, to_sets, note in ALIASES:
-        meta = "N" if kind is int else "X"
-        if kind is None or isinstance(kind, str):
-            sets = to_sets(kind)
-        else:
-            sets = [f"{item.partition('=')[0]}={'true|false' if kind is bool else meta}" for item in to_sets(1)]
-        text = "--set " + " ".join(sets) + (f" ({note})" if note else "")
-        if kind is None:
-            a.add_argument(flag, action=_SetItems, nargs=0, to_sets=to_sets, switch=True, dest="set", help=text)
-        elif kind is bool:
-            a.add_argument(flag, f"--no-{flag[2:]}", action=_SetItems, nargs=0, to_sets=to_sets, switch=True,
-                           dest="set", help=text)
-        elif isinstance(kind, str):
-            a.add_argument(flag, action=_SetItems, choices=(kind,), to_sets=to_sets, dest="set", help=text)
-        else:
-            a.add_argument(flag, action=_SetItems, type=kind, metavar=meta, to_sets=to_sets, dest="set", help=text)
+    for usage in REMOVED:
+        flag, _, value = usage.partition(" ")
+        r.add_argument(flag, action=_Removed, usage=usage, nargs="?" if value else 0, dest=argparse.SUPPRESS,
+                       default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
 
-__all__ = ["ALIASES", "add_settings_options"]
+__all__ = ["REMOVED", "add_settings_options", "removed_message"]

@@ -106,7 +106,8 @@ def test_tracking_breaks_reports_a_black_frame(tmp_path):
     frame = sorted((seq / "rgb").iterdir())[10]
     cv2.imwrite(str(frame), np.zeros((128, 128, 3), np.uint8))
     run = tmp_path / "run"
-    r = subprocess.run([sys.executable, "-m", "c3f_slam", "run", str(seq), "--out", str(run), "--no-mesh"],
+    r = subprocess.run([sys.executable, "-m", "c3f_slam", "run", str(seq), "--out", str(run),
+                        "--set", "fusion.enabled=false"],
                        cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     report = tmp_path / "breaks.md"
@@ -320,8 +321,8 @@ def test_trajectory_identity_sets_and_comparison(tmp_path):
     sets = {s: ti.targets([s]) for s in ("coverage", "tracking128", "tracking256", "smoke")}
     assert [len(v) for v in sets.values()] == [7, 12, 12, 1]
     assert {t.spec.frames for t in sets["tracking128"]} == {600} and {t.spec.size for t in sets["coverage"]} == {128}
-    assert "--no-mesh" in sets["tracking256"][0].command(Path("s"), Path("o"))
-    assert "--no-mesh" not in sets["coverage"][0].command(Path("s"), Path("o"))
+    assert "fusion.enabled=false" in sets["tracking256"][0].command(Path("s"), Path("o"))
+    assert "fusion.enabled=false" not in sets["coverage"][0].command(Path("s"), Path("o"))
     assert len(ti.targets(["coverage", "smoke"])) == 7
 
     seq = tmp_path / "seq"

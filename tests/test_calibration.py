@@ -332,7 +332,7 @@ def test_run_with_a_field_of_view_guess(tiny_sequence, depth_model, tmp_path):
     video = _write_video(tmp_path / "clip.avi", frames, size=(64, 64))
     out = tmp_path / "run"
     assert main(["run", str(video), "--depth-model", str(depth_model), "--fov", "110", "--out", str(out),
-                 "--min-correspondences", "15", "--no-mesh", "--quiet"]) == 0
+                 "--set", "fragments.min_correspondences=15", "--set", "fusion.enabled=false", "--quiet"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["camera_source"] == "fov guess 110 deg"
     assert s["camera"]["fx"] == pytest.approx(PinholeCamera.from_fov(64, 64, 110.0).fx)

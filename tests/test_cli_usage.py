@@ -10,7 +10,7 @@ from datamodules.synthetic.__main__ import main as sim_main
 CASES = [
     (slam_main, ["run"], "the following arguments are required: sequence, --out"),
     (slam_main, ["bogus"], "invalid choice: 'bogus'"),
-    (slam_main, ["run", "seq", "--out", "o", "--stride"], "argument --stride: expected one argument"),
+    (slam_main, ["run", "seq", "--out", "o", "--set"], "argument --set: expected one argument"),
     (slam_main, ["evaluate", "out"], "the following arguments are required: --gt"),
     (slam_main, ["inspect"], "the following arguments are required: model"),
     (data_main, ["convert", "nope", "src", "--out", "o"], "argument dataset: invalid choice: 'nope'"),

@@ -92,7 +92,7 @@ def test_fold_hides_the_wall_behind_it(hole):
 
 # ---------------------------------------------------------------------- the run stage and evaluate
 
-RUN = ["--max-frames", "8", "--min-correspondences", "15", "--quiet"]
+RUN = ["--set", "frames.max_frames=8", "--set", "fragments.min_correspondences=15", "--quiet"]
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +108,7 @@ def coverage_run(sim_sequence, tmp_path_factory):
     from c3f_slam.cli import main
 
     out = tmp_path_factory.mktemp("coverage_run") / "out"
-    assert main(["run", str(sim_sequence), "--out", str(out), "--coverage-segment", "0.01", *RUN]) == 0
+    assert main(["run", str(sim_sequence), "--out", str(out), "--set", "coverage.segment=0.01", *RUN]) == 0
     return out
 
 
@@ -145,16 +145,15 @@ def test_no_coverage_and_bad_segment(sim_sequence, tmp_path, capsys):
     from c3f_slam.cli import main
 
     out = tmp_path / "off"
-    assert main(["run", str(sim_sequence), "--out", str(out), "--no-coverage", *RUN]) == 0
+    assert main(["run", str(sim_sequence), "--out", str(out), "--set", "coverage.enabled=false", *RUN]) == 0
     assert not {"coverage.json", "coverage_map.png", "unseen.ply"} & {p.name for p in out.iterdir()}
     summary = json.loads((out / "summary.json").read_text())
     assert summary["coverage"]["status"] == "off" and "unseen_share" not in summary
     capsys.readouterr()
-    with pytest.raises(SystemExit) as exc:  # a bad setting is a usage error, before the run folder
-        main(["run", str(sim_sequence), "--out", str(tmp_path / "bad"), "--coverage-segment", "0", *RUN])
-    assert exc.value.code == 2
+    # a bad setting: one error line, exit status 2, before the run folder
+    assert main(["run", str(sim_sequence), "--out", str(tmp_path / "bad"), "--set", "coverage.segment=0", *RUN]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: argument --coverage-segment: coverage.segment must be > 0")
+    assert len(err) == 1 and err[0].startswith("error: --set: coverage.segment must be > 0")
     assert not (tmp_path / "bad").exists()
 
 
@@ -164,7 +163,7 @@ def test_no_mesh_says_why(sim_sequence, tmp_path):
     from c3f_slam.cli import main
 
     out = tmp_path / "nomesh"
-    assert main(["run", str(sim_sequence), "--out", str(out), "--no-mesh", *RUN]) == 0
+    assert main(["run", str(sim_sequence), "--out", str(out), "--set", "fusion.enabled=false", *RUN]) == 0
     cov = json.loads((out / "coverage.json").read_text())
     assert cov["status"] == "unavailable" and "no mesh" in cov["reason"] and cov["unseen_share"] is None
     assert not (out / "coverage_map.png").exists()

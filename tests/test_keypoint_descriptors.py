@@ -205,7 +205,7 @@ def test_run_records_which_descriptor_file_was_used(tiny_sequence, tmp_path):
     dense, kp = _export_folder(tmp_path / "export", size=(32, 32), crop=(56, 56))
     out = tmp_path / "run"
     assert main(["run", str(tiny_sequence), "--feature-model", str(dense), "--depth-source", "files", "--out", str(out),
-                 "--min-correspondences", "15", "--no-mesh", "--quiet"]) == 0
+                 "--set", "fragments.min_correspondences=15", "--set", "fusion.enabled=false", "--quiet"]) == 0
     entry = json.loads((out / "summary.json").read_text())["models"]["descriptors"]
     assert entry["file"] == str(kp) and entry["given"] == str(dense)
     assert entry["descriptor_sampling"] == "keypoints" and entry["keypoint_file"] == "used"

@@ -68,7 +68,8 @@ def test_cpu_given_explicitly_is_the_default(tiny_sequence, models, tmp_path):
     for name, extra in (("default", []), ("cpu", ["--providers", CPU])):
         out = tmp_path / name
         assert main(["run", str(tiny_sequence), "--depth-model", str(models[0]), "--feature-model", str(models[1]),
-                     "--out", str(out), "--min-correspondences", "15", "--no-mesh", "--quiet", *extra]) == 0
+                     "--out", str(out), "--set", "fragments.min_correspondences=15", "--set", "fusion.enabled=false",
+                     "--quiet", *extra]) == 0
         runs[name] = out
     a, b = (json.loads((runs[k] / "summary.json").read_text()) for k in ("default", "cpu"))
     assert a["models"]["depth"]["providers"] == b["models"]["descriptors"]["providers"] == [CPU]

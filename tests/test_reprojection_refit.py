@@ -109,10 +109,10 @@ def test_a_run_with_the_refit_moves_its_poses_a_little(seq, tmp_path, baseline):
     for refit in (False, True):
         out = tmp_path / f"{baseline}_{refit}"
         args = ["run", str(seq), "--depth-source", "files", "--descriptors", "sift", "--out", str(out),
-                "--min-correspondences", "15", "--no-mesh", "--quiet",
+                "--set", "fragments.min_correspondences=15", "--set", "fusion.enabled=false", "--quiet",
                 "--set", f"match_filter.reprojection_refit={str(refit).lower()}"]
         if baseline != "none":
-            args += ["--baseline", baseline]
+            args += ["--set", f"mode={baseline}"]
         assert main(args) == 0
         s = json.loads((out / "summary.json").read_text())
         assert s["config"]["match_filter"]["reprojection_refit"] is refit

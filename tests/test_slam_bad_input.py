@@ -28,7 +28,7 @@ from tests import onnx_fixtures
 from tests.bad_input import Case, check_refused, error_line, interrupt, left_beside
 
 SIZE = 128  #: frame side (pixels): enough correspondences to register the tiny sequences
-RUN = ["--min-correspondences", "15", "--quiet"]
+RUN = ["--set", "fragments.min_correspondences=15", "--quiet"]
 LONG = 240  #: frames of the interrupted run: enough that Ctrl-C comes before its last frame is read
 
 
@@ -87,8 +87,9 @@ def run_truncated_video(x: Inputs, tmp: Path) -> Case:
     data = video.read_bytes()
     video.write_bytes(data[: len(data) // 2])
     shutil.copy(x.seq / "camera.json", tmp / "camera.json")
-    return Case(slam_main, ["run", str(video), "--depth-model", str(x.depth_model), "--out", str(out), "--no-mesh",
-                            *RUN], out, ("clip.avi", "the video ended after 5 of the 10 frames"),
+    return Case(slam_main, ["run", str(video), "--depth-model", str(x.depth_model), "--out", str(out),
+                            "--set", "fusion.enabled=false", *RUN],
+                out, ("clip.avi", "the video ended after 5 of the 10 frames"),
                 {"status": "truncated", "frames": 5})
 
 

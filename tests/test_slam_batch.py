@@ -45,8 +45,8 @@ def dataset(tmp_path_factory) -> Path:
 
 
 def _batch(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "c3f_slam", "batch", *args, "--no-mesh", "--quiet"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=600, check=False)
+    return subprocess.run([sys.executable, "-m", "c3f_slam", "batch", *args, "--set", "fusion.enabled=false",
+                           "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
 
 
 def _runs(out: Path) -> dict[str, dict]:

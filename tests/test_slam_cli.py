@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from c3f_slam.cli import main
+from c3f_slam.cli_settings import REMOVED
 from datamodules.synthetic.fixture import make_tiny_sequence
 from tests.startup import packages_loaded_by
 
@@ -31,27 +32,22 @@ def _error_line(capsys) -> str:
     return err[0]
 
 
-def _usage_error(argv: list[str]) -> None:
-    """``argv`` is a usage error: exit status 2 (a bad setting is caught while the command line is read)."""
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    assert exc.value.code == 2
-
-
 def test_help_lists_commands_and_options():
     out = subprocess.run([sys.executable, "-m", "c3f_slam", "run", "--help"], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)
     assert out.returncode == 0
-    for opt in ("--depth-source", "--descriptors", "--baseline", "--max-frames", "--stride", "--preset",
-                "--depth-model", "--feature-model", "--no-mesh"):
+    for opt in ("--depth-source", "--descriptors", "--preset", "--config", "--set", "--print-config",
+                "--depth-model", "--feature-model"):
         assert opt in out.stdout
+    for usage in REMOVED:  # the former tuning flags: gone from --help (tests/test_slam_removed_flags.py)
+        assert usage.split()[0] not in out.stdout, usage
 
 
 @pytest.mark.e2e
 def test_run_and_evaluate(seq, tmp_path, capsys):
     out = tmp_path / "run"
     rc = main(["run", str(seq), "--depth-source", "files", "--descriptors", "sift", "--out", str(out),
-               "--min-correspondences", "15", "--quiet"])
+               "--set", "fragments.min_correspondences=15", "--quiet"])
     assert rc == 0
     for name in ("trajectory.txt", "summary.json", "keyframe_graph.json", "keyframe_graph.png", "mesh.ply"):
         assert (out / name).is_file(), name
@@ -69,46 +65,53 @@ def test_run_and_evaluate(seq, tmp_path, capsys):
 
 def test_odometry_baseline_stride_max_frames(seq, tmp_path):
     out = tmp_path / "odo"
-    assert main(["run", str(seq), "--out", str(out), "--baseline", "odometry", "--stride", "2",
-                 "--max-frames", "5", "--no-mesh", "--quiet"]) == 0
+    assert main(["run", str(seq), "--out", str(out), "--set", "mode=odometry", "--set", "frames.stride=2",
+                 "--set", "frames.max_frames=5", "--set", "fusion.enabled=false", "--quiet"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["mode"] == "odometry" and s["frames"] == 5 and not (out / "mesh.ply").exists()
 
 
+PAPER_RULES_SETS = ["--set", "candidates.max_candidates=none", "--set", "keyframes.max_loop_edges=none",
+                    "--set", "keyframes.reuse=false", "--set", "optimization.growth=none",
+                    "--set", "optimization.max_nodes=none", "--set", "optimization.final_nodes=none"]
+
+
 def test_keyframe_candidates_option(seq, tmp_path, capsys):
-    """--max-keyframe-candidates N caps global matching; 0 restores the paper's rules."""
-    for n, expect in (("0", None), ("6", 6)):
-        out = tmp_path / f"kc{n}"
-        assert main(["run", str(seq), "--out", str(out), "--max-keyframe-candidates", n, "--max-frames", "6",
-                     "--min-correspondences", "15", "--no-mesh", "--quiet"]) == 0
+    """candidates.max_candidates=N caps global matching; the paper's rules (PAPER_RULES) lift the caps."""
+    for name, sets, expect in (("paper", PAPER_RULES_SETS, None), ("6", ["--set", "candidates.max_candidates=6"], 6)):
+        out = tmp_path / f"kc{name}"
+        assert main(["run", str(seq), "--out", str(out), *sets, "--set", "frames.max_frames=6",
+                     "--set", "fragments.min_correspondences=15", "--set", "fusion.enabled=false", "--quiet"]) == 0
         cfg = json.loads((out / "summary.json").read_text())["config"]
         assert cfg["candidates"]["max_candidates"] == expect
         assert (cfg["optimization"]["growth"] is None) == (expect is None)
-    _usage_error(["run", str(seq), "--out", str(tmp_path / "bad"), "--max-keyframe-candidates", "-1", "--quiet"])
-    assert "--max-keyframe-candidates" in _error_line(capsys)
+    bad = tmp_path / "bad"
+    assert main(["run", str(seq), "--out", str(bad), "--set", "candidates.max_candidates=-1", "--quiet"]) == 2
+    assert "candidates.max_candidates" in _error_line(capsys) and not bad.exists()
 
 
 @pytest.mark.parametrize(
-    "flag, key, cases, bad",
+    "path, cases, bad",
     [
-        # --blas-threads N caps NumPy's BLAS threads during the run (default 1; 0 = the library's)
-        ("--blas-threads", ("blas_threads",), [(None, 1), ("2", 2), ("0", None)], "-1"),
-        # --ratio R: the matcher's ratio test (default 0.9; 0 = off; outside [0, 1] is an error)
-        ("--ratio", ("frontend", "ratio"), [(None, 0.9), ("0.8", 0.8), ("0", None)], "1.5"),
+        # blas_threads=N caps NumPy's BLAS threads during the run (default 1; none = the library's)
+        ("blas_threads", [(None, 1), ("2", 2), ("none", None)], "-1"),
+        # frontend.ratio=R: the matcher's ratio test (default 0.9; none = off; outside [0, 1] is an error)
+        ("frontend.ratio", [(None, 0.9), ("0.8", 0.8), ("none", None)], "1.5"),
     ],
 )
-def test_option_reaches_config(seq, tmp_path, capsys, flag, key, cases, bad):
+def test_setting_reaches_config(seq, tmp_path, capsys, path, cases, bad):
     for value, expect in cases:
-        args = [] if value is None else [flag, value]
+        args = [] if value is None else ["--set", f"{path}={value}"]
         out = tmp_path / f"o{value}"
-        assert main(["run", str(seq), "--out", str(out), "--max-frames", "3", "--no-mesh", "--quiet", *args]) == 0
+        assert main(["run", str(seq), "--out", str(out), "--set", "frames.max_frames=3",
+                     "--set", "fusion.enabled=false", "--quiet", *args]) == 0
         value = json.loads((out / "summary.json").read_text())["config"]
-        for part in key:
+        for part in path.split("."):
             value = value[part]
         assert value == expect
-    _usage_error(["run", str(seq), "--out", str(tmp_path / "bad"), flag, bad, "--quiet"])
+    assert main(["run", str(seq), "--out", str(tmp_path / "bad"), "--set", f"{path}={bad}", "--quiet"]) == 2
     assert not (tmp_path / "bad").exists()  # a bad setting stops the command before the run folder
-    assert flag in _error_line(capsys)
+    assert path in _error_line(capsys)
 
 
 def test_missing_sequence(tmp_path, capsys):
@@ -138,7 +141,7 @@ def test_all_black_sequence_never_registers(seq, tmp_path, capsys):
     for p in sorted((bad / "rgb").glob("*.png"))[:6]:
         cv2.imwrite(str(p), np.zeros((96, 96, 3), np.uint8))
     out = tmp_path / "o"
-    assert main(["run", str(bad), "--out", str(out), "--max-frames", "6", "--quiet"]) == 2
+    assert main(["run", str(bad), "--out", str(out), "--set", "frames.max_frames=6", "--quiet"]) == 2
     assert "no frame could be registered" in _error_line(capsys)
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "error" and s["skipped_black"] == 6 and (out / "trajectory.txt").is_file()

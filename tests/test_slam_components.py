@@ -93,10 +93,10 @@ def test_evaluate_reports_the_ate_of_each_component(run_out, two_scenes):
 @pytest.mark.e2e
 def test_cli_min_frames_off_writes_no_component_and_overwrite_leaves_no_mix(two_scenes, tmp_path):
     out = tmp_path / "out"
-    args = ["run", str(two_scenes), "--out", str(out), "--no-mesh", "--quiet"]
+    args = ["run", str(two_scenes), "--out", str(out), "--set", "fusion.enabled=false", "--quiet"]
     assert main(args) == 0
     assert (out / "components/01/trajectory.txt").is_file() and not (out / "components/01/mesh.ply").exists()
-    assert main([*args, "--overwrite", "--component-min-frames", "0"]) == 0
+    assert main([*args, "--overwrite", "--set", "components.min_frames=0"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["config"]["components"]["min_frames"] == 0
     assert [c["not_written"] for c in s["components"]] == [None, "off"] and s["components"][1]["files"] == []

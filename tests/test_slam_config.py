@@ -1,4 +1,4 @@
-"""The runtime's settings tree: presets, --config files, --set overrides, aliases, --print-config,
+"""The runtime's settings tree: presets, --config files, --set overrides, --print-config,
 and a run replayed from its summary.json."""
 
 from __future__ import annotations
@@ -10,9 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from c3f_slam.cli import _parser, main
-from c3f_slam.cli_inputs import settings_from_args as _settings
-from c3f_slam.cli_settings import ALIASES
+from c3f_slam.cli import main
 from c3f_slam.config import PRESETS, SlamConfig, config_from_dict, preset
 from c3f_slam.config.loading import config_yaml, read_config_file, resolve_config
 from c3f_slam.errors import InputError
@@ -106,31 +104,9 @@ def test_config_files(tmp_path):
         read_config_file(tmp_path / "nope.yaml")
 
 
-ALIAS_VALUES = {int: "31", float: "0.5"}
-
-
-@pytest.mark.parametrize("flag, kind, to_sets", [a[:3] for a in ALIASES], ids=[a[0] for a in ALIASES])
-def test_alias_is_its_set(flag, kind, to_sets):
-    """Each old flag gives the same tree as the --set items it stands for (its help says which)."""
-    base = ["run", "SEQ", "--out", "OUT"]
-    if kind is bool:
-        cases = [([flag], to_sets(True)), ([f"--no-{flag[2:]}"], to_sets(False))]
-    elif kind is None or isinstance(kind, str):
-        cases = [([flag] if kind is None else [flag, kind], to_sets(kind))]
-    else:
-        value = ALIAS_VALUES[kind]
-        cases = [([flag, value], to_sets(kind(value)))]
-    changed = False
-    for argv, sets in cases:
-        via_alias = _settings(_parser().parse_args(base + argv))[0]
-        via_set = _settings(_parser().parse_args(base + [x for s in sets for x in ("--set", s)]))[0]
-        assert via_alias == via_set, argv
-        changed |= via_alias != PRESETS["colon"]
-    assert changed  # the flag reaches a setting
-
-
 def test_print_config_command(capsys):
-    assert main(["run", "--preset", "room", "--set", "fusion.tsdf.voxel_size=0.02", "--no-mesh", "--print-config"]) == 0
+    assert main(["run", "--preset", "room", "--set", "fusion.tsdf.voxel_size=0.02", "--set", "fusion.enabled=false",
+                 "--print-config"]) == 0
     cfg = config_from_dict(yaml.safe_load(capsys.readouterr().out))
     assert cfg.preset == "room" and cfg.fusion.tsdf.voxel_size == 0.02 and not cfg.fusion.enabled
 
@@ -154,7 +130,8 @@ def test_summary_json_replays_the_run_byte_for_byte(seq, tmp_path, capsys):
     """``run SEQ --config OLD/summary.json --out NEW`` gives the same trajectory file, byte for byte,
     and the same settings, also with non-default settings and frame selection."""
     old, new = tmp_path / "old", tmp_path / "new"
-    assert main(["run", str(seq), "--out", str(old), "--stride", "1", "--max-frames", "14", "--no-mesh", "--quiet",
+    assert main(["run", str(seq), "--out", str(old), "--set", "frames.stride=1", "--set", "frames.max_frames=14",
+                 "--set", "fusion.enabled=false", "--quiet",
                  "--set", "fragments.min_overlap=0.9", "--set", "frontend.max_keypoints=400",
                  "--set", "keyframes.max_loop_edges=3"]) == 0
     assert main(["run", str(seq), "--out", str(new), "--config", str(old / "summary.json"), "--quiet"]) == 0

@@ -223,26 +223,24 @@ def test_stored_keyframes_keep_only_what_matching_reads():
 
 
 def test_cli_loop_edge_cap_option(tiny_sequence, tmp_path, capsys):
-    """--max-loop-edges-per-keyframe N sets the cap (0 = keep all); --max-keyframe-candidates 0
-    (the paper's rules) keeps all too; a negative value is one error line naming the option."""
+    """--set keyframes.max_loop_edges=N sets the cap (none = keep all, as the paper's rules do);
+    a negative value is one error line naming the setting."""
     import json
 
     from c3f_slam.cli import main
 
-    for n, (args, expect) in enumerate(((["--max-loop-edges-per-keyframe", "3"], 3),
-                                        (["--max-loop-edges-per-keyframe", "0"], None),
-                                        (["--max-keyframe-candidates", "0"], None), ([], 8))):
+    for n, (args, expect) in enumerate(((["--set", "keyframes.max_loop_edges=3"], 3),
+                                        (["--set", "keyframes.max_loop_edges=none"], None), ([], 8))):
         out = tmp_path / f"o{n}"
-        assert main(["run", str(tiny_sequence), "--out", str(out), "--max-frames", "4", "--min-correspondences", "15",
-                     "--no-mesh", "--quiet", *args]) == 0
+        assert main(["run", str(tiny_sequence), "--out", str(out), "--set", "frames.max_frames=4",
+                     "--set", "fragments.min_correspondences=15", "--set", "fusion.enabled=false", "--quiet",
+                     *args]) == 0
         assert json.loads((out / "summary.json").read_text())["config"]["keyframes"]["max_loop_edges"] == expect
     capsys.readouterr()
-    with pytest.raises(SystemExit) as exc:  # a bad setting is a usage error
-        main(["run", str(tiny_sequence), "--out", str(tmp_path / "bad"), "--max-loop-edges-per-keyframe", "-2",
-              "--quiet"])
-    assert exc.value.code == 2
+    bad = tmp_path / "bad"  # a bad setting: exit status 2, before the run folder
+    assert main(["run", str(tiny_sequence), "--out", str(bad), "--set", "keyframes.max_loop_edges=-2", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--max-loop-edges-per-keyframe" in err[0]
+    assert len(err) == 1 and "keyframes.max_loop_edges" in err[0] and not bad.exists()
 
 
 def test_block_rows_grow_and_read_back_exactly():

@@ -293,7 +293,7 @@ def models(tmp_path_factory) -> dict[str, Path]:
 def test_slam_with_contrafeat_descriptors(tiny_sequence, models, tmp_path):
     out = tmp_path / "run"
     rc = main(["run", str(tiny_sequence), "--descriptors", "contrafeat", "--feature-model", str(models["feat"]),
-               "--depth-source", "files", "--out", str(out), "--min-correspondences", "15", "--quiet"])
+               "--depth-source", "files", "--out", str(out), "--set", "fragments.min_correspondences=15", "--quiet"])
     assert rc == 0
     assert (out / "trajectory.txt").is_file()
     s = json.loads((out / "summary.json").read_text())
@@ -315,7 +315,7 @@ def test_slam_model_depth_without_depth_folder(tiny_sequence, models, tmp_path):
     shutil.copytree(tiny_sequence, seq, ignore=shutil.ignore_patterns("depth"))
     out = tmp_path / "run"
     assert main(["run", str(seq), "--depth-model", str(models["depth"]), "--out", str(out),
-                 "--min-correspondences", "15", "--depth-scale", "1.5", "--quiet"]) == 0
+                 "--set", "fragments.min_correspondences=15", "--depth-scale", "1.5", "--quiet"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "ok" and s["depth_source"] == "model" and s["descriptors"] == "sift"
     assert s["depth_scale"] == {"factor": 1.5, "source": "option"}
@@ -334,7 +334,7 @@ def test_slam_model_depth_on_a_video(tiny_sequence, models, tmp_path):
     shutil.copy(tiny_sequence / "camera.json", tmp_path / "camera.json")
     out = tmp_path / "run"
     assert main(["run", str(video), "--depth-model", str(models["depth"]), "--feature-model", str(models["feat"]),
-                 "--out", str(out), "--min-correspondences", "15", "--quiet"]) == 0
+                 "--out", str(out), "--set", "fragments.min_correspondences=15", "--quiet"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "ok" and s["frames"] == 8 and s["descriptors"] == "contrafeat"
     assert not (out / CACHE_DIR).exists()
@@ -353,7 +353,7 @@ def test_a_truncated_video_is_not_ok(tiny_sequence, models, tmp_path, capsys):
     shutil.copy(tiny_sequence / "camera.json", tmp_path / "camera.json")
     out = tmp_path / "run"
     assert main(["run", str(video), "--depth-model", str(models["depth"]), "--out", str(out),
-                 "--min-correspondences", "15", "--no-mesh", "--quiet"]) == 2
+                 "--set", "fragments.min_correspondences=15", "--set", "fusion.enabled=false", "--quiet"]) == 2
     assert "of the 8 frames its container declares" in _cli_error(capsys)
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "truncated" and s["frames_declared"] == 8 and 0 < s["frames"] < 8

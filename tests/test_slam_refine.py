@@ -118,10 +118,11 @@ def test_config_presets_and_validation():
         slam_preset("room", refine={"min_fitness": 2.0})
 
 
-@pytest.mark.parametrize("flag, expect", [(["--dense-refine"], True), (["--no-dense-refine"], False), ([], False),
-                                          (["--dense-refine", "--set", "refine.enabled=false"], False)])
+@pytest.mark.parametrize("flag, expect", [(["--set", "refine.enabled=true"], True),
+                                          (["--set", "refine.enabled=false"], False), ([], False),
+                                          (["--set", "refine.enabled=true", "--set", "refine.enabled=false"], False)])
 def test_cli_flag(flag, expect):
-    """The alias and --set reach the same setting; the last one given wins."""
+    """--set refine.enabled reaches the setting; the last one given wins."""
     args = _parser().parse_args(["run", "SEQ", "--out", "OUT", *flag])
     assert _settings(args)[0].refine.enabled is expect
 

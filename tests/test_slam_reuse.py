@@ -149,7 +149,7 @@ def test_reuse_switch_in_config_and_cli(reuse, tiny_sequence, tmp_path):
 
     out = tmp_path / f"out_{reuse}"
     args = ["run", str(tiny_sequence), "--depth-source", "files", "--descriptors", "sift", "--out", str(out),
-            "--no-mesh", "--quiet", "--reuse-keyframes" if reuse else "--no-reuse-keyframes"]
+            "--set", "fusion.enabled=false", "--quiet", "--set", f"keyframes.reuse={str(reuse).lower()}"]
     assert main(args) == 0
     import json
 

@@ -12,7 +12,7 @@ import pytest
 from c3f_slam.cli import main
 from c3f_slam.pipeline.slam import FragmentSlam
 
-RUN = ["--max-frames", "6", "--min-correspondences", "15", "--quiet"]
+RUN = ["--set", "frames.max_frames=6", "--set", "fragments.min_correspondences=15", "--quiet"]
 
 
 def _files(folder: Path) -> dict[str, bytes]:
@@ -49,16 +49,17 @@ def mesh_run(tiny_sequence, tmp_path) -> Path:
 
 def test_complete_run_needs_overwrite(tiny_sequence, mesh_run, capsys):
     before = _files(mesh_run)
-    assert main(["run", str(tiny_sequence), "--out", str(mesh_run), "--no-mesh", *RUN]) == 2
+    assert main(["run", str(tiny_sequence), "--out", str(mesh_run), "--set", "fusion.enabled=false", *RUN]) == 2
     assert "--overwrite" in _error_line(capsys)
     assert _files(mesh_run) == before  # untouched
     assert _siblings(mesh_run) == []
 
 
 def test_overwrite_replaces_the_whole_folder(tiny_sequence, mesh_run):
-    """A --no-mesh rerun leaves no mesh of the earlier run beside its own files."""
+    """A rerun without a mesh (--set fusion.enabled=false) leaves no mesh of the earlier run beside its own files."""
     (mesh_run / "trajectory.png").write_bytes(b"an evaluate output of the earlier run")
-    assert main(["run", str(tiny_sequence), "--out", str(mesh_run), "--no-mesh", "--overwrite", *RUN]) == 0
+    assert main(["run", str(tiny_sequence), "--out", str(mesh_run), "--set", "fusion.enabled=false", "--overwrite",
+                 *RUN]) == 0
     names = set(_files(mesh_run))
     assert "mesh.ply" not in names and "trajectory.png" not in names
     assert json.loads((mesh_run / "summary.json").read_text())["config"]["fusion"]["enabled"] is False
@@ -129,11 +130,12 @@ def test_unreadable_frames_are_skipped_and_counted_up_to_a_limit(tiny_sequence, 
     bad = sorted((seq / "rgb").iterdir())[3]
     bad.write_bytes(b"\x89PNG damaged")
     out = tmp_path / "ok"
-    assert main(["run", str(seq), "--out", str(out), "--no-mesh", *RUN]) == 0
+    assert main(["run", str(seq), "--out", str(out), "--set", "fusion.enabled=false", *RUN]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "ok" and s["skipped_unreadable"] == 1 and s["frames"] == 6
     out0 = tmp_path / "strict"
-    assert main(["run", str(seq), "--out", str(out0), "--no-mesh", "--max-bad-frames", "0", *RUN]) == 2
+    assert main(["run", str(seq), "--out", str(out0), "--set", "fusion.enabled=false", "--max-bad-frames", "0",
+                 *RUN]) == 2
     line = _error_line(capsys)
     assert bad.name in line and "--max-bad-frames 0" in line
     s = json.loads((out0 / "summary.json").read_text())

@@ -31,7 +31,7 @@ from tests import browser
 from tests.bad_input import fingerprint
 from tests.scenes import tube_mesh
 
-RUN = ["--min-correspondences", "15", "--quiet"]
+RUN = ["--set", "fragments.min_correspondences=15", "--quiet"]
 
 
 @pytest.fixture(scope="module")

@@ -5,9 +5,9 @@ on), run ``python -m c3f_slam run`` with ground-truth depth and SIFT at **defaul
 (no threshold on the command line; no mesh, for speed) and evaluate: share of the usable
 frames in the main map, ATE Sim(3) (cm and % of the ground-truth path length), frames/s,
 tracking breaks and how many were re-joined. ``--baseline CHECKOUT`` runs the same with the
-code of another checkout (e.g. a git worktree of the commit before the change), at its
-defaults (and with ``--min-correspondences 15``, what README used to pass, with
-``--baseline-tuned``), side by side.
+code of another checkout (e.g. a git worktree of the commit before the change; one whose
+``run`` takes ``--set``), at its defaults (and with ``--set fragments.min_correspondences=15``,
+what README used to pass, with ``--baseline-tuned``), side by side.
 
 Pace: the paper's sequences cross the 1.25 m colon in 4,500 frames (~0.28 mm per frame);
 pace p travels ``p x frames / 4500`` of it (``path.coverage``). Events are placed per 1000
@@ -70,7 +70,7 @@ def slam_command(seq: Path, out: Path, options: tuple[str, ...] = ()) -> list[st
     (unless ``options`` name a depth model), SIFT, default settings, no mesh."""
     depth = () if "--depth-model" in options else ("--depth-source", "files")
     return [sys.executable, "-m", "c3f_slam", "run", str(seq), *depth, "--descriptors", "sift",
-            "--no-mesh", "--quiet", "--overwrite", "--out", str(out), *options]
+            "--set", "fusion.enabled=false", "--quiet", "--overwrite", "--out", str(out), *options]
 
 
 def run_variant(v: Variant, seq: Path, out: Path) -> dict:
@@ -117,7 +117,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--work", type=Path, default=WORK / "slam_tracking", help="folder for sequences and runs")
     ap.add_argument("--baseline", type=Path, help="checkout of the code to compare with (run from its folder)")
     ap.add_argument("--baseline-tuned", action="store_true",
-                    help="also run the baseline with --min-correspondences 15 (README's former advice)")
+                    help="also run the baseline with --set fragments.min_correspondences=15 (README's former "
+                         "advice)")
     ap.add_argument("--events", nargs="+", choices=sorted(EVENT_TIMINGS), default=["bounded"],
                     help="bounded: the simulator's event ramps within path.max_turn_rate / max_event_speed (its "
                          "defaults); unbounded: ramps fixed in frames (the simulator before the bounds)")
@@ -130,7 +131,8 @@ def main(argv: list[str] | None = None) -> None:
     if a.baseline:
         variants.append(Variant("before, defaults", a.baseline))
         if a.baseline_tuned:
-            variants.append(Variant("before, --min-correspondences 15", a.baseline, ("--min-correspondences", "15")))
+            variants.append(Variant("before, min_correspondences 15", a.baseline,
+                                    ("--set", "fragments.min_correspondences=15")))
     lines = ["| sequence | events % | code | min corr. | registered % of usable | ATE Sim(3) cm | ATE % of path "
              "| path cm | breaks / re-joined | frames/s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for timing, size, pace, preset, seed in itertools.product(a.events, a.sizes, a.paces, a.presets, a.seeds):

@@ -182,9 +182,9 @@ def report_body(a: argparse.Namespace, before: dict, after: dict, fit_s: float,
         "",
         "After / before: " + ", ".join(f"{k} {v:.3f}" for k, v in ratio.items()) + ".",
         "",
-        ("SLAM on the sequence with each network's predicted depth (SIFT, `--min-correspondences "
-         f"{a.min_correspondences}`, both exported with the base run's config: depth scale measured on the base "
-         "run's training sequences):"),
+        ("SLAM on the sequence with each network's predicted depth (SIFT, `--set "
+         f"fragments.min_correspondences={a.min_correspondences}`, both exported with the base run's config: depth "
+         "scale measured on the base run's training sequences):"),
         "",
         (f"| network | ATE Sim(3) cm (RMSE / std) | registered % | GT length cm | ATE cm, the {n_shared} frames "
          "both registered | depth scale |"),

@@ -1,4 +1,4 @@
-"""Dense refinement of keyframe edges (coloured ICP, ``--dense-refine``) on and off (outside CI).
+"""Dense refinement of keyframe edges (coloured ICP, ``refine.enabled``) on and off (outside CI).
 
 Two sequences, ground-truth depth from the files, SIFT, the full system:
 

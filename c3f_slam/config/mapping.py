@@ -139,7 +139,7 @@ class ComponentConfig:
     (:mod:`c3f_slam.pipeline.components`; frames = registered frames of a component)."""
 
     #: a component other than the main map with at least this many frames is optimised, fused
-    #: and written to OUT/components/NN/; 0 = none is (``--component-min-frames``)
+    #: and written to OUT/components/NN/; 0 = none is
     min_frames: int = 30
     max_written: int = 8  #: at most this many of them, the largest ones
 

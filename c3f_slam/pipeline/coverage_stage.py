@@ -9,9 +9,10 @@ into the run folder, each file atomically:
 - ``coverage_map.png``: the unrolled wall, unseen cells flagged;
 - ``unseen.ply``: the fused mesh with the unseen wall added as painted patches.
 
-A run without a mesh (``--no-mesh``), or with too little forward motion for a centreline,
-gets ``coverage.json`` with ``status`` and the reason and no map; ``--no-coverage`` writes
-nothing. The stage never fails the run: an unexpected error is recorded in summary.json.
+A run without a mesh (``--set fusion.enabled=false``), or with too little forward motion for
+a centreline, gets ``coverage.json`` with ``status`` and the reason and no map;
+``--set coverage.enabled=false`` writes nothing. The stage never fails the run: an unexpected
+error is recorded in summary.json.
 """
 
 from __future__ import annotations
@@ -81,7 +82,7 @@ def write_coverage(outputs: RunOutputs, mesh: TriangleMesh | None, poses: np.nda
         TissueMask(mask, "fusion grid").write_png(outputs.coverage_mask)
     try:
         if mesh is None:
-            raise CoverageUnavailable("no mesh (--no-mesh)")
+            raise CoverageUnavailable("no mesh (fusion.enabled=false)")
         cov = compute_coverage(mesh, poses, camera.K, view, c)
     except CoverageUnavailable as exc:
         write_json(outputs.coverage_json, {"status": "unavailable", "reason": str(exc), "unseen_share": None,

@@ -1,4 +1,4 @@
-"""The frame-to-frame odometry baseline (``--baseline odometry``): a :class:`SlamBackend`
+"""The frame-to-frame odometry baseline (``--set mode=odometry``): a :class:`SlamBackend`
 without fragments, keyframes or optimisation. Poses camera-to-world, metres.
 
 :class:`OdometrySlam` (the tracker) holds an :class:`OdometryMap` (``slam.map``: the frame log
