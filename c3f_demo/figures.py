@@ -1,9 +1,13 @@
-"""Figures of the demo report (PNG files in ``DIR/figures``): sample frames beside predicted and
-true depth, the mesh renders, and for a user's video the tissue mask over a frame and a strip of
-what became of each frame. Depths in metres (the colour bar is labelled in cm)."""
+"""The report's second step: :func:`make_figures` draws every figure of the report from the
+collected :class:`~c3f_demo.report_records.ReportData` alone (PNG files in ``DIR/figures``: sample
+frames beside predicted and true depth, the mesh renders, and for a user's video the tissue mask
+over a frame and a strip of what became of each frame; for the demo, the 3D view's videos in the
+viewed run's folder) and returns them as :class:`~c3f_demo.report_records.Figures`. Depths in
+metres (the colour bar is labelled in cm)."""
 
 from __future__ import annotations
 
+from itertools import chain
 from pathlib import Path
 
 import cv2
@@ -11,9 +15,25 @@ import numpy as np
 import open3d as o3d
 
 from c3f_demo.render import crop_near, render_views
-from c3f_slam.io import Sequence
+from c3f_demo.report_records import DepthSamples, Figures, Image, ReportData, TissueSample, Video, ViewData, ViewFigures
+from c3f_slam.errors import InputError
 from c3f_slam.io.atomic import atomic_write
-from c3f_slam.models import DepthModel
+
+
+def make_figures(data: ReportData, root: Path) -> Figures:
+    """Every figure of the report drawn from ``data`` into ``root/figures`` (the demo's 3D view
+    into its run folder), with the images earlier stages drew (``data.images``)."""
+    out, size = root / "figures", data.config["report"]["render_size"]
+    depth = depth_samples(data.depth_samples, out / "depth_samples.png") if data.depth_samples else {}
+    meshes = {n: mesh_renders(m, out / f"mesh_{n}", size) for n, m in data.meshes.items()}
+    coverage = {n: mesh_renders(m, out / f"coverage_{n}", size, near=data.path_points)
+                for n, m in data.coverage.items()}
+    tissue = tissue_figure(data.tissue, out) if data.tissue else None
+    frames = frame_figures(data.frame_labels, out)
+    drawn = [depth.get("figure"), *chain(*meshes.values(), *coverage.values()), (tissue or {}).get("figure"),
+             *(f["figure"] for f in frames.values())]
+    images = {**data.images, **{f"figures/{n}": Image.read(root, f"figures/{n}") for n in drawn if n}}
+    return Figures(images, depth, meshes, coverage, tissue, frames, view_figures(data.view, root))
 
 
 def write_png(path: Path, rgb: np.ndarray) -> None:
@@ -35,46 +55,63 @@ def _label(img: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
-def depth_samples(seq_dir: Path, models: dict[str, Path], n: int, out: Path) -> dict:
-    """Rows of [frame | predicted depth of each model | true depth] for ``n`` evenly spaced
-    frames, one colour range (the true depth's 2nd-98th percentile over those frames).
-    ``models``: column label -> depth ONNX file. Each prediction is multiplied by the metric scale
-    its export recorded (what ``c3f_slam run`` uses), when there is one. Returns the frames, the
-    range, the labels and their scales."""
-    seq = Sequence(seq_dir)
-    idx = np.linspace(0, len(seq) - 1, n).round().astype(int).tolist()
-    rgbs = [seq.read_rgb(i) for i in idx]
-    gts = [seq.read_depth(i) for i in idx]
-    valid = np.concatenate([g[g > 0] for g in gts])
+def depth_samples(samples: DepthSamples, out: Path) -> dict:
+    """Rows of [frame | predicted depth of each model | true depth] of the sample frames, one
+    colour range (the true depth's 2nd-98th percentile over those frames). Returns the frames, the
+    range, the file name and the models' scales."""
+    valid = np.concatenate([g[g > 0] for g in samples.true])
     lo, hi = (np.percentile(valid, [2, 98]) if len(valid) else (0.0, 0.1)).tolist()
-    columns, scales = [[_label(im, f"frame {i}") for i, im in zip(idx, rgbs)]], {}
-    for label, path in models.items():
-        model = DepthModel(path, threads=2)
-        scales[label] = model.metric_scale or 1.0
-        columns.append([_label(colour_depth(scales[label] * model.predict(im, seq.camera), lo, hi), label)
-                        for im in rgbs])
-    columns.append([_label(colour_depth(g, lo, hi), "true") for g in gts])
+    columns = [[_label(im, f"frame {i}") for i, im in zip(samples.frames, samples.rgb)]]
+    columns += [[_label(colour_depth(d, lo, hi), label) for d in depths] for label, depths in samples.predicted.items()]
+    columns.append([_label(colour_depth(g, lo, hi), "true") for g in samples.true])
     img = np.concatenate([np.concatenate(row, axis=1) for row in zip(*columns)], axis=0)
     write_png(out, cv2.resize(img, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST))
-    return {"frames": idx, "range_m": [lo, hi], "figure": out.name, "scales": scales}
+    return {"frames": samples.frames, "range_m": [lo, hi], "figure": out.name, "scales": samples.scales}
 
 
-def mesh_renders(mesh_path: Path, out_stem: Path, size: int, near: np.ndarray | None = None,
+def mesh_renders(mesh: o3d.geometry.TriangleMesh | None, out_stem: Path, size: int, near: np.ndarray | None = None,
                  margin: float = 0.03) -> list[str]:
-    """Render ``mesh_path`` from three viewpoints into ``OUT_STEM_VIEW.png``; with ``near`` (N, 3)
-    points, only the part of the mesh within ``margin`` metres of their bounding box. Returns the
-    file names (none when the mesh is missing or empty)."""
-    if not mesh_path.is_file():
+    """Render ``mesh`` (left as it is) from three viewpoints into ``OUT_STEM_VIEW.png``; with ``near``
+    (N, 3) points, only the part of the mesh within ``margin`` metres of their bounding box.
+    Returns the file names (none when there is no mesh or it is empty)."""
+    if mesh is None:
         return []
-    mesh = o3d.io.read_triangle_mesh(str(mesh_path))
-    if near is not None and len(near):
-        mesh = crop_near(mesh, near, margin)
+    mesh = crop_near(mesh, near, margin) if near is not None and len(near) else o3d.geometry.TriangleMesh(mesh)
     names = []
     for view, img in render_views(mesh, size):
         path = out_stem.parent / f"{out_stem.name}_{view}.png"
         write_png(path, img)
         names.append(path.name)
     return names
+
+
+def tissue_figure(sample: TissueSample, out: Path) -> dict:
+    """The tissue mask drawn over its frame (:func:`mask_overlay`, ``OUT/tissue_mask.png``)."""
+    return {"run": sample.run, "frame": sample.frame,
+            "figure": mask_overlay(sample.rgb, sample.mask, out / "tissue_mask.png")}
+
+
+def frame_figures(labels: dict[str, tuple[str, list[str]]], out: Path) -> dict[str, dict]:
+    """Per configuration, the strip of its frames' labels (:func:`frame_strip`, ``OUT/frames_NAME.png``)
+    and its kind (``timeline`` or ``counts``)."""
+    return {name: {"kind": kind, **frame_strip(labs, out / f"frames_{name}.png")}
+            for name, (kind, labs) in labels.items()}
+
+
+def view_figures(view: ViewData | None, root: Path) -> ViewFigures:
+    """The 3D view's videos: those the ``view`` stage wrote (or its error), or for the demo,
+    :func:`c3f_slam.view.build.write_view` of the run folder (view.html and the videos, with the
+    render time per frame of each)."""
+    from c3f_slam.view.build import CAPTIONS, write_view
+
+    if view is None or view.error or not view.write:
+        return ViewFigures() if view is None else ViewFigures(view.videos, error=view.error)
+    try:
+        made = write_view(root / view.folder, progress=False).videos
+    except InputError as exc:
+        return ViewFigures(error=str(exc))
+    videos = tuple(Video.read(root, f"{view.folder}/{v}", f"{v}: {CAPTIONS[v]}") for v in made)
+    return ViewFigures(videos, {v: r["ms_per_frame"] for v, r in made.items() if "ms_per_frame" in r})
 
 
 def mask_overlay(rgb: np.ndarray, mask: np.ndarray, out: Path, side: int = 512) -> str:

@@ -1,12 +1,13 @@
 """Self-contained HTML of the demo report: every image and video embedded as a base64 data URI,
 the 3D view's scripts inlined (c3f_slam.view.page), nothing to load, so the file opens offline
-in any browser."""
+in any browser. Pure: images and videos come with their bytes, no file is read."""
 
 from __future__ import annotations
 
 import base64
 import html
-from pathlib import Path
+
+from c3f_demo.report_records import Image, Video
 
 STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
@@ -21,30 +22,29 @@ def esc(x) -> str:
     return html.escape(str(x))
 
 
-def image(path: Path, caption: str = "", width: int | None = None) -> str:
-    """An ``<img>`` with the PNG at ``path`` embedded (a plain note when the file is missing)."""
-    if not path.is_file():
-        return f'<p class="fail">missing image: {esc(path.name)}</p>'
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
+def image(img: Image, caption: str = "", width: int | None = None) -> str:
+    """An ``<img>`` with the PNG embedded (a plain note when the file was missing)."""
+    if img.png is None:
+        return f'<p class="fail">missing image: {esc(img.name)}</p>'
+    data = base64.b64encode(img.png).decode("ascii")
     w = f' width="{width}"' if width else ""
     cap = f"<figcaption>{esc(caption)}</figcaption>" if caption else ""
-    return f'<figure><img alt="{esc(caption or path.name)}"{w} src="data:image/png;base64,{data}">{cap}</figure>'
+    return f'<figure><img alt="{esc(caption or img.name)}"{w} src="data:image/png;base64,{data}">{cap}</figure>'
 
 
-def video(root: Path, rel: str, caption: str, max_bytes: int) -> str:
-    """A ``<video>`` with the MP4 ``root / rel`` embedded when it is at most ``max_bytes``, else a
-    note with a link to it (``rel``, relative to the report)."""
+def video(v: Video, max_bytes: int) -> str:
+    """A ``<video>`` with the MP4 embedded when it is at most ``max_bytes``, else a note with a link
+    to it (its path, relative to the report)."""
     from c3f_slam.view.page import video_element
 
-    path = root / rel
-    if not path.is_file():
-        return f'<p class="fail">missing video: {esc(rel)}</p>'
-    size = path.stat().st_size
+    if v.data is None:
+        return f'<p class="fail">missing video: {esc(v.path)}</p>'
+    size = len(v.data)
     if size > max_bytes:
-        return (f"<p>{esc(caption)}: {size / 1e6:.1f} MB, above the report's {max_bytes / 1e6:.0f} MB per video, "
-                f'so not embedded: <a href="{esc(rel)}">{esc(rel)}</a>, beside the report.</p>')
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return video_element(f"data:video/mp4;base64,{data}", caption, path.name)
+        return (f"<p>{esc(v.caption)}: {size / 1e6:.1f} MB, above the report's {max_bytes / 1e6:.0f} MB per video, "
+                f'so not embedded: <a href="{esc(v.path)}">{esc(v.path)}</a>, beside the report.</p>')
+    data = base64.b64encode(v.data).decode("ascii")
+    return video_element(f"data:video/mp4;base64,{data}", v.caption, v.name)
 
 
 def table(header: list[str], rows: list[list]) -> str:

@@ -1,8 +1,6 @@
-"""The demo's ``report`` stage: figures into ``DIR/figures`` and ``DIR/report.html``.
-
-:func:`build_report` writes the HTML from plain inputs (the metrics JSON, the stage table, the
-figure files under the demo folder), so it is tested on tiny fake inputs; :class:`Report` makes
-the figures and gathers those inputs. Lengths are metres in the data, cm or mm on the page.
+"""The report's third step: :func:`build_report` writes the HTML of ``DIR/report.html`` from the
+collected data and the figures alone (:mod:`c3f_demo.report_records`), reading no file, so it is
+tested on tiny fake inputs. Lengths are metres in the data, cm or mm on the page.
 """
 
 from __future__ import annotations
@@ -12,6 +10,7 @@ import math
 from pathlib import Path
 
 from c3f_demo import html as H
+from c3f_demo.report_records import Figures, ReportData
 from c3f_models.zoo.card import summary_numbers
 from c3f_slam.view.page import layer_table_rows, view_fragment, view_scripts
 
@@ -75,19 +74,19 @@ def _num(x, scale: float = 1.0, digits: int = 3) -> str:
     return f"{v:.{digits}f}" if math.isfinite(v) else "n/a"
 
 
-def _summary(d: dict) -> str:
+def _summary(d: ReportData) -> str:
     rows = []
-    for name, r in d["metrics"]["slam"].items():
+    for name, r in d.metrics["slam"].items():
         if r.get("status") == "ok":
             rows.append([H.esc(r.get("title", name)), "ok", _num(r["ate_sim3_m"], 100, 2),
                          _num(r["gt_length_m"], 100, 1), _num(r["registered_share"], 100, 1)])
         else:
             rows.append([H.esc(r.get("title", name)), '<span class="fail">FAILED</span>',
                          f'<span class="fail">{H.esc(r.get("error", "failed"))}</span>', "", ""])
-    mode = "quick" if d["config"].get("quick") else "default"
+    mode = "quick" if d.config.get("quick") else "default"
     ttt = ("test-time trained DepthNet on the held-out sequence (self-supervised), "
-           if d["config"].get("ttt", {}).get("steps") else "")
-    start = ("started from the zoo's DepthNet and ContraFeat (see Models)" if d.get("zoo")
+           if d.config.get("ttt", {}).get("steps") else "")
+    start = ("started from the zoo's DepthNet and ContraFeat (see Models)" if d.zoo
              else "trained DepthNet and ContraFeat on CPU")
     return (f"<p>Simulated colon, {start}, {ttt}exported to ONNX, reconstructed "
             f"the held-out sequence in {len(rows)} configurations ({mode} preset). ATE is the RMSE after Sim(3) "
@@ -95,9 +94,9 @@ def _summary(d: dict) -> str:
             + H.table(["configuration", "status", "ATE (cm)", "path length (cm)", "registered (%)"], rows))
 
 
-def _models(d: dict) -> str:
+def _models(d: ReportData) -> str:
     """Which networks ran: the zoo entries with their cards' held-out numbers, or the demo's own training."""
-    zoo = d.get("zoo") or {}
+    zoo = d.zoo or {}
     if not zoo:
         return ("<p>Both networks were trained by this demo (<code>--from-scratch</code>): see Deviations for "
                 "their size and budget.</p>")
@@ -108,7 +107,7 @@ def _models(d: dict) -> str:
         rows.append([f"<code>zoo:{H.esc(note['zoo'])}</code>", H.esc(note.get("kind", "")),
                      H.esc(note.get("summary", "")),
                      f"{t.get('steps', 'n/a')} steps, {_num(t.get('wall_s'), 1 / 60, 0)} min", nums])
-    guard = d.get("ttt_guard")
+    guard = d.ttt_guard
     said = ""
     if guard and guard.get("best_step") is None and not guard.get("events"):
         said = (f"<p>Test-time training guard: no check fell within the {guard.get('steps', 'n/a')} steps, so it "
@@ -123,14 +122,14 @@ def _models(d: dict) -> str:
             + H.table(["model", "kind", "what", "training", "card's held-out numbers"], rows) + said)
 
 
-def _deviations(d: dict) -> str:
-    dep = d["config"]["depth"]
+def _deviations(d: ReportData) -> str:
+    dep = d.config["depth"]
     items = []
-    if d.get("zoo"):
+    if d.zoo:
         items.append("The networks come from the project's zoo: trained on the simulator with a supervised depth term "
                      "and at CPU size; each card lists its deviations from the paper (<code>zoo/NAME/README.md"
                      "</code>).")
-        ttt = d["config"].get("ttt", {})
+        ttt = d.config.get("ttt", {})
         if ttt.get("steps"):
             items.append(f"DepthNet was <b>test-time trained on the held-out sequence</b> from the zoo weights with "
                          f"the paper's objective (<code>configs/depthnet/paper_objective.yaml</code>, no ground "
@@ -146,7 +145,7 @@ def _deviations(d: dict) -> str:
     if not dep["paper_extras"]:
         items.append("The paper's extra depth terms (L_ph-extra, L_dc, outlier and specular masks) were off "
                      "(<code>configs/depthnet/monodepth2.yaml</code>) to fit the CPU budget.")
-    ttt = d["config"].get("ttt", {})
+    ttt = d.config.get("ttt", {})
     if ttt.get("steps"):
         items.append(f"After that pre-training, DepthNet was <b>test-time trained on the held-out sequence</b>, "
                      f"self-supervised as in the paper (no ground truth; {ttt['steps']} steps, lr {ttt['lr']:g}, "
@@ -157,13 +156,13 @@ def _deviations(d: dict) -> str:
         items.append("No test-time training on the held-out sequence: predicted depth comes from the pre-trained "
                      "network.")
     items.append(f"Networks at CPU size (DepthNet {dep['size']} px, {dep['steps']} steps; ContraFeat "
-                 f"{d['config']['features']['size']} px, {d['config']['features']['steps']} steps), far from the "
+                 f"{d.config['features']['size']} px, {d.config['features']['steps']} steps), far from the "
                  "paper's training.")
     return '<div class="note"><ul>' + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>"
 
 
-def _depth(d: dict, root: Path) -> str:
-    m = d["metrics"]["depth"]
+def _depth(d: ReportData, figs: Figures) -> str:
+    m = d.metrics["depth"]
     before = m.get("before_ttt")
     scale = {"sq_rel": 100, "rmse": 100}
     cell = lambda group, k: _num(group[k], scale.get(k, 1))  # noqa: E731
@@ -182,10 +181,10 @@ def _depth(d: dict, root: Path) -> str:
         head = ["metric", "per-image median scaling", "metric (no scaling)"]
         rows = [[label, cell(m["median_scaled"], k), cell(m["metric"], k)] for k, label in METRIC_LABELS.items()]
         which = "the exported DepthNet"
-    fig = d["figures"].get("depth", {})
+    fig = figs.depth
     rng = fig.get("range_m", [0, 0])
     scales = ", ".join(f"{H.esc(k)} x {_num(v, 1, 2)}" for k, v in fig.get("scales", {}).items())
-    return (H.image(root / "figures" / "depth_samples.png",
+    return (H.image(figs.image("figures/depth_samples.png"),
                     f"held-out frames | predicted depth ({scales}: the metric scale each export recorded, as SLAM "
                     f"uses it) | true depth; colour {_num(rng[0], 100, 1)}-{_num(rng[1], 100, 1)} cm, "
                     "black = no depth")
@@ -195,8 +194,8 @@ def _depth(d: dict, root: Path) -> str:
             + H.table(head, rows))
 
 
-def _matches(d: dict, root: Path) -> str:
-    m = d["metrics"]["matches"]
+def _matches(d: ReportData, figs: Figures) -> str:
+    m = d.metrics["matches"]
     rows = [[name, m[key]["found"], m[key]["correct"], _num(m[key]["precision"], 100, 1),
              _num(m[key]["recall"], 100, 1)] for key, name in (("sift", "SIFT"), ("contrafeat", "ContraFeat"))]
     i, j = m["pair"]
@@ -204,60 +203,61 @@ def _matches(d: dict, root: Path) -> str:
             f"{m['ground_truth']} ground-truth matches. Green = correct (within 2 px), yellow = near miss, "
             "red = wrong. Top row SIFT, bottom row ContraFeat.</p>"
             + H.table(["descriptor", "matches", "correct", "precision (%)", "recall (%)"], rows)
-            + H.image(root / m["figure"], "SIFT (top) vs ContraFeat (bottom)"))
+            + H.image(figs.image(m["figure"]), "SIFT (top) vs ContraFeat (bottom)"))
 
 
-def _per_run(d: dict, root: Path, file: str, caption, absent: dict[str, str] | None = None) -> str:
+def _per_run(d: ReportData, figs: Figures, file: str, caption, absent: dict[str, str] | None = None) -> str:
     """One image per configuration (``slam/NAME/FILE``); ``absent``: name -> what to say instead
     when a configuration writes no such file by design."""
     out = []
-    for name, r in d["metrics"]["slam"].items():
+    for name, r in d.metrics["slam"].items():
         title = H.esc(r.get("title", name))
         if r.get("status") != "ok":
             out.append(f'<p class="fail">{title}: failed, nothing to show ({H.esc(r.get("error", ""))})</p>')
-        elif name in (absent or {}) and not (root / "slam" / name / file).is_file():
+        elif name in (absent or {}) and figs.image(f"slam/{name}/{file}").png is None:
             out.append(f"<h3>{title}</h3><p>{H.esc(absent[name])}</p>")
         else:
-            out.append(f"<h3>{title}</h3>" + H.image(root / "slam" / name / file, caption(r)))
+            out.append(f"<h3>{title}</h3>" + H.image(figs.image(f"slam/{name}/{file}"), caption(r)))
     return "".join(out)
 
 
-def _meshes(d: dict, root: Path) -> str:
+def _meshes(d: ReportData, figs: Figures) -> str:
     out = ["<p>TSDF meshes, offscreen renders (vertex colours, light at the eye).</p>"]
-    for name, r in d["metrics"]["slam"].items():
-        files = d["figures"].get("meshes", {}).get(name, [])
+    for name, r in d.metrics["slam"].items():
+        files = figs.meshes.get(name, [])
         if r.get("status") != "ok" or not files:
             out.append(f'<p class="fail">{H.esc(r.get("title", name))}: no mesh to show</p>')
             continue
         out.append(f"<h3>{H.esc(r.get('title', name))}</h3>" + "".join(
-            H.image(root / "figures" / f, f.rsplit("_", 1)[-1][:-4], 300) for f in files))
+            H.image(figs.image(f"figures/{f}"), f.rsplit("_", 1)[-1][:-4], 300) for f in files))
     return "".join(out)
 
 
-def _view3d(d: dict, root: Path) -> str:
-    """The interactive 3D view of one configuration and its two videos (``d["view"]``)."""
-    v = d.get("view")
+def _view3d(d: ReportData, figs: Figures) -> str:
+    """The interactive 3D view of one configuration (``d.view``) and its two videos (``figs.view``)."""
+    v = d.view
     if not v:
         return '<p class="fail">No configuration gave a reconstruction to view.</p>'
-    title = H.esc(v["title"])
-    if v.get("error"):
-        return f'<p class="fail">{title}: no 3D view ({H.esc(v["error"])})</p>'
-    cost = "; ".join(f"{H.esc(name)} {_num(ms, 1, 0)} ms per rendered frame" for name, ms in v["render_ms"].items())
+    title = H.esc(v.title)
+    if figs.view.error:
+        return f'<p class="fail">{title}: no 3D view ({H.esc(figs.view.error)})</p>'
+    cost = "; ".join(f"{H.esc(name)} {_num(ms, 1, 0)} ms per rendered frame"
+                     for name, ms in figs.view.render_ms.items())
     return (f"<p>{title}, in 3D: drag to orbit, right drag to pan, wheel to zoom; switch the layers on the right. "
-            f"The geometry is decimated to the report's budget ({v['budget_triangles']:,} triangles); "
-            f"<code>slam/{H.esc(v['run'])}/view.html</code> has it at the full page budget, linked to the PLY "
-            "files.</p>" + view_fragment(v["data"]) + H.table(["layer", "data"], layer_table_rows(v["data"]))
+            f"The geometry is decimated to the report's budget ({v.budget_triangles:,} triangles); "
+            f"<code>slam/{H.esc(v.run)}/view.html</code> has it at the full page budget, linked to the PLY "
+            "files.</p>" + view_fragment(v.data) + H.table(["layer", "data"], layer_table_rows(v.data))
             + "<p>The input beside the reconstruction rendered from each frame's estimated pose (same intrinsics; "
               "unseen wall blue), and a fly-through of the final model along the smoothed camera path, rendered "
               f"on the CPU{f' ({cost})' if cost else ''}.</p>"
-            + "".join(H.video(root, path, caption, VIDEO_EMBED_MAX) for path, caption in v["videos"]))
+            + "".join(H.video(video, VIDEO_EMBED_MAX) for video in figs.view.videos))
 
 
-def _unseen(d: dict, root: Path) -> str:
-    u = d["figures"].get("unseen", {})
+def _unseen(d: ReportData, figs: Figures) -> str:
+    u = d.unseen
     if u.get("source") == "run":
         # the demo measures the truth of every run (it says when it could not); a user's video has none
-        measured = any(r.get("truth") for r in u["runs"]) or d.get("ingest") is None
+        measured = any(r.get("truth") for r in u["runs"]) or d.ingest is None
         out = ["<p>Share of the colon wall each run estimated it did not see, from its own trajectory and depth "
                "(<code>coverage.json</code>, no ground truth)"
                + (", beside the truth <code>c3f_slam evaluate</code> measured for the same run" if measured else "")
@@ -276,30 +276,32 @@ def _unseen(d: dict, root: Path) -> str:
                   if truth else " (no truth measured)" if measured else "")
             segs = [[_num(s["start_m"], 100, 1), _num(s["end_m"], 100, 1), _num(s["unseen_share"], 100, 1)]
                     for s in r.get("segments", [])]
-            truth_map = H.image(root / r["truth_map"], "true coverage map", 520) if r.get("truth_map") else ""
+            truth_map = H.image(figs.image(r["truth_map"]), "true coverage map", 520) if r.get("truth_map") else ""
             out.append(f"<h3>{title}: <b>{_num(r['unseen_share'], 100, 1)} %</b> unseen{vs}</h3>"
-                       + H.image(root / r["map"], "estimated coverage map", 520) + truth_map
+                       + H.image(figs.image(r["map"]), "estimated coverage map", 520) + truth_map
                        + H.table(["from (cm)", "to (cm)", "unseen (%)"], segs))
         return "".join(out)
-    if u.get("source") == "ground_truth":
+    shown = [r for r in u.get("runs", []) if figs.coverage.get(r.get("name"))]
+    if u.get("source") == "ground_truth" and shown:
         out = ["<p><b>Ground truth</b> (not estimated by the run): the simulator's true surface near the path, "
                "painted seen (green) / unseen (red) by each reconstruction after aligning it with the ATE's "
                "transform (<code>c3f_slam evaluate</code>).</p>"]
-        for r in u["runs"]:
+        for r in shown:
             out.append(f"<h3>{H.esc(r['run'])}: {_num(r['seen_share'], 100, 1)} % of the whole true mesh seen</h3>"
-                       + "".join(H.image(root / "figures" / f, f.rsplit("_", 1)[-1][:-4], 300) for f in r["renders"]))
+                       + "".join(H.image(figs.image(f"figures/{f}"), f.rsplit("_", 1)[-1][:-4], 300)
+                                 for f in figs.coverage[r["name"]]))
         return "".join(out)
     return '<p class="fail">No configuration gave a reconstruction to measure coverage with.</p>'
 
 
-def _timings(d: dict) -> str:
-    rows = [[name, _num(sec, 1, 1), H.esc(status)] for name, sec, status in d["timings"]]
+def _timings(d: ReportData) -> str:
+    rows = [[name, _num(sec, 1, 1), H.esc(status)] for name, sec, status in d.timings]
     return H.table(["stage", "seconds", "status"], rows)
 
 
-def _environment(d: dict) -> str:
-    rows = [[H.esc(k), H.esc(v)] for k, v in d["environment"].items()]
-    return H.table(["item", "value"], rows) + f"<p>Settings: <code>{H.esc(json.dumps(d['config']))}</code></p>"
+def _environment(d: ReportData) -> str:
+    rows = [[H.esc(k), H.esc(v)] for k, v in d.environment.items()]
+    return H.table(["item", "value"], rows) + f"<p>Settings: <code>{H.esc(json.dumps(d.config))}</code></p>"
 
 
 def _artefacts(rows: list[tuple[str, str, str]]) -> str:
@@ -307,11 +309,11 @@ def _artefacts(rows: list[tuple[str, str, str]]) -> str:
                    [[f"<code>{H.esc(a)}</code>", H.esc(b), H.esc(c)] for a, b, c in rows])
 
 
-def _video_summary(d: dict) -> str:
+def _video_summary(d: ReportData) -> str:
     """What ran on the user's video and each configuration's numbers, none of them against a truth."""
-    ing, ttt = d.get("ingest") or {}, d["config"].get("ttt", {})
+    ing, ttt = d.ingest or {}, d.config.get("ttt", {})
     rows = []
-    for name, r in d["metrics"]["slam"].items():
+    for name, r in d.metrics["slam"].items():
         title = H.esc(r.get("title", name))
         if r.get("status") != "ok":
             rows.append([title, '<span class="fail">FAILED</span>',
@@ -325,15 +327,15 @@ def _video_summary(d: dict) -> str:
     return (f"<p>Your video <code>{H.esc(Path(ing.get('video', '?')).name)}</code>: {ing.get('frames', 'n/a')} frames "
             f"({w}x{h} px, every {ing.get('step', '?')} of {_num(ing.get('fps'), 1, 0)} fps), {tuned}exported it "
             f"to ONNX and reconstructed the frames in {len(rows)} configurations"
-            f"{' (quick preset)' if d['config'].get('quick') else ''}.</p>"
+            f"{' (quick preset)' if d.config.get('quick') else ''}.</p>"
             + H.table(["configuration", "status", "registered (%)", "jitter ratio", "unseen wall (%)",
                        "path length (cm, the run's scale)"], rows)
             + f'<p class="note">{NO_TRUTH}</p>')
 
 
-def _input(d: dict) -> str:
+def _input(d: ReportData) -> str:
     """The video, how its frames were sampled and resized, and where the intrinsics came from."""
-    ing = d.get("ingest") or {}
+    ing = d.ingest or {}
     cam, limits = ing.get("camera", {}), ing.get("settings", {})
     hfov = 2 * math.degrees(math.atan(cam["width"] / (2 * cam["fx"]))) if cam.get("fx") else None
     (sw, sh), (w, h) = ing.get("source_size", ["?", "?"]), ing.get("size", ["?", "?"])
@@ -355,17 +357,17 @@ def _input(d: dict) -> str:
                "calibrate the scope (<code>python -m c3f_slam calibrate</code>) to trust them.</p>" if guess else ""))
 
 
-def _tissue(d: dict, root: Path) -> str:
+def _tissue(d: ReportData, figs: Figures) -> str:
     """The tissue area each run found (summary.json ``tissue_mask``) and the mask over a frame."""
     rows = []
-    for name, r in d["metrics"]["slam"].items():
+    for name, r in d.metrics["slam"].items():
         t = r.get("tissue_mask") or {}
         rows.append([H.esc(r.get("title", name)), _num(t.get("share"), 100, 1), H.esc(t.get("source", "n/a")),
                      t.get("frames", ""), _num(t.get("overlay_share"), 100, 2)])
-    fig = d["figures"].get("tissue")
+    fig = figs.tissue
     whole = any(str((r.get("tissue_mask") or {}).get("source", "")).startswith("whole frame")
-                for r in d["metrics"]["slam"].values())
-    shown = (H.image(root / "figures" / fig["figure"], f"frame {fig['frame']}: outside the tissue area tinted "
+                for r in d.metrics["slam"].values())
+    shown = (H.image(figs.image(f"figures/{fig['figure']}"), f"frame {fig['frame']}: outside the tissue area tinted "
                      "magenta, its outline yellow", 520) if fig else
              "<p>The runs used the whole frame: no border or overlay was found.</p>" if whole else
              '<p class="fail">No run got as far as finding the tissue area.</p>')
@@ -376,18 +378,18 @@ def _tissue(d: dict, root: Path) -> str:
             + shown)
 
 
-def _frames(d: dict, root: Path) -> str:
+def _frames(d: ReportData, figs: Figures) -> str:
     """What became of each frame, per configuration: registered, not registered, skipped per cause."""
     out = ["<p>Each frame of the run is registered in the main map, processed but not registered (tracking lost "
            "it, or it is in a component the map could not join), or skipped before tracking (its cause, "
            "summary.json <code>skipped_*</code>). The back-end's decisions on the processed frames are "
            "summary.json's <code>frame_decisions</code>.</p>"]
-    for name, r in d["metrics"]["slam"].items():
+    for name, r in d.metrics["slam"].items():
         title = H.esc(r.get("title", name))
         if "frames" not in r:
             out.append(f'<p class="fail">{title}: no summary.json ({H.esc(r.get("error", ""))})</p>')
             continue
-        fig = d["figures"].get("frames", {}).get(name)
+        fig = figs.frames.get(name)
         how = ("each frame in order, from the run's frame_log.csv" if (fig or {}).get("kind") == "timeline"
                else "the counts, grouped (the run wrote no per-frame log)")
         skipped = ", ".join(f"{H.esc(k)} {v}" for k, v in (r.get("skipped") or {}).items())
@@ -396,15 +398,15 @@ def _frames(d: dict, root: Path) -> str:
                    f"({_num(r.get('registered_share_of_usable'), 100, 1)} % of the frames not skipped)</h3>"
                    + H.table(["frames", "processed", "registered", "skipped by cause", "decisions"],
                              [[r.get("frames"), r.get("processed"), r.get("registered_frames"), skipped, decisions]])
-                   + (H.image(root / "figures" / fig["figure"], how) if fig else ""))
+                   + (H.image(figs.image(f"figures/{fig['figure']}"), how) if fig else ""))
     return "".join(out)
 
 
-def _jitter(d: dict) -> str:
+def _jitter(d: ReportData) -> str:
     """The jitter ratio of each configuration's trajectory (no ground truth needed)."""
     rows = [[H.esc(r.get("title", name)), _num(r.get("jitter_ratio"), 1, 2), _num(r.get("path_length_m"), 100, 1),
              _num(r.get("seconds"), 1, 1)]
-            for name, r in d["metrics"]["slam"].items() if r.get("status") == "ok"]
+            for name, r in d.metrics["slam"].items() if r.get("status") == "ok"]
     return ("<p>Jitter ratio: the camera path's length over the length of its 1-s moving average "
             "(<code>c3f_slam.trajectory_metrics.jitter_ratio</code>, each frame at its time in the video). 1 is a "
             "smooth path; a scope moves smoothly at this time scale, so a ratio well above 1 is shake of the "
@@ -423,56 +425,53 @@ NO_TRUTH = ("Without ground truth these numbers describe the map, not its accura
             "video.")
 
 
-def build_report(root: Path, d: dict, variant: str = "demo") -> str:
-    """HTML of the report. ``d``: ``config`` (DemoConfig.as_dict), ``metrics`` (slam, depth, matches:
-    the evaluate stage's JSON), ``figures`` (depth, meshes, unseen), ``timings`` [(stage, s, status)],
-    ``environment`` {name: value}, ``view`` (optional, :func:`c3f_demo.report_stage.view_entry`); image
-    and video paths are relative to ``root``. ``variant`` ``video``: a user's video, without the
-    ground-truth sections (:data:`VIDEO_SECTIONS`; ``metrics`` has ``slam`` alone, as
-    :func:`c3f_demo.video.run_metrics` gives it, ``figures`` adds ``tissue`` and ``frames``, ``ingest``
-    is the ingest stage's record)."""
-    parts = _video_parts(d, root) if variant == "video" else _demo_parts(d, root)
-    tail = view_scripts() if (d.get("view") or {}).get("data") else ""
-    title = ("C3Fusion report: " + Path((d.get("ingest") or {}).get("video", "video")).name if variant == "video"
+def build_report(d: ReportData, figs: Figures) -> str:
+    """HTML of the report from the collected data and the figures drawn from it: the demo's
+    sections (:data:`SECTIONS`), or for ``d.variant`` ``video`` (a user's video) those without the
+    ground-truth sections (:data:`VIDEO_SECTIONS`)."""
+    video = d.variant == "video"
+    parts = _video_parts(d, figs) if video else _demo_parts(d, figs)
+    tail = view_scripts() if d.view and d.view.data and not figs.view.error else ""
+    title = ("C3Fusion report: " + Path((d.ingest or {}).get("video", "video")).name if video
              else "C3Fusion demo report")
     return H.page(title, [H.section(sid, *parts[sid]) for sid in parts], tail)
 
 
-def _shared_parts(d: dict, root: Path) -> dict[str, tuple[str, str]]:
+def _shared_parts(d: ReportData, figs: Figures) -> dict[str, tuple[str, str]]:
     """The sections both variants have: models, meshes, 3D view, unseen surface, times, environment."""
-    return {"models": ("Models", _models(d)), "meshes": ("Reconstructed meshes", _meshes(d, root)),
-            "view3d": ("3D view and videos", _view3d(d, root)), "unseen": ("Unseen surface", _unseen(d, root)),
+    return {"models": ("Models", _models(d)), "meshes": ("Reconstructed meshes", _meshes(d, figs)),
+            "view3d": ("3D view and videos", _view3d(d, figs)), "unseen": ("Unseen surface", _unseen(d, figs)),
             "timings": ("Time per stage", _timings(d)), "environment": ("Versions, machine, seeds", _environment(d))}
 
 
-def _demo_parts(d: dict, root: Path) -> dict[str, tuple[str, str]]:
+def _demo_parts(d: ReportData, figs: Figures) -> dict[str, tuple[str, str]]:
     """The demo's sections (:data:`SECTIONS`), in order."""
     ate = lambda r: f"ATE {_num(r.get('ate_sim3_m'), 100, 2)} cm, path {_num(r.get('gt_length_m'), 100, 1)} cm"  # noqa: E731
     parts = {
-        **_shared_parts(d, root),
+        **_shared_parts(d, figs),
         "summary": ("Summary", _summary(d)),
         "deviations": ("Deviations from the paper", _deviations(d)),
-        "depth": ("Depth", _depth(d, root)),
-        "matches": ("Matches: SIFT vs ContraFeat", _matches(d, root)),
-        "trajectories": ("Trajectories vs ground truth", _per_run(d, root, "trajectory.png", ate)),
+        "depth": ("Depth", _depth(d, figs)),
+        "matches": ("Matches: SIFT vs ContraFeat", _matches(d, figs)),
+        "trajectories": ("Trajectories vs ground truth", _per_run(d, figs, "trajectory.png", ate)),
         "keyframe-graph": ("Keyframe connectivity graph", _per_run(
-            d, root, "keyframe_graph.png", lambda r: "",
+            d, figs, "keyframe_graph.png", lambda r: "",
             {"odometry": "No keyframe graph: frame-to-frame odometry chains each frame to the one before."})),
         "artefacts": ("Files in this folder", _artefacts(ARTEFACTS)),
     }
     return {sid: parts[sid] for sid in SECTIONS}
 
 
-def _video_parts(d: dict, root: Path) -> dict[str, tuple[str, str]]:
+def _video_parts(d: ReportData, figs: Figures) -> dict[str, tuple[str, str]]:
     """The sections of a user's video (:data:`VIDEO_SECTIONS`), in order."""
     parts = {
-        **_shared_parts(d, root),
+        **_shared_parts(d, figs),
         "summary": ("Summary", _video_summary(d)),
         "input": ("The video", _input(d)),
-        "tissue": ("Tissue area", _tissue(d, root)),
-        "frames": ("Frames: registered and skipped", _frames(d, root)),
+        "tissue": ("Tissue area", _tissue(d, figs)),
+        "frames": ("Frames: registered and skipped", _frames(d, figs)),
         "trajectories": ("Trajectory smoothness", _jitter(d)),
-        "keyframe-graph": ("Keyframe connectivity graph", _per_run(d, root, "keyframe_graph.png", lambda r: "")),
+        "keyframe-graph": ("Keyframe connectivity graph", _per_run(d, figs, "keyframe_graph.png", lambda r: "")),
         "artefacts": ("Files in this folder", _artefacts(VIDEO_ARTEFACTS)),
     }
     return {sid: parts[sid] for sid in VIDEO_SECTIONS}

@@ -1,14 +1,17 @@
-"""The demo (``python -m c3f_demo``): the report writer on tiny fake inputs, the resume /
-refuse / Ctrl-C logic of the runner on fake stages, and (slow) the whole ``--quick`` pipeline."""
+"""The demo (``python -m c3f_demo``): the report writer on tiny fake inputs, the report's one-way
+steps, the resume / refuse / Ctrl-C logic of the runner on fake stages, and (slow) the whole
+``--quick`` pipeline."""
 
 from __future__ import annotations
 
 import base64
+import inspect
 import json
 import math
 import re
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -16,9 +19,11 @@ import numpy as np
 import pytest
 
 from c3f_demo import config as demo_cfg
-from c3f_demo import runner
+from c3f_demo import report_stage, runner
+from c3f_demo.context import DemoContext
 from c3f_demo.progress import clock, read_step_fraction, time_table
 from c3f_demo.report import SECTIONS, build_report
+from c3f_demo.report_records import Figures, Image, ReportData, Video, ViewData, ViewFigures
 from c3f_demo.stages import Stage
 from c3f_demo.state import DemoState, stage_key
 from c3f_slam.errors import InputError
@@ -33,37 +38,38 @@ def embedded_images(html: str) -> list[np.ndarray]:
             for b in re.findall(r'src="data:image/png;base64,([^"]+)"', html)]
 
 
-def _png(path: Path, value: int = 128) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), np.full((8, 12, 3), value, np.uint8))
+def png_bytes(value: int = 128) -> bytes:
+    """An 8x12 grey PNG."""
+    return cv2.imencode(".png", np.full((8, 12, 3), value, np.uint8))[1].tobytes()
 
 
-def fake_report_inputs(root: Path) -> dict:
-    """Metrics and figure files as the stages write them: one configuration ok, one failed."""
-    for f in ("figures/depth_samples.png", "figures/matches.png", "figures/mesh_gt_sift_side.png",
-              "figures/coverage_gt_sift_side.png", "slam/gt_sift/trajectory.png", "slam/gt_sift/keyframe_graph.png"):
-        _png(root / f)
+def fake_report_inputs() -> tuple[ReportData, Figures]:
+    """The data and figures as the collect and figures steps give them, in memory (no file):
+    one configuration ok, one failed."""
+    images = {p: Image(p, png_bytes()) for p in (
+        "figures/depth_samples.png", "figures/matches.png", "figures/mesh_gt_sift_side.png",
+        "figures/coverage_gt_sift_side.png", "slam/gt_sift/trajectory.png", "slam/gt_sift/keyframe_graph.png")}
     depth = {k: 0.1 for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")}
     slam = {"gt_sift": {"title": "ground-truth depth + SIFT", "status": "ok", "ate_sim3_m": 0.0012,
                         "gt_length_m": 0.05, "registered_share": 0.9, "coverage": {"share": 0.1}},
             "paper": {"title": "predicted depth + ContraFeat", "status": "failed",
                       "error": "error: no frame could be registered (exit 2)"}}
     match = {"found": 10, "correct": 7, "precision": 0.7, "recall": 0.5, "near_misses": 1}
-    return {"config": demo_cfg.demo_config(quick=True).as_dict(),
-            "metrics": {"slam": slam, "depth": {"frames": [0, 2], "median_scaled": {**depth, "scale": 1.0},
-                                                "metric": depth},
-                        "matches": {"pair": [3, 7], "keypoints": [40, 42], "ground_truth": 20, "sift": match,
-                                    "contrafeat": match, "figure": "figures/matches.png"}},
-            "figures": {"depth": {"range_m": [0.01, 0.09]}, "meshes": {"gt_sift": ["mesh_gt_sift_side.png"]},
-                        "unseen": {"source": "ground_truth", "runs": [{"run": "ground-truth depth + SIFT",
-                                   "seen_share": 0.1, "renders": ["coverage_gt_sift_side.png"]}]}},
-            "timings": [("simulate", 3.0, "ran")], "environment": {"python": "3.11", "seeds": "1, 2"}}
+    metrics = {"slam": slam, "depth": {"frames": [0, 2], "median_scaled": {**depth, "scale": 1.0}, "metric": depth},
+               "matches": {"pair": [3, 7], "keypoints": [40, 42], "ground_truth": 20, "sift": match,
+                           "contrafeat": match, "figure": "figures/matches.png"}}
+    data = ReportData("demo", demo_cfg.demo_config(quick=True).as_dict(), metrics, [("simulate", 3.0, "ran")],
+                      {"python": "3.11", "seeds": "1, 2"}, unseen={"source": "ground_truth", "runs": [
+                          {"name": "gt_sift", "run": "ground-truth depth + SIFT", "seen_share": 0.1}]})
+    figs = Figures(images, depth={"range_m": [0.01, 0.09]}, meshes={"gt_sift": ["mesh_gt_sift_side.png"]},
+                   coverage={"gt_sift": ["coverage_gt_sift_side.png"]})
+    return data, figs
 
 
-def test_report_writer_on_fake_inputs(tmp_path):
+def test_report_writer_on_fake_inputs():
     """Every section is present, every image is embedded and decodes, a failed configuration is
     said plainly with no number, the ground-truth coverage is labelled as such, nothing is linked."""
-    html = build_report(tmp_path, fake_report_inputs(tmp_path))
+    html = build_report(*fake_report_inputs())
     for sid in SECTIONS:
         assert f'<section id="{sid}">' in html, sid
     images = embedded_images(html)
@@ -88,14 +94,15 @@ def test_report_embeds_the_3d_view_and_videos(tmp_path):
 
     seq = make_tiny_sequence(tmp_path / "seq", frames=8, size=128, seed=3)
     run = tmp_path / "slam" / "gt_sift"
-    assert slam_main(["run", str(seq), "--out", str(run), "--min-correspondences", "15", "--quiet"]) == 0
+    assert slam_main(["run", str(seq), "--out", str(run), "--set", "fragments.min_correspondences=15", "--quiet"]) == 0
     write_mp4(run / "rerender.mp4", [np.full((64, 96, 3), 20 * i, np.uint8) for i in range(10)])
-    d = fake_report_inputs(tmp_path)
-    d["view"] = {"run": "gt_sift", "title": "ground-truth depth + SIFT", "data": view_data(
-        run_layers(run, REPORT_BUDGET)), "budget_triangles": REPORT_BUDGET.triangles,
-        "videos": [("slam/gt_sift/rerender.mp4", "rerender.mp4")], "render_ms": {"rerender.mp4": 12.0}}
+    data, figs = fake_report_inputs()
+    data = replace(data, view=ViewData("gt_sift", "ground-truth depth + SIFT", "slam/gt_sift", False, view_data(
+        run_layers(run, REPORT_BUDGET)), REPORT_BUDGET.triangles))
+    figs = replace(figs, view=ViewFigures((Video.read(tmp_path, "slam/gt_sift/rerender.mp4", "rerender.mp4"),),
+                                          {"rerender.mp4": 12.0}))
     report = tmp_path / "report.html"
-    report.write_text(build_report(tmp_path, d))
+    report.write_text(build_report(data, figs))
     html = report.read_text()
     assert 'class="c3f-view"' in html and "data:video/mp4;base64," in html
     assert not re.search(r'(src|href)="https?:', html)
@@ -107,38 +114,101 @@ def test_report_embeds_the_3d_view_and_videos(tmp_path):
     assert [(v["width"], v["height"], v["error"]) for v in res["videos"]] == [(96, 64, None)]
 
 
-def test_report_says_missing_image_and_run_coverage(tmp_path):
-    d = fake_report_inputs(tmp_path)
-    (tmp_path / "figures" / "matches.png").unlink()
-    _png(tmp_path / "slam" / "gt_sift" / "coverage_map.png")
-    d["figures"]["unseen"] = {"source": "run", "runs": [
+def test_report_says_missing_image_and_run_coverage():
+    data, figs = fake_report_inputs()
+    del figs.images["figures/matches.png"]
+    figs.images["slam/gt_sift/coverage_map.png"] = Image("slam/gt_sift/coverage_map.png", png_bytes())
+    data = replace(data, unseen={"source": "run", "runs": [
         {"run": "x", "status": "ok", "unseen_share": 0.25, "map": "slam/gt_sift/coverage_map.png",
          "truth": {"unseen_share": 0.27, "error_pp": -2.0},
          "segments": [{"start_m": 0.0, "end_m": 0.02, "unseen_share": 0.5}]},
-        {"run": "y", "status": "unavailable", "reason": "the camera moved less than 1.0 cm forward"}]}
-    html = build_report(tmp_path, d)
+        {"run": "y", "status": "unavailable", "reason": "the camera moved less than 1.0 cm forward"}]})
+    html = build_report(data, figs)
     assert "missing image: matches.png" in html and "<b>Ground truth</b>" not in html
     assert "<b>25.0 %</b> unseen (truth 27.0 %, error -2.0 pp)" in html
     assert "y: no estimate (the camera moved less than 1.0 cm forward)" in html
-    d["metrics"]["slam"]["odometry"] = {**d["metrics"]["slam"]["gt_sift"], "title": "odometry"}
-    html = build_report(tmp_path, d)
+    data.metrics["slam"]["odometry"] = {**data.metrics["slam"]["gt_sift"], "title": "odometry"}
+    html = build_report(data, figs)
     assert "No keyframe graph: frame-to-frame odometry" in html and "missing image: keyframe_graph.png" not in html
 
 
-def test_report_shows_depth_before_and_after_test_time_training(tmp_path):
-    d = fake_report_inputs(tmp_path)
+def test_report_without_coverage_renders_says_so():
+    """Ground truth to compare with, but no coverage render drawn: the plain note, no empty section."""
+    data, figs = fake_report_inputs()
+    html = build_report(data, replace(figs, coverage={"gt_sift": []}))
+    assert "No configuration gave a reconstruction to measure coverage with." in html
+    assert "<b>Ground truth</b>" not in html
+
+
+def test_report_shows_depth_before_and_after_test_time_training():
+    data, figs = fake_report_inputs()
+    d = data.metrics["depth"]
     before = {k: 0.3 for k in ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")}
-    d["metrics"]["depth"]["before_ttt"] = {"median_scaled": {**before, "scale": 1.0}, "metric": before}
-    html = build_report(tmp_path, d)
+    d["before_ttt"] = {"median_scaled": {**before, "scale": 1.0}, "metric": before}
+    html = build_report(data, figs)
     assert "before TTT, median scaling" in html and "after TTT, metric" in html and "0.300" in html
     assert "Test-time training lowered the error</b>: Abs Rel 0.300 -> 0.100" in html
-    d["metrics"]["depth"]["before_ttt"]["median_scaled"]["abs_rel"] = 0.1009
-    assert "Test-time training left the error unchanged (within 1 %)</b>" in build_report(tmp_path, d)
+    d["before_ttt"]["median_scaled"]["abs_rel"] = 0.1009
+    assert "Test-time training left the error unchanged (within 1 %)</b>" in build_report(data, figs)
     assert "test-time trained on the held-out sequence" in html
-    d["config"]["ttt"]["steps"] = 0
-    del d["metrics"]["depth"]["before_ttt"]
-    html = build_report(tmp_path, d)
+    data.config["ttt"]["steps"] = 0
+    del d["before_ttt"]
+    html = build_report(data, figs)
     assert "before TTT" not in html and "No test-time training" in html
+
+
+#: the report's three steps and the modules of each: collect -> figures -> HTML
+REPORT_STEPS = {"collect": ("c3f_demo.collect",), "figures": ("c3f_demo.figures",),
+                "html": ("c3f_demo.report", "c3f_demo.html")}
+
+
+def test_report_steps_import_no_other_step():
+    """One way: no step module imports another step's module (or the stage that runs them); they
+    share only the records (c3f_demo.report_records), which import no step."""
+    from tests.test_import_boundary import _imports
+
+    stage = ("c3f_demo.report_stage",)
+    for step, modules in {**REPORT_STEPS, "records": ("c3f_demo.report_records",)}.items():
+        others = [m for s, ms in REPORT_STEPS.items() if s != step for m in ms] + list(stage)
+        for module in modules:
+            path = ROOT / (module.replace(".", "/") + ".py")
+            bad = sorted({m for _, m in _imports(path) if any(m == o or m.startswith(o + ".") for o in others)})
+            assert bad == [], f"{module} ({step}) imports {bad}"
+
+
+def test_html_step_reads_no_file(monkeypatch):
+    """``build_report`` is a function of the data and the figures alone: it takes no path and
+    touches no file."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("the HTML step touched a file")
+
+    assert [p.annotation for p in inspect.signature(build_report).parameters.values()] == ["ReportData", "Figures"]
+    data, figs = fake_report_inputs()
+    for name in ("read_bytes", "read_text", "is_file", "exists", "stat", "open"):
+        monkeypatch.setattr(Path, name, refuse)
+    monkeypatch.setattr("builtins.open", refuse)
+    assert '<section id="summary">' in build_report(data, figs)
+
+
+def test_report_stage_runs_collect_then_figures_then_html_once(tmp_path, monkeypatch):
+    """The stage calls each step once, in order, and hands each step's result to the next."""
+    calls = []
+    data, figs = fake_report_inputs()
+
+    def step(name, result):
+        def run(*args):
+            calls.append((name, args))
+            return result
+        return run
+
+    monkeypatch.setattr(report_stage, "collect", step("collect", data))
+    monkeypatch.setattr(report_stage, "make_figures", step("figures", figs))
+    monkeypatch.setattr(report_stage, "build_report", step("html", "<html></html>"))
+    ctx = DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
+    assert report_stage.Report().run(ctx, {"notes": {}}) == {"report": "report.html"}
+    assert [name for name, _ in calls] == ["collect", "figures", "html"]
+    assert calls[1][1] == (data, tmp_path) and calls[2][1] == (data, figs)
+    assert (tmp_path / "report.html").read_text() == "<html></html>"
 
 
 class FakeStage(Stage):
@@ -294,6 +364,7 @@ def quick_demo(request, tmp_path_factory) -> tuple[Path, subprocess.CompletedPro
 
 
 @pytest.mark.e2e
+@pytest.mark.long
 def test_quick_demo_end_to_end(quick_demo):
     """Files and metrics of a --quick run: every configuration either ok with a finite ATE below the
     path length or said failed; the RGB-D reference works; the report has every section and every

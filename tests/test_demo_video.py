@@ -22,6 +22,7 @@ from c3f_demo import config as demo_cfg
 from c3f_demo.cli import _parser, config_of
 from c3f_demo.ingest import frame_step, ingest, read_times, target_size
 from c3f_demo.report import SECTIONS, VIDEO_SECTIONS, build_report
+from c3f_demo.report_records import Figures, Image, ReportData
 from c3f_demo.video import frame_counts
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.errors import InputError
@@ -135,16 +136,16 @@ def test_options_of_a_video(tmp_path):
             config_of(_parser().parse_args([*bad, "--out", "o"]))
 
 
-def _png(path: Path, shape=(8, 12, 3)) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), np.full(shape, 128, np.uint8))
+def _png_bytes() -> bytes:
+    return cv2.imencode(".png", np.full((8, 12, 3), 128, np.uint8))[1].tobytes()
 
 
-def fake_video_inputs(root: Path) -> dict:
-    """What the video report stage gathers: one run ok (tissue mask, frames per cause), one failed."""
-    for f in ("figures/tissue_mask.png", "figures/frames_paper.png", "figures/mesh_paper_side.png",
-              "slam/paper/coverage_map.png", "slam/paper/keyframe_graph.png"):
-        _png(root / f)
+def fake_video_inputs() -> tuple[ReportData, Figures]:
+    """What the video report's collect and figures steps give, in memory: one run ok (tissue mask,
+    frames per cause), one failed."""
+    images = {p: Image(p, _png_bytes()) for p in ("figures/tissue_mask.png", "figures/frames_paper.png",
+                                                  "figures/mesh_paper_side.png", "slam/paper/coverage_map.png",
+                                                  "slam/paper/keyframe_graph.png")}
     summary = {"frames": 30, "processed": 27, "registered_frames": 25, "skipped_black": 2, "skipped_blurred": 1,
                "skipped_saturated": 0}
     paper = {"title": "predicted depth after TTT + ContraFeat", "status": "ok", **summary, "registered_share": 25 / 30,
@@ -155,26 +156,26 @@ def fake_video_inputs(root: Path) -> dict:
     failed = {"title": "predicted depth without TTT + ContraFeat", "status": "failed",
               "error": "error: no frame could be registered (exit 2)"}
     cfg = demo_cfg.video_config("/data/clip.mp4", fov=110.0, quick=True)
-    return {"config": cfg.as_dict(), "metrics": {"slam": {"paper": paper, "no_ttt": failed}},
-            "figures": {"meshes": {"paper": ["mesh_paper_side.png"]}, "tissue": {"frame": 15,
-                        "figure": "tissue_mask.png"}, "frames": {"paper": {"kind": "counts",
-                                                                           "figure": "frames_paper.png"}},
-                        "unseen": {"source": "run", "runs": [{"run": paper["title"], "status": "ok",
-                                   "unseen_share": 0.3, "map": "slam/paper/coverage_map.png",
-                                   "segments": [{"start_m": 0, "end_m": 0.05, "unseen_share": 0.3}]}]}},
-            "timings": [("ingest", 1.0, "ran")], "environment": {"python": "3.11"},
-            "ingest": {"video": "/data/clip.mp4", "fps": 60.0, "video_frames": 120, "step": 2, "frames": 30,
-                       "seconds": 1.0, "source_size": [446, 448], "size": [255, 256],
-                       "camera_source": "fov guess 110 deg", "camera": {"width": 255, "fx": 89.3, "fy": 89.3,
-                                                                         "cx": 127, "cy": 127.5},
-                       "statuses": {"ok": 28, "black": 2}, "settings": {"max_fps": 30, "max_frames": 600}}}
+    ingested = {"video": "/data/clip.mp4", "fps": 60.0, "video_frames": 120, "step": 2, "frames": 30, "seconds": 1.0,
+                "source_size": [446, 448], "size": [255, 256], "camera_source": "fov guess 110 deg",
+                "camera": {"width": 255, "fx": 89.3, "fy": 89.3, "cx": 127, "cy": 127.5},
+                "statuses": {"ok": 28, "black": 2}, "settings": {"max_fps": 30, "max_frames": 600}}
+    unseen = {"source": "run", "runs": [{"run": paper["title"], "status": "ok", "unseen_share": 0.3,
+                                         "map": "slam/paper/coverage_map.png",
+                                         "segments": [{"start_m": 0, "end_m": 0.05, "unseen_share": 0.3}]}]}
+    data = ReportData("video", cfg.as_dict(), {"slam": {"paper": paper, "no_ttt": failed}}, [("ingest", 1.0, "ran")],
+                      {"python": "3.11"}, ingest=ingested, unseen=unseen)
+    figs = Figures(images, meshes={"paper": ["mesh_paper_side.png"]},
+                   tissue={"frame": 15, "figure": "tissue_mask.png"},
+                   frames={"paper": {"kind": "counts", "figure": "frames_paper.png"}})
+    return data, figs
 
 
-def test_video_report_has_no_ground_truth_sections(tmp_path):
+def test_video_report_has_no_ground_truth_sections():
     """The video variant: its sections in order, none of the demo's ground-truth ones and no ATE;
     the mask's share and source, the skipped frames by cause, the jitter ratio, the unseen share
     with the sentence on what they cannot mean; every image embedded; a failed run said plainly."""
-    html = build_report(tmp_path, fake_video_inputs(tmp_path), variant="video")
+    html = build_report(*fake_video_inputs())
     ids = re.findall(r'<section id="([^"]+)">', html)
     assert ids == list(VIDEO_SECTIONS) and not TRUTH_SECTIONS & set(ids)
     assert not re.search(r"\bATE\b", html) and "no truth measured" not in html
@@ -189,9 +190,10 @@ def test_video_report_has_no_ground_truth_sections(tmp_path):
 def test_frame_log_is_drawn_as_a_timeline(tmp_path, columns):
     """A run folder with a per-frame log (index, timestamp, and the outcome, or the status and the
     decision): one label per frame, in order, the skip cause or else the decision; without it, the
-    counts."""
+    counts. The figures step draws each strip and hands on the file's bytes."""
+    from c3f_demo.collect import frame_labels
     from c3f_demo.context import DemoContext
-    from c3f_demo.report_stage import frame_figures
+    from c3f_demo.figures import make_figures
 
     ctx = DemoContext(tmp_path, demo_cfg.video_config("/v.mp4", fov=90.0, quick=True))
     run = ctx.slam_dir("paper")
@@ -203,11 +205,16 @@ def test_frame_log_is_drawn_as_a_timeline(tmp_path, columns):
         csv.writer(fh).writerows([("index", "timestamp", *columns.split("_")), *rows])
     slam = {"paper": {"frame_counts": {"registered": 3, "blurred": 1}},
             "no_ttt": {"frame_counts": {"registered": 2, "not registered": 2}}}
-    figs = frame_figures(ctx, slam)
-    assert figs["paper"]["kind"] == "timeline" and figs["paper"]["counts"] == {"lone": 1, "extended": 2, "blurred": 1}
-    assert figs["no_ttt"]["kind"] == "counts" and figs["no_ttt"]["counts"] == {"registered": 2, "not registered": 2}
+    labels = frame_labels(ctx, slam)
+    assert labels["paper"] == ("timeline", ["lone", "extended", "blurred", "extended"])
+    figs = make_figures(ReportData("video", ctx.cfg.as_dict(), {"slam": slam}, [], {}, frame_labels=labels), tmp_path)
+    assert figs.frames["paper"]["kind"] == "timeline"
+    assert figs.frames["paper"]["counts"] == {"lone": 1, "extended": 2, "blurred": 1}
+    assert figs.frames["no_ttt"]["kind"] == "counts"
+    assert figs.frames["no_ttt"]["counts"] == {"registered": 2, "not registered": 2}
     strip = cv2.imread(str(tmp_path / "figures" / "frames_paper.png"))
     assert strip is not None and strip.shape[1] == 900
+    assert figs.image("figures/frames_paper.png").png == (tmp_path / "figures" / "frames_paper.png").read_bytes()
 
 
 def _demo(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
@@ -228,6 +235,7 @@ def test_video_without_intrinsics_or_missing_is_one_line(tmp_path, tiny_video):
 
 
 @pytest.mark.e2e
+@pytest.mark.long
 def test_quick_video_end_to_end(tmp_path, tiny_video):
     """``--video`` (camera.json beside it) ``--quick``: every stage ran; the frames became a
     sequence; both runs' numbers; the report has the mask section, the 3D view and no
@@ -240,7 +248,10 @@ def test_quick_video_end_to_end(tmp_path, tiny_video):
     slam = json.loads((out / "metrics" / "slam.json").read_text())
     assert set(slam) == {"paper", "no_ttt"} and slam["paper"]["status"] == "ok", slam
     paper = slam["paper"]
-    assert paper["tissue_mask"]["source"] == "detected" and 0.5 < paper["tissue_mask"]["share"] < 0.99
+    # found once by the ingest, named by the sequence's camera.json, read there by both runs
+    ingest = json.loads((out / "data" / "video" / "ingest.json").read_text())
+    assert ingest["tissue_mask"]["source"] == "detected" and paper["tissue_mask"]["source"] == "camera.json"
+    assert 0.5 < paper["tissue_mask"]["share"] < 0.99
     assert 0 < paper["registered_share"] <= 1 and math.isfinite(paper["jitter_ratio"]) and paper["jitter_ratio"] > 0
     html = (out / "report.html").read_text()
     ids = re.findall(r'<section id="([^"]+)">', html)
