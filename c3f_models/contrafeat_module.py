@@ -69,7 +69,8 @@ class ContraFeat(C3FModule):
     under ``model.init_args`` (``loss: {dense_points: 512}``; ``--model.loss.dense_points 512``).
 
     Args:
-        network: the descriptor network (ResNet18 + FPN, c = 128 in the paper).
+        network: the descriptor network (ResNet18 + FPN, c = 128 in the paper; the encoder is chosen by
+            name, docs/add_network.md).
         loss: InfoNCE temperature and direction, dense correspondences.
         optim: AdamW and its MultiStepLR schedule (default: lr 3e-4, constant).
         keypoints: SIFT keypoints per frame.

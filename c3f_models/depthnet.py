@@ -41,7 +41,8 @@ class DepthNet(C3FModule):
     under ``model.init_args`` (``loss: {lambda_dc: 0.1}``; ``--model.loss.lambda_dc 0.1``).
 
     Args:
-        network: encoders, DCN, pretrained weights, depth range (metres), decoder scales, pose scale.
+        network: encoders (by name, docs/add_network.md), DCN, pretrained weights, depth range (metres),
+            decoder scales, pose scale.
         loss: switches and weights of the objective (all extras off = Monodepth2), L_dc warm-up.
         optim: AdamW and its MultiStepLR schedule (epochs).
         evaluation: ground-truth range of the metrics, TensorBoard images.
@@ -59,8 +60,8 @@ class DepthNet(C3FModule):
             stay. Off: the statistics stay too.
     """
 
-    weights_hint = ("check model.network.encoder_layers, encoder_width, dcn, pose_encoder_layers and "
-                    "pose_encoder_width")
+    weights_hint = ("check model.network.encoder_layers, encoder_width, dcn, pose_encoder_layers, "
+                    "pose_encoder_width, and encoder, pose_encoder and their options")
     zoo_kind = "depth"
     checkpoint_prefixes = ("depth_net.", "pose_net.")
 

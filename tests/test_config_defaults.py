@@ -41,6 +41,8 @@ USES: tuple[tuple[str, ...], ...] = (
     (T + "cpu_smoke.yaml", D + "small.yaml"),
     (T + "cpu_smoke.yaml", D + "small.yaml", D + "monodepth2.yaml"),
     (T + "cpu_smoke.yaml", C + "small.yaml"),
+    (T + "cpu_smoke.yaml", D + "small.yaml", D + "mobilenet.yaml"),
+    (T + "cpu_smoke.yaml", C + "small.yaml", C + "mobilenet.yaml"),
     (D + "small.yaml", D + "ttt.yaml"),
     (T + "cpu_smoke.yaml", D + "small.yaml", D + "ttt.yaml"),
     ("zoo/c3f-depth-r18w32/config.yaml", D + "ttt.yaml", D + "paper_objective.yaml"),

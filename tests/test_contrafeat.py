@@ -95,7 +95,7 @@ def test_pretrained_weights_local_file(tmp_path):
     good = tmp_path / "r18.pth"
     torch.save(ref.state_dict(), good)
     net = tiny_net(good)
-    torch.testing.assert_close(net.layer3[0].conv1.weight, ref.layer3[0].conv1.weight)
+    torch.testing.assert_close(net.encoder.layer3[0].conv1.weight, ref.layer3[0].conv1.weight)
 
 
 @pytest.mark.parametrize("dcn", [False, True])
@@ -112,9 +112,9 @@ def test_pretrained_from_depthnet_checkpoint(tmp_path, dcn):
         return
     net = tiny_net(ckpt)
     enc = depth.depth_net.encoder
-    torch.testing.assert_close(net.layer4[1].conv2.weight, enc.layer4[1].conv2.weight)
-    torch.testing.assert_close(net.bn1.running_var, enc.bn1.running_var)
-    torch.testing.assert_close(net.conv1.weight, enc.conv1.weight)
+    torch.testing.assert_close(net.encoder.layer4[1].conv2.weight, enc.layer4[1].conv2.weight)
+    torch.testing.assert_close(net.encoder.bn1.running_var, enc.bn1.running_var)
+    torch.testing.assert_close(net.encoder.conv1.weight, enc.conv1.weight)
 
 
 def test_gap_pairs(plane_dataset):

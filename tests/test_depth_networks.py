@@ -10,10 +10,10 @@ from torch import nn
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.contrafeat.network import ContraFeatNet
 from c3f_models.depth.config import DepthNetworkConfig
-from c3f_models.depth.dcn import DeformConv, deformable_stages
 from c3f_models.depth.decoder import depth_to_disp, disp_to_depth
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
-from c3f_models.depth.resnet import ResnetEncoder
+from c3f_models.encoders import ResnetConfig, ResnetEncoder
+from c3f_models.encoders.dcn import DeformConv, deformable_stages
 from c3f_slam.errors import InputError
 
 
@@ -41,7 +41,7 @@ def test_depth_network_scales_and_range(size):
 
 
 def test_deformable_encoder_shapes_and_offset_gradient():
-    enc = ResnetEncoder(18, dcn=True)
+    enc = ResnetEncoder(ResnetConfig(dcn=True))
     dcn = [m for m in enc.modules() if isinstance(m, DeformConv)]
     assert len(dcn) == 2 * 2 * 3  # BasicBlocks: two 3x3 convs x two blocks x conv3-conv5
     assert not any(isinstance(m, DeformConv) for m in enc.layer1.modules())
@@ -102,11 +102,11 @@ def resnet18_file(tmp_path_factory):
 
 def test_pretrained_weights_load_into_depth_encoder(resnet18_file):
     path, state = resnet18_file
-    enc = ResnetEncoder(18, dcn=False, pretrained_path=path)
+    enc = ResnetEncoder(ResnetConfig(pretrained_path=path))
     assert torch.equal(enc.layer3[1].conv2.weight, state["layer3.1.conv2.weight"])
     assert torch.equal(enc.bn1.running_mean, state["bn1.running_mean"])
     # with DCN the weights land in the deformable convs, offsets start at zero
-    enc = ResnetEncoder(18, dcn=True, pretrained_path=path)
+    enc = ResnetEncoder(ResnetConfig(dcn=True, pretrained_path=path))
     assert torch.equal(enc.layer4[0].conv1.conv.weight, state["layer4.0.conv1.weight"])
     assert not enc.layer4[0].conv1.offset.weight.detach().any()
 
@@ -123,24 +123,24 @@ def test_pretrained_weights_for_two_frame_posenet(resnet18_file):
 def test_pretrained_errors_are_clear(tmp_path, resnet18_file):
     path, _ = resnet18_file
     with pytest.raises(InputError, match="file not found"):
-        ResnetEncoder(18, pretrained_path=tmp_path / "missing.pth")
+        ResnetEncoder(ResnetConfig(pretrained_path=tmp_path / "missing.pth"))
     junk = tmp_path / "junk.pth"
     junk.write_bytes(b"not a weights file")
     with pytest.raises(InputError, match="junk.pth is not a torch weights file"):
-        ResnetEncoder(18, pretrained_path=junk)
+        ResnetEncoder(ResnetConfig(pretrained_path=junk))
     with pytest.raises(InputError, match=r"does not fit this ResNet.*missing keys"):
-        ResnetEncoder(50, pretrained_path=path)  # ResNet18 weights into a ResNet50
+        ResnetEncoder(ResnetConfig(50, pretrained_path=path))  # ResNet18 weights into a ResNet50
     other = tmp_path / "other.pth"
     torch.save({"weight": torch.zeros(3)}, other)
     with pytest.raises(InputError, match="model.network.pretrained_path: .*other.pth does not fit"):
         DepthNetwork(DepthNetworkConfig(pretrained_path=str(other)))
-    with pytest.raises(InputError, match="encoder_layers must be one of"):
-        ResnetEncoder(20)
+    with pytest.raises(InputError, match="model.network.encoder_layers must be one of"):
+        DepthNetwork(DepthNetworkConfig(encoder_layers=20))
 
 
 @pytest.mark.parametrize("layers", [18, 50])
 def test_narrow_encoder_widths_and_weights(layers):
-    wide, narrow = ResnetEncoder(layers), ResnetEncoder(layers, width=32)
+    wide, narrow = ResnetEncoder(ResnetConfig(layers)), ResnetEncoder(ResnetConfig(layers, width=32))
     feats = narrow(torch.rand(1, 3, 64, 64))
     assert [f.shape[1] for f in feats] == narrow.num_ch_enc == [c // 2 for c in wide.num_ch_enc]
     assert [f.shape[-1] for f in feats] == [32, 16, 8, 4, 2]
@@ -158,7 +158,7 @@ def test_narrow_networks_and_their_errors(resnet18_file):
     assert desc(torch.rand(1, 3, 64, 64)).shape == (1, 8, 64, 64)
     path, _ = resnet18_file
     with pytest.raises(InputError, match="does not fit this ResNet.*wrong-shaped"):
-        ResnetEncoder(18, pretrained_path=path, width=32)  # ImageNet weights are for width 64
+        ResnetEncoder(ResnetConfig(width=32, pretrained_path=path))  # ImageNet weights are for width 64
     with pytest.raises(InputError, match="model.network.encoder_width must be a multiple of 8"):
         DepthNetworkConfig(encoder_width=20)
     with pytest.raises(InputError, match="model.network.backbone_width: a ResNet's width must be a multiple of 8"):

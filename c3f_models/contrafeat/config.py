@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from c3f_models.contrafeat.loss import TAU
+from c3f_models.encoders import EncoderChoice, choose_encoder
 from c3f_slam.config import PRESETS, MatchFilterConfig
 from c3f_slam.errors import InputError
 from c3f_slam.settings import tree_from_mapping
@@ -16,17 +17,27 @@ from c3f_slam.settings import tree_from_mapping
 class ContraFeatNetworkConfig:
     """The descriptor network (:class:`c3f_models.contrafeat.network.ContraFeatNet`, which checks the values).
 
+    The bottom-up stream is chosen by name (docs/add_network.md); ``backbone_layers`` and
+    ``backbone_width`` are the ResNet's and are refused beside another encoder.
+
     Attributes:
-        backbone_layers: ResNet depth of the bottom-up stream (18 in the paper; 34 also accepted).
+        backbone: the encoder of the bottom-up stream: ``resnet``, ``mobilenet_v3_small``
+            (c3f_models.encoders.ENCODERS) or the class path of a c3f_models.encoders.Encoder subclass.
+        backbone_options: that encoder's own settings besides the flat ResNet options, e.g.
+            ``{width_mult: 0.75}`` for MobileNet; null = its defaults.
+        backbone_layers: ResNet depth of the bottom-up stream (18 in the paper; 34 and 50 also accepted).
         backbone_width: channels of the ResNet's first stage (64: the standard ResNet; 32: a lighter
             stream with a quarter of the weights; no ImageNet file fits it).
         descriptor_dim: descriptor channels c (128 in the paper).
         fpn_channels: channels of the FPN levels.
         stem_channels: channels of the full-resolution stem that restores pixel detail.
         head_channels: hidden channels of the full-resolution 1x1 head; null = descriptor_dim.
-        pretrained_path: local torchvision ResNet state dict (ImageNet) or a DepthNet checkpoint without DCN.
+        pretrained_path: local state dict of the backbone's torchvision model (ImageNet), or a DepthNet
+            checkpoint whose depth encoder is the same network (a ResNet without DCN).
     """
 
+    backbone: str = "resnet"
+    backbone_options: dict | None = None
     backbone_layers: int = 18
     backbone_width: int = 64
     descriptor_dim: int = 128
@@ -34,6 +45,19 @@ class ContraFeatNetworkConfig:
     stem_channels: int = 32
     head_channels: int | None = None
     pretrained_path: str | None = None
+
+    def __post_init__(self) -> None:
+        self.backbone_encoder()
+
+    def backbone_encoder(self) -> EncoderChoice:
+        """The encoder of the bottom-up stream (one RGB frame in) and its settings."""
+        option = "model.network."
+        return choose_encoder(self.backbone, option + "backbone", self.backbone_options, option + "backbone_options",
+                              {"layers": (self.backbone_layers, option + "backbone_layers"),
+                               "width": (self.backbone_width, option + "backbone_width"),
+                               "dcn": (False, "the descriptor network (no deformable convolutions)")},
+                              {"in_channels": (3, "the descriptor network (one RGB frame)"),
+                               "pretrained_path": (self.pretrained_path, option + "pretrained_path")})
 
 
 @dataclass(frozen=True)

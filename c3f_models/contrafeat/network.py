@@ -1,16 +1,20 @@
-"""ContraFeat descriptor network: FPN over a ResNet bottom-up stream, full-resolution output.
+"""ContraFeat descriptor network: FPN over an encoder's bottom-up stream, full-resolution output.
 
 Input: (B, 3, H, W) RGB in [0, 1] (ImageNet normalisation is applied inside). Output:
 (B, C, H, W) descriptors (C = 128 by default), unit L2 norm per pixel. The finest FPN level
 (stride 2) is upsampled bilinearly to the input size and fused with a shallow full-resolution
 convolutional stem by two 1x1 convolutions, so that descriptors keep pixel accuracy.
 
+The bottom-up stream is any :class:`c3f_models.encoders.Encoder` (``backbone``; ResNet18 in the
+paper). Its state-dict keys sit at the network's top level (``conv1.*``, ``layer1.*`` of the
+ResNet, as before encoders could be chosen), so trained weights load unchanged.
+
 Descriptors are read at keypoints with :func:`sample_descriptors` (bilinear, pixel centres at
 integer coordinates: ``grid_sample(..., align_corners=True)``).
 
 Pretrained ImageNet weights are never downloaded: ``pretrained_path`` is a local file holding
-a torchvision ResNet ``state_dict`` (``torch.save(resnet18(weights=...).state_dict(), path)``),
-or a DepthNet checkpoint whose depth encoder is the same ResNet without DCN.
+the backbone's torchvision ``state_dict`` (``torch.save(resnet18(weights=...).state_dict(), path)``),
+or a DepthNet checkpoint whose depth encoder is the same network (for the ResNet: without DCN).
 """
 
 from __future__ import annotations
@@ -23,18 +27,14 @@ from torch import nn
 from torchvision.ops import FeaturePyramidNetwork
 
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
-from c3f_models.depth.resnet import IMAGENET_MEAN, IMAGENET_STD, build_resnet, load_pretrained
 from c3f_slam.errors import InputError
 
-BACKBONES = (18, 34)  # basic-block ResNets: the FPN takes their layer1..layer4 widths
+ENCODER = "encoder"  # the encoder's attribute, left out of the state-dict keys
 
 
 def head_channels(config: ContraFeatNetworkConfig) -> int:
     """The hidden channels of the 1x1 head (``head_channels``, null: ``descriptor_dim``); InputError
-    for a backbone depth or a channel count the network cannot take."""
-    if config.backbone_layers not in BACKBONES:
-        raise InputError(f"model.network.backbone_layers must be one of {list(BACKBONES)}, got "
-                         f"{config.backbone_layers}")
+    for a channel count the network cannot take."""
     head = config.head_channels or config.descriptor_dim
     if min(config.descriptor_dim, config.fpn_channels, config.stem_channels, head) < 1:
         raise InputError("model.network.descriptor_dim, fpn_channels, stem_channels and head_channels must be "
@@ -43,24 +43,21 @@ def head_channels(config: ContraFeatNetworkConfig) -> int:
 
 
 class ContraFeatNet(nn.Module):
-    """Dense descriptor network (FPN on ResNet, full resolution, unit-norm descriptors).
+    """Dense descriptor network (FPN on an encoder, full resolution, unit-norm descriptors).
 
     Args:
-        config: the ResNet (``backbone_layers`` 18 or 34, ``backbone_width``), the channels of the
-            descriptors (c), the FPN levels, the full-resolution stem and 1x1 head (null:
-            ``descriptor_dim``), and ``pretrained_path``: a local torchvision ResNet state dict, a
-            DepthNet checkpoint (its depth encoder, same depth, no DCN), or None (from scratch).
+        config: the encoder (``backbone`` and its settings: for the ResNet ``backbone_layers``,
+            ``backbone_width``), the channels of the descriptors (c), the FPN levels, the
+            full-resolution stem and 1x1 head (null: ``descriptor_dim``), and ``pretrained_path``:
+            a local torchvision state dict of the backbone, a DepthNet checkpoint (its depth
+            encoder, the same network, no DCN), or None (from scratch).
     """
 
     def __init__(self, config: ContraFeatNetworkConfig) -> None:
         super().__init__()
-        head, stem, w = head_channels(config), config.stem_channels, config.backbone_width
-        net = build_resnet(config.backbone_layers, "model.network.backbone_layers", w, "model.network.backbone_width")
-        if config.pretrained_path:
-            load_pretrained(net, config.pretrained_path, option="model.network.pretrained_path")
-        self.conv1, self.bn1, self.relu, self.maxpool = net.conv1, net.bn1, net.relu, net.maxpool
-        self.layer1, self.layer2, self.layer3, self.layer4 = net.layer1, net.layer2, net.layer3, net.layer4
-        self.fpn = FeaturePyramidNetwork([w, w, 2 * w, 4 * w, 8 * w], config.fpn_channels)
+        head, stem = head_channels(config), config.stem_channels
+        self.encoder = config.backbone_encoder().build()
+        self.fpn = FeaturePyramidNetwork(list(self.encoder.num_ch_enc), config.fpn_channels)
         self.stem = nn.Sequential(
             nn.Conv2d(3, stem, 3, padding=1), nn.ReLU(inplace=True),
             nn.Conv2d(stem, stem, 3, padding=1), nn.ReLU(inplace=True),
@@ -70,8 +67,12 @@ class ContraFeatNet(nn.Module):
             nn.Conv2d(head, config.descriptor_dim, 1),
         )
         self.descriptor_dim = config.descriptor_dim
-        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
-        self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+        clash = {k.split(".")[0] for k in self.encoder.state_dict()} & set(self._modules)
+        if clash:
+            raise InputError(f"model.network.backbone: the encoder's {sorted(clash)} would share state-dict keys "
+                             "with the descriptor network's own layers; rename them in the encoder")
+        self.register_state_dict_post_hook(_flatten_encoder_keys)
+        self.register_load_state_dict_pre_hook(_nest_encoder_keys)
 
     def features(self, image: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) RGB in [0, 1] -> (B, F + S, H, W) input of the 1x1 head: the finest FPN
@@ -79,20 +80,30 @@ class ContraFeatNet(nn.Module):
         if image.ndim != 4 or image.shape[1] != 3:
             raise InputError(f"ContraFeatNet expects (B, 3, H, W) images, got {tuple(image.shape)}")
         h, w = image.shape[-2:]
-        x = (image - self.mean) / self.std
-        f0 = self.relu(self.bn1(self.conv1(x)))
-        f1 = self.layer1(self.maxpool(f0))
-        f2 = self.layer2(f1)
-        f3 = self.layer3(f2)
-        f4 = self.layer4(f3)
-        pyramid = self.fpn(OrderedDict([("p0", f0), ("p1", f1), ("p2", f2), ("p3", f3), ("p4", f4)]))
+        pyramid = self.fpn(OrderedDict((f"p{i}", f) for i, f in enumerate(self.encoder(image))))
         fine = F.interpolate(pyramid["p0"], size=(h, w), mode="bilinear", align_corners=False)
-        return torch.cat([fine, self.stem(x)], dim=1)
+        return torch.cat([fine, self.stem(self.encoder.normalise(image))], dim=1)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) RGB in [0, 1] -> (B, C, H, W) unit-norm descriptors: the head, pixel by
         pixel, on :meth:`features`."""
         return F.normalize(self.head(self.features(image)), dim=1)
+
+
+def _flatten_encoder_keys(module: ContraFeatNet, state: dict, prefix: str, local_metadata) -> None:
+    """State-dict hook: ``{prefix}encoder.K`` -> ``{prefix}K`` (the layout of trained weights),
+    this network's keys kept in their order (they are the last ones written)."""
+    nested = f"{prefix}{ENCODER}."
+    for key in [k for k in state if k.startswith(prefix)]:
+        state[prefix + key[len(nested):] if key.startswith(nested) else key] = state.pop(key)
+
+
+def _nest_encoder_keys(module: ContraFeatNet, state: dict, prefix: str, *args) -> None:
+    """Load hook, the inverse of :func:`_flatten_encoder_keys`: a key of this network whose first
+    part is none of its own layers belongs to the encoder."""
+    own = set(module._modules)
+    for key in [k for k in state if k.startswith(prefix) and k[len(prefix):].split(".")[0] not in own]:
+        state[f"{prefix}{ENCODER}.{key[len(prefix):]}"] = state.pop(key)
 
 
 def sample_descriptors(descriptors: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:

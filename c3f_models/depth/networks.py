@@ -7,23 +7,22 @@ from torch import nn
 
 from c3f_models.depth.config import DepthNetworkConfig
 from c3f_models.depth.decoder import DepthDecoder, disp_to_depth
-from c3f_models.depth.resnet import ResnetEncoder
 from c3f_models.geometry import pose_from_axis_angle
 
 
 class DepthNetwork(nn.Module):
-    """Single-frame depth: ResNet encoder (optionally deformable) + multi-scale disparity decoder.
+    """Single-frame depth: an encoder (default a ResNet, optionally deformable) + multi-scale disparity decoder.
 
     Args:
-        config: the encoder (``encoder_layers``, ``dcn`` in conv3-conv5, ``encoder_width``,
-            ``pretrained_path``), the disparity heads at scales 0..``num_scales``-1 and the depth
-            range ``min_depth``..``max_depth`` (metres) that the sigmoid maps onto.
+        config: the encoder (``encoder`` and its settings: for the ResNet ``encoder_layers``,
+            ``dcn`` in conv3-conv5, ``encoder_width``; ``pretrained_path``), the disparity heads at
+            scales 0..``num_scales``-1 and the depth range ``min_depth``..``max_depth`` (metres)
+            that the sigmoid maps onto.
     """
 
     def __init__(self, config: DepthNetworkConfig) -> None:
         super().__init__()
-        self.encoder = ResnetEncoder(config.encoder_layers, config.dcn, 1, config.pretrained_path,
-                                     option="model.network.pretrained_path", width=config.encoder_width)
+        self.encoder = config.depth_encoder().build()
         self.decoder = DepthDecoder(self.encoder.num_ch_enc, scales=range(config.num_scales))
         self.min_depth, self.max_depth = float(config.min_depth), float(config.max_depth)
 
@@ -68,16 +67,15 @@ class PoseNetwork(nn.Module):
     Call it with the frames in temporal order (earlier first), as Monodepth2 does.
 
     Args:
-        config: the encoder (``pose_encoder_layers``, ``pose_encoder_width``,
-            ``pose_pretrained_path``: a local torchvision ResNet state dict whose first conv is
-            repeated for the 6-channel input and halved) and ``pose_translation_scale``, metres per
-            unit of the raw translation output.
+        config: the encoder (``pose_encoder`` and its settings: for the ResNet
+            ``pose_encoder_layers``, ``pose_encoder_width``; ``pose_pretrained_path``: a local state
+            dict whose first conv is repeated for the 6-channel input and halved) and
+            ``pose_translation_scale``, metres per unit of the raw translation output.
     """
 
     def __init__(self, config: DepthNetworkConfig) -> None:
         super().__init__()
-        self.encoder = ResnetEncoder(config.pose_encoder_layers, False, 2, config.pose_pretrained_path,
-                                     option="model.network.pose_pretrained_path", width=config.pose_encoder_width)
+        self.encoder = config.posenet_encoder().build()
         self.decoder = PoseDecoder(self.encoder.num_ch_enc[-1], config.pose_translation_scale)
 
     def forward(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""Deformable 3x3 convolutions for the depth encoder (docs/design.md, DepthNet: stages conv3-conv5).
+"""Deformable 3x3 convolutions for the ResNet encoder (docs/design.md, DepthNet: stages conv3-conv5).
 
 A :class:`DeformConv` is a drop-in for a ``nn.Conv2d``: a plain conv with a zero-initialised
 weight predicts the sampling offsets (2 per kernel tap, in pixels), and
