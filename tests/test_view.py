@@ -131,6 +131,34 @@ def test_unregistered_frames_say_so(evaluated):
     assert np.std(frames[2][40:, 256:]) > 10  # a rendered colon
 
 
+def test_the_rerender_shows_the_reconstruction_inside_the_tissue_area_only(evaluated):
+    """With the run's tissue area (a scope's octagon, say), the reconstruction panel is black
+    outside it and the same render inside it."""
+    from c3f_slam.stream import open_stream
+
+    seq, out = evaluated
+    stamps, poses = read_tum(out / "trajectory.txt")
+    ms = MeshScene.of(o3d.io.read_triangle_mesh(str(out / "mesh.ply")))
+
+    def panels(tissue):
+        stream = open_stream(seq, use_depth=False, max_frames=3)
+        cam = stream.camera
+        frames = rerender_frames(stream, cam.K, cam.width, cam.height, ms, PoseLookup(stamps, poses), RenderClock(),
+                                 tissue)
+        return [f[:, f.shape[1] // 2:] for f in frames], cam
+
+    plain, cam = panels(None)
+    tissue = np.zeros((cam.height, cam.width), bool)
+    tissue[cam.height // 8: -cam.height // 8, cam.width // 8: -cam.width // 8] = True
+    masked, _ = panels(tissue)
+    inside = cv2.resize(tissue.astype(np.uint8), plain[0].shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0
+    below = np.zeros_like(inside)
+    below[40:] = True  # the panel's label is drawn over the top rows
+    for a, b in zip(plain, masked):
+        assert b[~inside & below].max() == 0 and a[~inside & below].max() > 0
+        assert np.array_equal(a[inside & below], b[inside & below])
+
+
 @pytest.mark.e2e
 def test_rerendered_depth_matches_the_true_depth(evaluated):
     """From each registered pose, the fused mesh's depth (ray cast with the run's intrinsics)
@@ -210,3 +238,18 @@ def test_page_draws_and_every_layer_toggles_in_chromium(viewed):
         assert r["changed"] > 0 and r["restored"], (name, r)
     assert [(v["src"], v["error"]) for v in res["videos"]] == [("rerender.mp4", None), ("flythrough.mp4", None)]
     assert all(v["width"] > 0 for v in res["videos"])  # Chromium decodes the H.264
+
+
+def test_a_video_run_is_rerendered_through_the_lens_it_was_read_with(tmp_path):
+    """The video a run undistorted is read through the same camera.json again (summary.json's
+    camera_source), so the input panel shows the frames the run saw; a pinhole camera, a guess or
+    a camera file that is gone give the run's pinhole camera."""
+    from c3f_slam.view.build import _lens_file
+
+    cam = tmp_path / "camera.json"
+    cam.write_text("{}")
+    distorted = f"file {cam} (fisheye lens with distortion [0.1, 0.0, 0.0, 0.0], frames undistorted to pinhole)"
+    assert _lens_file({"camera_source": distorted}) == cam
+    assert _lens_file({"camera_source": f"file {cam}"}) is None
+    assert _lens_file({"camera_source": "fov guess 110 deg"}) is None
+    assert _lens_file({"camera_source": distorted.replace(str(cam), str(tmp_path / "gone.json"))}) is None

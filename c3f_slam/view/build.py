@@ -78,8 +78,21 @@ def _input_stream(summary: dict, sequence: str | Path | None):
         raise InputError(f"summary.json has no camera to re-render {source} with; --no-video for the page alone")
     frames = summary.get("config", {}).get("frames", {})
     cam = PinholeCamera(**{k: summary["camera"][k] for k in ("width", "height", "fx", "fy", "cx", "cy")})
-    return open_stream(source, camera=cam, use_depth=False, step=int(frames.get("stride") or 1),
-                       max_frames=frames.get("max_frames")), cam
+    lens = _lens_file(summary) if source.is_file() else None  # a video read through its lens model
+    stream = open_stream(source, camera=lens or cam, use_depth=False, step=int(frames.get("stride") or 1),
+                         max_frames=frames.get("max_frames"))
+    return stream, cam
+
+
+def _lens_file(summary: dict) -> Path | None:
+    """The camera.json a video run read its lens from (summary.json ``camera_source`` "file PATH
+    (...)"), when it is still there and describes a distorted lens: the frames are then undistorted
+    as the run undistorted them. None otherwise (the run's pinhole camera is used)."""
+    source = str(summary.get("camera_source") or "")
+    if not source.startswith("file ") or "undistort" not in source:
+        return None
+    path = Path(source[len("file "):].split(" (")[0])
+    return path if path.is_file() else None
 
 
 def write_videos(out: RunOutputs, summary: dict, sequence: str | Path | None, progress: bool) -> dict[str, dict]:
@@ -90,9 +103,15 @@ def write_videos(out: RunOutputs, summary: dict, sequence: str | Path | None, pr
     stamps, poses = read_tum(out.trajectory)
     stream, cam = _input_stream(summary, sequence)
     ms = MeshScene.of(mesh)
+    tissue = None
+    if out.tissue_mask.is_file():
+        import cv2  # as the stream: only when videos are written
+
+        tissue = cv2.imread(str(out.tissue_mask), cv2.IMREAD_GRAYSCALE) > 127
+        tissue = tissue if tissue.shape == (cam.height, cam.width) else None
     done = {}
     jobs = ((RERENDER, len(stream), lambda c: rerender_frames(
-                stream, cam.K, cam.width, cam.height, ms, PoseLookup(stamps, poses), c)),
+                stream, cam.K, cam.width, cam.height, ms, PoseLookup(stamps, poses), c, tissue)),
             (FLYTHROUGH, FRAMES, lambda c: flythrough_frames(ms, poses, c)))
     for name, total, frames in jobs:
         clock = RenderClock()

@@ -4,9 +4,11 @@ The right half is the final model (``unseen.ply``: the fused mesh with the unsee
 blue, else ``mesh.ply``) ray cast on the CPU with the run's intrinsics from the frame's
 camera-to-world pose in ``trajectory.txt`` (black where the model has no surface); a frame the
 run did not register (or skipped: black, saturated, unreadable) says so instead. Frames are
-those the run read (its stride and frame limit); panels are scaled up to at least
-:data:`MIN_PANEL` pixels high, the render at that size (the intrinsics scaled) rather than
-enlarged. Lens distortion, if the camera has any, is not drawn.
+those the run read (its stride and frame limit), undistorted as the run read them; panels are
+scaled up to at least :data:`MIN_PANEL` pixels high, the render at that size (the intrinsics
+scaled) rather than enlarged. With the run's tissue area (``tissue_mask.png``), the render is
+shown inside it only: outside it is black, as the scope's border (the map stands for the tissue
+area alone).
 """
 
 from __future__ import annotations
@@ -61,12 +63,16 @@ def panel_factor(height: int) -> int:
 
 
 def rerender_frames(frames, K: np.ndarray, width: int, height: int, ms: MeshScene, lookup: PoseLookup,
-                    clock: RenderClock) -> Iterator[np.ndarray]:
+                    clock: RenderClock, tissue: np.ndarray | None = None) -> Iterator[np.ndarray]:
     """Side-by-side frames (input | reconstruction) of the stream ``frames``
     (:class:`c3f_slam.stream.StreamFrame`) of a ``width`` x ``height`` camera ``K``; ``clock``
-    gathers the render time."""
+    gathers the render time; ``tissue`` ((height, width) bool, True = tissue): the render is
+    black outside it."""
     f = panel_factor(height)
     w, h = width * f, height * f
+    outside = None
+    if tissue is not None and not tissue.all():
+        outside = cv2.resize(tissue.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) == 0
     for fr in frames:
         left = (cv2.resize(fr.rgb, (w, h), interpolation=cv2.INTER_LINEAR) if fr.rgb is not None
                 else np.zeros((h, w, 3), np.uint8))
@@ -77,6 +83,8 @@ def rerender_frames(frames, K: np.ndarray, width: int, height: int, ms: MeshScen
         else:
             t0 = time.perf_counter()
             right, _ = render_pinhole(ms, scale_intrinsics(K, f), T, w, h, ambient=AMBIENT)
+            if outside is not None:
+                right[outside] = 0
             clock.seconds += time.perf_counter() - t0
             clock.frames += 1
         label(left, f"input, frame {fr.index}")
