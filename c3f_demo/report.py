@@ -371,9 +371,13 @@ def _tissue(d: ReportData, figs: Figures) -> str:
                      "magenta, its outline yellow", 520) if fig else
              "<p>The runs used the whole frame: no border or overlay was found.</p>" if whole else
              '<p class="fail">No run got as far as finding the tissue area.</p>')
-    return ("<p>The image area that shows tissue, as the runtime found it before the first frame (the scope's "
-            "border and burned-in overlays left out of depth, keypoints, fusion and the unseen wall; "
-            "<code>tissue_mask.png</code> in each run folder).</p>"
+    found = (d.ingest or {}).get("tissue_mask") or {}
+    where = (f"found by the ingest from {found.get('frames', 0)} frames of the video and named by the sequence's "
+             "<code>camera.json</code>, where each run read it" if found.get("file")
+             else "as the runtime found it before the first frame, or read it from a mask file")
+    return (f"<p>The image area that shows tissue, {where} (the scope's "
+            "border and burned-in overlays left out of depth, keypoints, fusion, the unseen wall and test-time "
+            "training's losses; <code>tissue_mask.png</code> in each run folder).</p>"
             + H.table(["configuration", "tissue (% of the image)", "source", "frames used", "overlays (%)"], rows)
             + shown)
 
