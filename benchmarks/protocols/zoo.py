@@ -370,7 +370,7 @@ def ttt_lines(t: dict) -> list[str]:
     lines = [f"{t['steps']} steps of batch 4 of the paper's objective (configs/depthnet/ttt.yaml + "
              "paper_objective.yaml: PoseNet alone for the first 30 steps while the depth network's batch-norm "
              "statistics follow the sequence, then both networks; the guard on), from the zoo weights, no ground "
-             "truth. What the other schedules do: zoo_ttt_variants.md.", "",
+             "truth. What the other schedules do: docs/lab_notes/2026-12-04-zoo-ttt-variants.md.", "",
              "| sequence | appearance | Abs Rel before | after | change % | δ<1.25 before | after | "
              "guard: kept step, events |", "|---|---|---|---|---|---|---|---|"]
     for name, appearance in TTT_SEQUENCES.items():

@@ -124,10 +124,11 @@ DEPTH_LIMITS = LIMITS + (
     "+2.6 % and -1.2 % on a trained one (seq1_s2001, seq1_s2002); what it changes is the depth network's "
     "batch-norm statistics, which follow the new sequence during ttt.yaml's 30 PoseNet-only steps: once the "
     "depth's weights train at lr 1e-4 the depth goes flat within 20 steps and the guard returns a warm-up snapshot "
-    "(benchmarks/results/zoo.md, zoo_ttt_variants.md)",
+    "(benchmarks/results/zoo.md; docs/lab_notes/2026-12-04-zoo-ttt-variants.md)",
     "on its depth the unseen-wall estimate gets the share within 3.3 points of the truth on seven simulator cases, "
     "but not the place: the bands hidden behind tall folds are missed, and scattered cells elsewhere make up the "
-    "share (benchmarks/results/slam_reprojection_refit.md, unseen_map_tall_folds_zoo_depth.png)",
+    "share (docs/lab_notes/2026-12-06-slam-reprojection-refit.md, with its figure "
+    "img/unseen_map_tall_folds_zoo_depth.png)",
 )
 
 DEPTH_R18W32 = Recipe(
