@@ -65,8 +65,9 @@ def inputs_from_args(args: argparse.Namespace, threads: int | None = None):
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     camera = FovGuess(args.fov) if args.fov is not None else args.camera
     given = {} if args.max_bad_frames is None else {"max_bad_frames": args.max_bad_frames}  # else RunInputs'
-    return RunInputs(args.descriptors, args.depth_source, args.depth_model, args.feature_model, camera,
-                     threads or args.threads, args.depth_scale, providers=check_providers(args.providers), **given)
+    return RunInputs(descriptors=args.descriptors, depth_source=args.depth_source, depth_model=args.depth_model,
+                     feature_model=args.feature_model, camera=camera, threads=threads or args.threads,
+                     depth_scale=args.depth_scale, providers=check_providers(args.providers), **given)
 
 
 __all__ = ["RUN_THREADS_HELP", "add_input_options", "inputs_from_args", "settings_from_args"]

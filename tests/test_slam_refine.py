@@ -133,7 +133,8 @@ def test_run_with_refinement_counts_and_registers(tmp_path):
     s = {}
     for on in (False, True):
         cfg = slam_preset("room", refine={"enabled": on}, fusion={"enabled": False})
-        s[on] = run_slam(seq, tmp_path / f"out_{on}", cfg, RunInputs("sift", "files"), progress=False)
+        s[on] = run_slam(seq, tmp_path / f"out_{on}", cfg, RunInputs(descriptors="sift", depth_source="files"),
+                         progress=False)
     assert s[False]["refine_attempts"] == 0
     assert s[True]["refine_attempts"] >= 1 and 0 <= s[True]["refine_accepted"] <= s[True]["refine_attempts"]
     assert s[True]["registered_frames"] >= s[False]["registered_frames"] > 0

@@ -86,7 +86,8 @@ def run_one(seq: Path, out: Path, method: str, min_corr: int, mesh: bool, depth_
                                    fusion={"enabled": mesh})
     t = time.perf_counter()
     try:
-        inputs = RunInputs(descriptors, depth_source, depth_model=depth_model if depth_source == "model" else None,
+        inputs = RunInputs(descriptors=descriptors, depth_source=depth_source,
+                           depth_model=depth_model if depth_source == "model" else None,
                            feature_model=feature_model if descriptors == "contrafeat" else None,
                            depth_scale=depth_scale if depth_source == "model" else None)
         s = run_slam(seq, out, cfg, inputs, progress=False, overwrite=True)  # the benchmark owns its --out

@@ -86,8 +86,8 @@ def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
 
     cfg = slam_preset("colon", fragments={"min_correspondences": min_corr}, fusion={"enabled": False})
     try:
-        s = run_slam(sequence, out, cfg, RunInputs("sift", "model", depth_model=str(depth_model)), progress=False,
-                     overwrite=True)  # the benchmark owns its work folder
+        inputs = RunInputs(descriptors="sift", depth_source="model", depth_model=str(depth_model))
+        s = run_slam(sequence, out, cfg, inputs, progress=False, overwrite=True)  # the benchmark owns its work folder
     except Exception as exc:  # noqa: BLE001 -- a failed run is a result: report it
         return {"error": str(exc)}
     st, P = read_tum(out / "trajectory.txt")

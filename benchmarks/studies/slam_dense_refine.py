@@ -35,7 +35,7 @@ def run_one(seq: Path, out: Path, preset: str, refine: dict) -> dict:
     """One run with the ``refine`` overrides; its summary, evaluation and wall seconds."""
     cfg = slam_preset(preset, refine=refine, fusion={"enabled": False})
     t = time.perf_counter()
-    s = run_slam(seq, out, cfg, RunInputs("sift", "files"), progress=False, overwrite=True)
+    s = run_slam(seq, out, cfg, RunInputs(descriptors="sift", depth_source="files"), progress=False, overwrite=True)
     wall = time.perf_counter() - t
     st, P = read_tum(out / "trajectory.txt")
     g = Sequence(seq)

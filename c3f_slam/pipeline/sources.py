@@ -32,9 +32,9 @@ DESCRIPTORS = ("sift", "contrafeat")
 DEPTH_SOURCES = ("files", "model")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RunInputs:
-    """The command-line choices of a run's inputs."""
+    """The command-line choices of a run's inputs (given by name)."""
 
     descriptors: str | None = None  #: sift | contrafeat; None: contrafeat when feature_model is given
     depth_source: str | None = None  #: files | model; None: model when depth_model is given
