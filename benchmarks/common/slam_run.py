@@ -1,10 +1,12 @@
-"""One ``python -m c3f_slam run`` of a benchmark, scored against the sequence's true poses."""
+"""One ``python -m c3f_slam run`` of a benchmark: run once and kept (:func:`run_kept`), or run and
+scored against the sequence's true poses (:func:`run_and_score`)."""
 
 from __future__ import annotations
 
 import json
 import shlex
 import subprocess
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -29,4 +31,16 @@ def run_and_score(cmd: Sequence[str], out: Path, seq: Path, label: str, cwd: Pat
     return summary, evaluate_trajectory(stamps, poses, gt.timestamps, gt.poses, n_frames=len(gt))
 
 
-__all__ = ["run_and_score"]
+def run_kept(source: Path, out: Path, args: Sequence[str] = (), cwd: Path = ROOT) -> dict:
+    """``python -m c3f_slam run SOURCE ARGS --out OUT`` from ``cwd`` (another checkout: its code),
+    unless ``out`` holds a summary.json already (a rerun of the protocol reuses the run); the
+    summary. SystemExit naming ``out`` when the command fails."""
+    if not (out / "summary.json").is_file():
+        cmd = [sys.executable, "-m", "c3f_slam", "run", str(source), *args, "--out", str(out), "--quiet", "--overwrite"]
+        proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise SystemExit(f"{out}: {shlex.join(cmd)} failed: {proc.stderr.strip()[-400:]}")
+    return json.loads((out / "summary.json").read_text())
+
+
+__all__ = ["run_and_score", "run_kept"]

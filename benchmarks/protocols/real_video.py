@@ -27,8 +27,6 @@ frames/s (one run each, 2 cores: compare within a case only).
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -41,6 +39,7 @@ from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.phantom import phantom_video
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from benchmarks.common.slam_run import run_kept
 from c3f_slam.config import FrameQualityConfig
 from c3f_slam.frame_quality import FrameQualityGate
 from c3f_slam.io import Sequence, read_tum
@@ -95,13 +94,7 @@ def sample_frames(source: Path, n: int = 12) -> list[np.ndarray]:
 
 def run_variant(source: Path, out: Path, checkout: Path) -> dict:
     """One run of the runtime from ``checkout`` (its defaults); its numbers."""
-    if not (out / "summary.json").is_file():
-        cmd = [sys.executable, "-m", "c3f_slam", "run", str(source), *MODELS, "--out", str(out), "--quiet",
-               "--overwrite"]
-        proc = subprocess.run(cmd, cwd=checkout, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise SystemExit(f"{out}: {' '.join(cmd)} failed: {proc.stderr.strip()[-400:]}")
-    summary = json.loads((out / "summary.json").read_text())
+    summary = run_kept(source, out, MODELS, cwd=checkout)
     stamps, poses = read_tum(out / "trajectory.txt")
     checks = summary.get("checks", {})
     return {"registered_share": summary["registered_share"],

@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import subprocess
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -44,10 +43,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import open3d as o3d
+from scipy.stats import spearmanr
 
-from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common import RESULTS, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from benchmarks.common.slam_run import run_kept
 from c3f_models.zoo.recipes import at_pace
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.io.sequence import encode_depth, read_depth_png
@@ -142,17 +143,6 @@ VARIANTS = (
 
 
 # ------------------------------------------------------------------ one run, scored
-def run(source: Path, out: Path, args: tuple[str, ...]) -> dict:
-    """``python -m c3f_slam run`` of ``source`` into ``out`` (kept: a rerun reuses it); its summary."""
-    if not (out / "summary.json").is_file():
-        cmd = [sys.executable, "-m", "c3f_slam", "run", str(source), *FEATURES, *args, "--out", str(out),
-               "--quiet", "--overwrite"]
-        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise SystemExit(f"{out}: {' '.join(cmd)} failed: {proc.stderr.strip()[-400:]}")
-    return json.loads((out / "summary.json").read_text())
-
-
 def map_error_mm(run_dir: Path, truth: Sequence, stamps: np.ndarray, poses: np.ndarray,
                  max_vertices: int = 40_000) -> float | None:
     """Median distance (mm) of the run's mesh vertices, moved by the Sim(3) that aligns its
@@ -208,20 +198,12 @@ def nuisance_truth(run_dir: Path, bordered: Path) -> dict:
 
 # ------------------------------------------------------------------ tables
 def spearman(x: list[float], y: list[float]) -> float | None:
-    """Spearman's rank correlation (average ranks for ties); None under 4 pairs."""
+    """Spearman's rank correlation (:func:`scipy.stats.spearmanr`); None under 4 pairs or when
+    either side is constant."""
     if len(x) < 4:
         return None
-    def ranks(v):
-        order = np.argsort(v, kind="stable")
-        r = np.empty(len(v))
-        r[order] = np.arange(len(v))
-        for val in set(v):  # ties: their mean rank
-            idx = [i for i, w in enumerate(v) if w == val]
-            r[idx] = r[idx].mean()
-        return r
-    rx, ry = ranks(list(x)), ranks(list(y))
-    c = np.corrcoef(rx, ry)[0, 1]
-    return float(c) if np.isfinite(c) else None
+    rho = float(spearmanr(x, y).statistic)
+    return rho if np.isfinite(rho) else None
 
 
 def _f(v, digits: int = 2, pct: bool = False) -> str:
@@ -296,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
         truth = Sequence(clean)
         for v in VARIANTS:
             out = work / "runs" / v.name.replace(" ", "_").replace(",", "").replace("%", "pct")
-            summary = run(v.source(clean, bordered, work), out, v.args)
+            summary = run_kept(v.source(clean, bordered, work), out, (*FEATURES, *v.args))
             rows[f"{name}/{v.name}"] = score(out, summary, truth)
             r = rows[f"{name}/{v.name}"]
             print(f"{name} / {v.name}: in one map {r['in_main_map']:.3f}, ATE % {r['ate_pct']}", flush=True)

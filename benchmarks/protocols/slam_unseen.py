@@ -18,15 +18,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common import RESULTS, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from benchmarks.common.slam_run import run_kept
 from c3f_models.zoo.recipes import at_pace
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.trajectory_metrics import evaluate_trajectory, jitter_ratio
@@ -39,12 +39,7 @@ IN_ONE_MAP, ATE_PCT = 0.95, 2.0  #: what a run must reach
 
 def run_case(seq: Path, out: Path) -> dict:
     """One run of ``seq`` (kept in ``out``: a rerun reuses it), scored against its truth."""
-    if not (out / "summary.json").is_file():
-        cmd = [sys.executable, "-m", "c3f_slam", "run", str(seq), *MODELS, "--out", str(out), "--quiet", "--overwrite"]
-        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise SystemExit(f"{out}: {' '.join(cmd)} failed: {proc.stderr.strip()[-400:]}")
-    summary = json.loads((out / "summary.json").read_text())
+    summary = run_kept(seq, out, MODELS)
     stamps, poses = read_tum(out / "trajectory.txt")
     truth = Sequence(seq)
     ev = evaluate_trajectory(stamps, poses, truth.timestamps, truth.poses, n_frames=summary["frames"])
