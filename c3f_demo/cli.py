@@ -16,9 +16,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from c3f_core.cli_parser import OneLineParser
+from c3f_core.errors import InputError
 from c3f_demo.config import DemoConfig, demo_config, video_config
-from c3f_slam.cli_parser import OneLineParser
-from c3f_slam.errors import InputError
 
 
 def _parser() -> argparse.ArgumentParser:

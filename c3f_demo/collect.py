@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_demo.context import REPO, DemoContext
 from c3f_demo.report_records import DepthSamples, Image, ReportData, TissueSample, Video, ViewData
 from c3f_demo.video import frame_log, run_metrics
-from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 
 PACKAGES = ("c3fusion", "torch", "lightning", "onnxruntime", "open3d", "numpy", "opencv-python-headless")

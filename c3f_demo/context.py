@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
+from c3f_core.errors import InputError
 from c3f_demo.config import DemoConfig
-from c3f_slam.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]  # the checkout: configs/ lives here
 CONFIGS = REPO / "configs"

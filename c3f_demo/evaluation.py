@@ -9,12 +9,12 @@ import json
 import cv2
 import numpy as np
 
+from c3f_core.atomic import atomic_write
 from c3f_demo.context import DemoContext, StageFailed, slam_runs
 from c3f_demo.stages import Stage
 from c3f_slam.config import FrontendConfig
 from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
 from c3f_slam.io import Sequence
-from c3f_slam.io.atomic import atomic_write
 from c3f_slam.matching.ground_truth import ground_truth_matches
 from c3f_slam.matching.match_accuracy import match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches

@@ -14,10 +14,10 @@ import cv2
 import numpy as np
 import open3d as o3d
 
+from c3f_core.atomic import atomic_write
+from c3f_core.errors import InputError
 from c3f_demo.render import crop_near, render_views
 from c3f_demo.report_records import DepthSamples, Figures, Image, ReportData, TissueSample, Video, ViewData, ViewFigures
-from c3f_slam.errors import InputError
-from c3f_slam.io.atomic import atomic_write
 
 
 def make_figures(data: ReportData, root: Path) -> Figures:

@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.cli_parser import OneLineParser
-from c3f_slam.errors import InputError
+from c3f_core.cli_parser import OneLineParser
+from c3f_core.errors import InputError
 
 FRAMES_CSV = "frames.csv"  #: per frame of the sequence: frame, video_frame, time_s
 TISSUE_MASK = "tissue_mask.png"  #: the tissue area at the sequence's frame size (255 = tissue)
@@ -75,9 +75,9 @@ def ingest(video: str | Path, out: str | Path, camera: str | Path | None = None,
     """Write the sequence folder ``out`` from ``video`` (module docstring); returns ``ingest.json``'s record."""
     import cv2
 
+    from c3f_core.atomic import move_into_place, staging_dir
     from c3f_slam.config import FrameQualityConfig, TissueConfig
     from c3f_slam.frame_quality import DUPLICATE, FrameQualityGate
-    from c3f_slam.io.atomic import move_into_place, staging_dir
     from c3f_slam.io.sequence import SequenceWriter
     from c3f_slam.tissue import resolve_tissue_mask
 

@@ -5,12 +5,12 @@ on a user's video (no ground truth)."""
 
 from __future__ import annotations
 
+from c3f_core.atomic import atomic_write_text
 from c3f_demo.collect import collect
 from c3f_demo.context import DemoContext
 from c3f_demo.figures import make_figures
 from c3f_demo.report import build_report
 from c3f_demo.stages import Stage
-from c3f_slam.io.atomic import atomic_write_text
 from c3f_slam.outputs import write_json
 
 

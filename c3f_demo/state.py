@@ -12,8 +12,8 @@ import hashlib
 import json
 from pathlib import Path
 
-from c3f_slam.errors import InputError
-from c3f_slam.io.atomic import atomic_write_text
+from c3f_core.atomic import atomic_write_text
+from c3f_core.errors import InputError
 
 STATE_FILE = "demo_state.json"
 STATE_VERSION = 1

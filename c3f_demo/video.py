@@ -15,11 +15,11 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
+from c3f_core.errors import InputError
 from c3f_demo.config import DemoConfig, VideoConfig
 from c3f_demo.context import DemoContext
 from c3f_demo.ingest import RECORD, open_video
 from c3f_demo.stages import Stage
-from c3f_slam.errors import InputError
 
 VIEW_FILES = ("view.html", "rerender.mp4", "flythrough.mp4")
 #: a run folder's per-frame log, when the runtime writes one: columns index, timestamp and either

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 
 def read_checkpoint(path: str | Path, option: str, mmap: bool = False) -> dict:

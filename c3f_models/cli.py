@@ -15,7 +15,7 @@ pipeline, :mod:`c3f_demo`), ``zoo`` (the model zoo, :mod:`c3f_models.zoo.cli`), 
 Model and data settings are nested groups (``--model.loss.lambda_dc 0.1``, ``--data.frames.size
 [128,128]``; see :class:`c3f_models.DepthNet`, :class:`c3f_models.ContraFeat` and
 :mod:`datamodules.config`). The resolved config is saved as ``config.yaml`` next to the
-TensorBoard logs of each run. Bad input (:class:`c3f_slam.errors.InputError`, also when raised
+TensorBoard logs of each run. Bad input (:class:`c3f_core.errors.InputError`, also when raised
 by a constructor inside the parser) ends the run with a one-line ``error: ...`` and exit
 status 2 instead of a traceback; so does a ``--ckpt_path`` saved with options of an older layout.
 """

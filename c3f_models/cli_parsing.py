@@ -10,7 +10,7 @@ import json
 import re
 from collections.abc import Sequence
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 #: a field of a settings group: ``--model.GROUP.FIELD`` or ``--data.GROUP.FIELD`` (``init_args.`` optional)
 GROUP_FIELD_OPTION = re.compile(r"--((?:model|data)\.(?:init_args\.)?(?!init_args\b)\w+)\.(\w+)")

@@ -1,7 +1,7 @@
 """The settings group both LightningModules share: the optimiser and its schedule.
 
 Each module takes its settings as a few small frozen dataclasses (``network``, ``loss``,
-``optim``, ...), coerced by :func:`c3f_slam.settings.as_config`; each group validates itself in
+``optim``, ...), coerced by :func:`c3f_core.settings.as_config`; each group validates itself in
 ``__post_init__``. The data modules' groups (:mod:`datamodules.config`) work the same way.
 """
 

@@ -30,6 +30,8 @@ import numpy as np
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 
+from c3f_core.errors import InputError
+from c3f_core.settings import as_config
 from c3f_models.config import OptimConfig
 from c3f_models.contrafeat.config import ContraFeatLossConfig, ContraFeatNetworkConfig, MatchEvaluationConfig
 from c3f_models.contrafeat.graphs import DescriptorGraph, KeypointDescriptorGraph
@@ -45,11 +47,9 @@ from c3f_models.contrafeat.pairs import (
 )
 from c3f_models.depth.augment import ColorAugmentConfig, color_augment
 from c3f_models.module_base import C3FModule
-from c3f_slam.errors import InputError
 from c3f_slam.matching import MatchCounts
 from c3f_slam.matching.match_accuracy import match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches
-from c3f_slam.settings import as_config
 from export.graphs import OPSET, GraphSpec
 
 METHODS = ("sift", "sift_kpf", "cdf", "cdf_kpf")

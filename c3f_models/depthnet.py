@@ -15,6 +15,8 @@ import torch
 import torch.nn.functional as F
 from lightning.pytorch.loggers import TensorBoardLogger
 
+from c3f_core.errors import InputError
+from c3f_core.settings import as_config
 from c3f_models.config import OptimConfig
 from c3f_models.depth.augment import ColorAugmentConfig, color_augment
 from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
@@ -25,8 +27,6 @@ from c3f_models.depth.objective import LossConfig, LossTerms, SelfSupervisedLoss
 from c3f_models.depth.visual import colorize_depth, mask_to_rgb, panel
 from c3f_models.module_base import C3FModule
 from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
-from c3f_slam.errors import InputError
-from c3f_slam.settings import as_config
 from export.graphs import OPSET, OPSET_DEFORM, GraphSpec, has_deform_conv
 
 # the defaults of DepthNet's groups (frozen, so one instance serves every module)

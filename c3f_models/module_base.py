@@ -8,11 +8,11 @@ from pathlib import Path
 import lightning as L
 import torch
 
+from c3f_core.errors import InputError
+from c3f_core.settings import settings_as_dicts
 from c3f_models.checkpoints import load_weights, read_checkpoint_weights
 from c3f_models.config import ADAM_BETAS, OptimConfig
 from c3f_slam import zoo
-from c3f_slam.errors import InputError
-from c3f_slam.settings import settings_as_dicts
 
 INIT_WEIGHTS_OPTION = "model.init_weights"
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 _REQUIRED = ("width", "height", "fx", "fy", "cx", "cy")
 

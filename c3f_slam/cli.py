@@ -32,8 +32,8 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from c3f_core.cli_parser import OneLineParser, run_subcommand
 from c3f_slam.cli_inputs import add_input_options, inputs_from_args, settings_from_args
-from c3f_slam.cli_parser import OneLineParser, run_subcommand
 from c3f_slam.cli_settings import add_settings_options
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 #: ``--threads``' help in ``run``
 RUN_THREADS_HELP = "onnxruntime threads per model (default: the cores less one, at least 1)"

@@ -32,8 +32,8 @@ from dataclasses import asdict, dataclass, replace
 import cv2
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_slam.config.frames import FrameQualityConfig
-from c3f_slam.errors import InputError
 
 OK = "ok"
 BLURRED, DARK, WASHED_OUT, DUPLICATE, COVERED = "blurred", "dark", "washed_out", "duplicate", "covered"

@@ -31,9 +31,9 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
+from c3f_core.atomic import atomic_write
 from c3f_slam.config import TSDFConfig, preset
 from c3f_slam.geometry import invert_pose
-from c3f_slam.io.atomic import atomic_write
 
 
 class TSDFVolume:

@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.errors import InputError
-from c3f_slam.io.atomic import atomic_write, atomic_write_text, move_into_place, staging_dir
+from c3f_core.atomic import atomic_write, atomic_write_text, move_into_place, staging_dir
+from c3f_core.errors import InputError
 from c3f_slam.io.tum import write_tum
 from c3f_slam.posegraph import PoseGraph
 

@@ -59,9 +59,9 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.atomic import atomic_write, atomic_write_text
+from c3f_core.errors import InputError
 from c3f_slam.geometry import axis_angle_to_matrix, invert_pose, make_pose, matrix_to_axis_angle, relative_pose
-from c3f_slam.io.atomic import atomic_write, atomic_write_text
 
 DEPTH_SIZE = 475  #: submitted depth maps are DEPTH_SIZE x DEPTH_SIZE
 DEPTH_RANGE_M = 0.20  #: a depth value of 1 in the challenge's files is 20 cm

@@ -36,9 +36,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_slam.calibration import Undistortion
 from c3f_slam.camera import FovGuess, PinholeCamera
-from c3f_slam.errors import InputError
 from c3f_slam.frame_quality import FrameQualityGate
 from c3f_slam.io.sequence import Sequence, read_depth_png, read_rgb
 

@@ -44,8 +44,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_slam.config import TissueConfig
-from c3f_slam.errors import InputError
 from c3f_slam.preprocess import fill_outside
 
 #: detection runs on frames scaled down to at most this many pixels on the long side

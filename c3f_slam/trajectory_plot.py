@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.io.atomic import atomic_write
+from c3f_core.atomic import atomic_write
 
 
 def plot_trajectories(path: str | Path, gt_positions: np.ndarray, est_positions: np.ndarray | None = None,

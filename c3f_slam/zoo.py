@@ -31,7 +31,7 @@ from pathlib import Path
 
 import yaml
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 PREFIX = "zoo:"
 ENV = "C3F_ZOO"

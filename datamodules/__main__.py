@@ -17,8 +17,8 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from c3f_slam.cli_parser import OneLineParser
-from c3f_slam.errors import InputError
+from c3f_core.cli_parser import OneLineParser
+from c3f_core.errors import InputError
 
 DATASETS = ("uts", "simcol3d", "c3vd", "colon10k")
 _OPTIONS = {"uts": ("fov",), "simcol3d": (), "c3vd": ("calibration", "pinhole_focal"), "colon10k": ("calibration",)}

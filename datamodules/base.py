@@ -42,10 +42,10 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from c3f_core.errors import InputError
+from c3f_core.settings import as_config, settings_as_dicts
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 from c3f_slam.preprocess import center_crop_resize, on_grid, prepare_network_input
-from c3f_slam.settings import as_config, settings_as_dicts
 from c3f_slam.tissue import camera_mask_file, read_mask_png
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.formats import SequenceFormat, find_sequences

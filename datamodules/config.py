@@ -2,7 +2,7 @@
 
 In a config they are nested under ``data.init_args`` (``frames: {size: [128, 128]}``), on the
 command line ``--data.frames.size [128, 128]``; in Python a group is a dataclass instance or a
-dict of its fields (:func:`c3f_slam.settings.as_config`). Each group validates itself in
+dict of its fields (:func:`c3f_core.settings.as_config`). Each group validates itself in
 ``__post_init__`` and names the option in its one-line error. Sizes are (width, height) in
 pixels; offsets, strides and gaps count frames.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 SPLITS = ("train", "val", "test")
 

@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_core.atomic import move_into_place, staging_dir
+from c3f_core.errors import InputError
 from c3f_slam.coverage.dataset_truth import FLAGS_FILE, write_observed_flags
-from c3f_slam.errors import InputError
 from c3f_slam.io import SequenceWriter
-from c3f_slam.io.atomic import move_into_place, staging_dir
 from datamodules.formats import PUBLISHED, PublishedSequence, find_sequences, make_format
 
 NOMINAL_FPS = 30.0

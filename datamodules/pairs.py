@@ -15,8 +15,8 @@ from pathlib import Path
 import torch
 from torch.utils.data import Dataset
 
-from c3f_slam.errors import InputError
-from c3f_slam.settings import as_config
+from c3f_core.errors import InputError
+from c3f_core.settings import as_config
 from datamodules.base import DEFAULT_FRAMES, DEFAULT_SPLIT, FrameSource, FrameTupleDataset, SequenceDataModule
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig, check_stride
 from datamodules.formats import SequenceFormat, make_format

@@ -20,7 +20,7 @@ The crops of the paper are in ``configs/depthnet/<data set>.yaml``.
 
 from __future__ import annotations
 
-from c3f_slam.settings import as_config
+from c3f_core.settings import as_config
 from datamodules.base import SequenceDataModule
 from datamodules.config import SplitConfig
 from datamodules.formats import SequenceFormat, make_format

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 import onnx
 
+from c3f_core.atomic import atomic_write_text, staging_dir
+from c3f_core.errors import InputError
 from c3f_slam import __version__
-from c3f_slam.errors import InputError
-from c3f_slam.io.atomic import atomic_write_text, staging_dir
 from c3f_slam.models.metadata import ModelMetadata, Preprocessing
 from export.calibration import metric_scale as measure_metric_scale
 from export.frames import calibration_images, frames_from_source, parity_source

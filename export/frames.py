@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.models.metadata import Preprocessing
 from c3f_slam.preprocess import prepare_network_input

@@ -19,8 +19,8 @@ import onnx
 import torch
 from torch import nn
 
-from c3f_slam.errors import InputError
-from c3f_slam.io.atomic import atomic_write
+from c3f_core.atomic import atomic_write
+from c3f_core.errors import InputError
 from c3f_slam.models.metadata import ModelMetadata
 
 MIN_SIZE = 64

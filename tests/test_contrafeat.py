@@ -12,6 +12,7 @@ import pytest
 import torch
 import torchvision
 
+from c3f_core.errors import InputError
 from c3f_models.cli import main
 from c3f_models.config import OptimConfig
 from c3f_models.contrafeat.config import ContraFeatLossConfig, ContraFeatNetworkConfig, MatchEvaluationConfig
@@ -19,7 +20,6 @@ from c3f_models.contrafeat.loss import batch_info_nce, info_nce
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
 from c3f_models.contrafeat.pairs import GroundTruthSettings, KeypointSettings
 from c3f_models.contrafeat_module import METHODS, ContraFeat
-from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.matching import sample_descriptor_map
 from datamodules.config import FramesConfig, LoaderConfig

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 
 
 def test_axis_angle_quarter_turn_about_z():

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from c3f_core.atomic import atomic_write
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
-from c3f_slam.io import Sequence, SequenceWriter, atomic_write, read_tum, write_tum
+from c3f_slam.io import Sequence, SequenceWriter, read_tum, write_tum
 
 
 def _write_seq(root, n=4, w=32, h=24, depth=True, poses=True):

@@ -188,7 +188,7 @@ def test_evaluate_reports_estimate_vs_truth(coverage_run, sim_sequence, capsys):
 
 
 def test_settings_are_checked_and_room_has_none():
-    from c3f_slam.errors import InputError
+    from c3f_core.errors import InputError
 
     with pytest.raises(InputError, match="coverage.segment"):
         slam_preset("colon", coverage={"segment": -1.0})

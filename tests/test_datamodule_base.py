@@ -6,8 +6,8 @@ import pytest
 import torch
 from numpy.testing import assert_allclose
 
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
-from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.preprocess import specular_mask
 from datamodules.base import FrameTupleDataset, split_names

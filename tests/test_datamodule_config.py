@@ -9,8 +9,8 @@ import pytest
 import torch
 import yaml
 
+from c3f_core.errors import InputError
 from c3f_models.cli import main, nulls_as_group_values
-from c3f_slam.errors import InputError
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.pairs import ContraFeatDataModule, PairSamplingConfig
 from datamodules.published import Colon10KDataModule

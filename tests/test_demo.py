@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_demo import config as demo_cfg
 from c3f_demo import report_stage, runner
 from c3f_demo.context import DemoContext
@@ -26,7 +27,6 @@ from c3f_demo.report import SECTIONS, build_report
 from c3f_demo.report_records import Figures, Image, ReportData, Video, ViewData, ViewFigures
 from c3f_demo.stages import Stage
 from c3f_demo.state import DemoState, stage_key
-from c3f_slam.errors import InputError
 from tests.startup import packages_loaded_by
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
+from c3f_core.errors import InputError
 from c3f_models.depth.augment import ColorAugmentConfig, color_augment
-from c3f_slam.errors import InputError
 
 
 def _frames(b: int = 6) -> list[torch.Tensor]:

@@ -7,6 +7,7 @@ import torch
 import torchvision
 from torch import nn
 
+from c3f_core.errors import InputError
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.contrafeat.network import ContraFeatNet
 from c3f_models.depth.config import DepthNetworkConfig
@@ -14,7 +15,6 @@ from c3f_models.depth.decoder import depth_to_disp, disp_to_depth
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
 from c3f_models.encoders import ResnetConfig, ResnetEncoder
 from c3f_models.encoders.dcn import DeformConv, deformable_stages
-from c3f_slam.errors import InputError
 
 
 def test_disp_depth_conversion_bounds_and_inverse():

@@ -14,6 +14,7 @@ import pytest
 import torch
 import torchvision
 
+from c3f_core.errors import InputError
 from c3f_models.cli import main
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.contrafeat.network import ContraFeatNet
@@ -22,7 +23,6 @@ from c3f_models.depth.config import DepthNetworkConfig
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
 from c3f_models.depthnet import DepthNet
 from c3f_models.encoders import ENCODERS, STRIDES, MobileNetConfig, MobileNetEncoder, ResnetConfig, ResnetEncoder
-from c3f_slam.errors import InputError
 from c3f_slam.models.metadata import ModelMetadata
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,11 +13,11 @@ import onnxruntime as ort
 import pytest
 import torch
 
+from c3f_core.errors import InputError
 from c3f_models import ContraFeat, DepthNet
 from c3f_models.cli import main
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.depth.config import DepthNetworkConfig
-from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.models.metadata import SCHEMA_VERSION, ModelMetadata
 from c3f_slam.preprocess import prepare_network_input

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.io import Sequence
 from datamodules.formats import find_sequences, make_format
 from datamodules.formats.c3vd import read_pose_file

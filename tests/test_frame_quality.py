@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.frame_quality import (
     BLURRED,
     COVERED,

@@ -1,6 +1,6 @@
 """Import boundaries. c3f_slam, the simulator and the published-data readers and converter must
 import where torch cannot be imported (the runtime-only install has no torch). The packages form
-layers (c3f_slam < datamodules < export < c3f_models < c3f_demo; benchmarks, tools and tests on
+layers (c3f_core < c3f_slam < datamodules < export < c3f_models < c3f_demo; benchmarks, tools and tests on
 top): no import runs up a layer, and no two modules import each other in a circle."""
 
 import subprocess
@@ -51,8 +51,8 @@ def _run(package: str) -> str:
 
 
 @pytest.mark.e2e
-@pytest.mark.parametrize("package", ["c3f_slam", "datamodules.synthetic", "datamodules.formats", "datamodules.convert",
-                                     "datamodules.__main__"])
+@pytest.mark.parametrize("package", ["c3f_core", "c3f_slam", "datamodules.synthetic", "datamodules.formats",
+                                     "datamodules.convert", "datamodules.__main__"])
 def test_imports_without_torch(package):
     assert "modules imported without torch" in _run(package)
 
@@ -73,7 +73,7 @@ def test_block_really_blocks():
 
 # ------------------------------------------------------------------ layers
 #: the packages from the bottom up; a module may import its own layer and those below, never one above
-LAYERS = ("c3f_slam", "datamodules", "export", "c3f_models", "c3f_demo")
+LAYERS = ("c3f_core", "c3f_slam", "datamodules", "export", "c3f_models", "c3f_demo")
 
 
 def _module_name(path: Path, root: Path) -> str:

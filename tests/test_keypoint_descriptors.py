@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.cli import main
-from c3f_slam.errors import InputError
 from c3f_slam.matching import Keypoints, sample_descriptor_map
 from c3f_slam.models import DescriptorModel, ModelMetadata, OnnxModel
 from c3f_slam.pipeline.frontend import ContraFeatDescriptors

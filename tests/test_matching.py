@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.config import PREDICTED_DEPTH_RESIDUAL_SHARE, PRESETS, SlamConfig
-from c3f_slam.errors import InputError
 from c3f_slam.matching import (
     MatchFilterConfig,
     detect_sift,

@@ -8,8 +8,8 @@ import pytest
 import torch
 import yaml
 
+from c3f_core.errors import InputError
 from c3f_models.cli import main
-from c3f_slam.errors import InputError
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
 from datamodules.pairs import ContraFeatDataModule, PairSamplingConfig
 from datamodules.published import C3VDDataModule, Colon10KDataModule, SimCol3DDataModule, UTSDataModule

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
 from c3f_slam.config import SlamConfig
-from c3f_slam.errors import InputError
 from c3f_slam.matching import MatchFilterConfig, kabsch
 from c3f_slam.matching.reprojection import refine_by_reprojection
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from c3f_core.errors import InputError
 from c3f_slam import simcol3d as sc
 from c3f_slam.cli import main
-from c3f_slam.errors import InputError
 from c3f_slam.geometry import axis_angle_to_matrix, make_pose
 from c3f_slam.io import Sequence
 from c3f_slam.io.tum import write_tum

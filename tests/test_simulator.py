@@ -13,9 +13,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 from c3f_slam.geometry import relative_motion
 from c3f_slam.io import Sequence
 from c3f_slam.preprocess import specular_mask

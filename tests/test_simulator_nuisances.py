@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.io import Sequence, SequenceWriter
 from datamodules.synthetic import make_tiny_sequence, tiny_params
 from datamodules.synthetic.__main__ import main as cli_main

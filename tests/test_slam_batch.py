@@ -17,11 +17,11 @@ from pathlib import Path
 
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam.batch.cli import budget
 from c3f_slam.batch.dataset import BatchItem, find_items
 from c3f_slam.batch.job import Job, Row
 from c3f_slam.batch.scheduler import BatchLoop
-from c3f_slam.errors import InputError
 from datamodules.synthetic.fixture import make_tiny_sequence
 from tests.startup import packages_loaded_by
 

@@ -7,8 +7,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
-from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.frame_step import FrameInput
 from c3f_slam.pipeline.frontend import PairMatch

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.cli import main
 from c3f_slam.config import PREDICTED_DEPTH_RESIDUAL_SHARE
-from c3f_slam.errors import InputError
 from c3f_slam.models import DepthModel, DescriptorModel, ModelMetadata, OnnxModel, PoseModel
 from c3f_slam.pipeline.frontend import ModelDepth
 from c3f_slam.pipeline.fusion_frames import CACHE_DIR, PredictedFrames

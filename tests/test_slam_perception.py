@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam.config import preset as slam_preset
-from c3f_slam.errors import InputError
 from c3f_slam.pipeline import run_slam
 from c3f_slam.pipeline.perception import PerceivedFrame, Prefetcher
 from c3f_slam.pipeline.sources import RunInputs

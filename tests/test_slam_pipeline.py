@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam.config import preset as slam_preset
-from c3f_slam.errors import InputError
 from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import make_pose
 from c3f_slam.io import Sequence, read_tum, write_tum

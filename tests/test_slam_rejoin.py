@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
 from c3f_slam.config import FragmentConfig
 from c3f_slam.config import preset as slam_preset
-from c3f_slam.errors import InputError
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.frame_step import FrameDecision, FrameInput
 from c3f_slam.pipeline.rejoin import _tail_index

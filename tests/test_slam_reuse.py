@@ -194,7 +194,7 @@ def test_a_wrong_keyframe_match_does_not_attach_against_the_odometry(check):
 
 
 def test_reuse_options_are_checked():
-    from c3f_slam.errors import InputError
+    from c3f_core.errors import InputError
 
     with pytest.raises(InputError, match="reuse_max_offset"):
         SlamConfig(keyframes={"reuse_max_offset": -1.0})

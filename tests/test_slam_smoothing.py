@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam.config import SlamConfig
 from c3f_slam.config.smoothing import PREDICTED_DEPTH_MOTION_PRIOR_S, SmoothingConfig
-from c3f_slam.errors import InputError
 from c3f_slam.geometry import axis_angle_to_matrix, invert_pose, make_pose
 from c3f_slam.pipeline.fragment_map import FragmentMap, blend_poses
 from c3f_slam.pipeline.frame_step import FrameInput

@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 from c3f_slam.stream import FrameStream, frame_status, open_stream
 from tests.scenes import plane_sequence, plane_texture
 

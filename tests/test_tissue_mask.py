@@ -12,13 +12,13 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from c3f_core.errors import InputError
 from c3f_slam import geometry as g
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.cli import main
 from c3f_slam.config import TissueConfig
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.coverage.visibility import ViewSettings, in_view
-from c3f_slam.errors import InputError
 from c3f_slam.io import Sequence
 from c3f_slam.io.sequence import encode_depth, read_depth_png
 from c3f_slam.models import DepthModel

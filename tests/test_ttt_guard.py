@@ -10,8 +10,8 @@ import pytest
 import torch
 from torch import nn
 
+from c3f_core.errors import InputError
 from c3f_models.depth.ttt_guard import TestTimeGuard, state_equal
-from c3f_slam.errors import InputError
 
 
 class _Module(nn.Linear):

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from c3f_core.errors import InputError
+from c3f_core.settings import tree_from_mapping
 from c3f_models.contrafeat.loss import TAU
 from c3f_models.encoders import EncoderChoice, choose_encoder
 from c3f_slam.config import PRESETS, MatchFilterConfig
-from c3f_slam.errors import InputError
-from c3f_slam.settings import tree_from_mapping
 
 
 @dataclass(frozen=True)

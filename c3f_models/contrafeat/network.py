@@ -26,8 +26,8 @@ import torch.nn.functional as F
 from torch import nn
 from torchvision.ops import FeaturePyramidNetwork
 
+from c3f_core.errors import InputError
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
-from c3f_slam.errors import InputError
 
 ENCODER = "encoder"  # the encoder's attribute, left out of the state-dict keys
 

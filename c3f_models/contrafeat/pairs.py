@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.matching import Keypoints, Projection, detect_sift, ground_truth_matches
 from c3f_slam.matching.ground_truth import project_keypoints
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import torch
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 #: RGB -> YIQ; hue rotates the (I, Q) plane
 _RGB_TO_YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from c3f_core.errors import InputError
 from c3f_models.encoders import EncoderChoice, choose_encoder
-from c3f_slam.errors import InputError
 
 OPTION = "model.network."  # the group's options in a config
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from c3f_core.errors import InputError
 from c3f_models.depth.losses import (
     automask,
     depth_consistency_error,
@@ -44,7 +45,6 @@ from c3f_models.depth.losses import (
     photometric_error,
 )
 from c3f_models.geometry import invert_pose, warp
-from c3f_slam.errors import InputError
 
 PH_PAIRS = ((1, 0), (1, 2))  # (target, source) for L_ph: t from t-1 and t+1
 EXTRA_PAIRS = ((0, 1), (0, 2), (2, 0), (2, 1))  # S as (i, j) = (target, source)

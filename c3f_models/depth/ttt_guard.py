@@ -30,7 +30,7 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 
 class TestTimeGuard(Callback):

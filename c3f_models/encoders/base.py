@@ -11,7 +11,7 @@ from typing import ClassVar
 import torch
 from torch import nn
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.preprocess import IMAGENET_MEAN, IMAGENET_STD
 
 #: the strides (input pixels per feature pixel) of the 5 maps, finest first

@@ -15,9 +15,9 @@ from typing import Any, ClassVar
 import torch
 from torch import nn
 
+from c3f_core.errors import InputError
 from c3f_models.encoders.base import STRIDES, Encoder, option_of
 from c3f_models.encoders.weights import load_pretrained
-from c3f_slam.errors import InputError
 
 
 def _is_strided(block: nn.Module) -> bool:

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 from torch import nn
 from torchvision import models
 
+from c3f_core.errors import InputError
 from c3f_models.encoders.base import option_of
 from c3f_models.encoders.features import FeaturesEncoder
-from c3f_slam.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
+from c3f_core.errors import InputError
 from c3f_models.encoders.base import Encoder
 from c3f_models.encoders.mobilenet import MobileNetEncoder
 from c3f_models.encoders.resnet import ResnetConfig, ResnetEncoder
-from c3f_slam.errors import InputError
 
 #: encoder name -> class (its settings dataclass is the class's ``config_class``)
 ENCODERS: dict[str, type[Encoder]] = {"resnet": ResnetEncoder, "mobilenet_v3_small": MobileNetEncoder}

@@ -16,10 +16,10 @@ import torch
 from torch import nn
 from torchvision import models
 
+from c3f_core.errors import InputError
 from c3f_models.encoders.base import Encoder, option_of
 from c3f_models.encoders.dcn import deformable_stages
 from c3f_models.encoders.weights import load_pretrained
-from c3f_slam.errors import InputError
 
 RESNETS = {18: models.resnet18, 34: models.resnet34, 50: models.resnet50}
 STANDARD_WIDTH = 64  #: channels of a torchvision ResNet's stem and first stage

@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 DEPTH_ENCODER_PREFIX = "depth_net.encoder."  # DepthNet's depth encoder inside its LightningModule state
 

@@ -17,9 +17,9 @@ import argparse
 import json
 from pathlib import Path
 
+from c3f_core.cli_parser import OneLineParser, run_subcommand
+from c3f_core.errors import InputError
 from c3f_slam import zoo
-from c3f_slam.cli_parser import OneLineParser, run_subcommand
-from c3f_slam.errors import InputError
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import yaml
 
+from c3f_core.errors import InputError
 from c3f_models.zoo.recipes import Recipe, SimSpec
-from c3f_slam.errors import InputError
 
 REPO = Path(__file__).resolve().parents[2]
 CHECKPOINT_EVERY = 250  #: optimiser steps between checkpoints (what an interruption can lose at most)

@@ -18,9 +18,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from c3f_core.errors import InputError
 from c3f_slam.cli_inputs import add_input_options, inputs_from_args, settings_from_args
 from c3f_slam.cli_settings import add_settings_options
-from c3f_slam.errors import InputError
 
 THREADS_HELP = ("onnxruntime threads per model in each worker (default: the worker's share of the cores less one, "
                 "at least 1)")

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 #: files a batch writes into its output folder, never taken for a run folder's name
 RESERVED_NAMES = frozenset({"batch.json", "batch.csv", "index.html"})

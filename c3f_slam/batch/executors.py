@@ -22,8 +22,8 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Protocol
 
+from c3f_core.errors import InputError
 from c3f_slam.batch.job import Job, limit_threads, run_job
-from c3f_slam.errors import InputError
 
 LOCAL = "local"  #: ``--ray local``: start a Ray instance on this machine
 

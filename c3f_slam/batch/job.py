@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from c3f_core.errors import InputError
 from c3f_slam.batch.dataset import BatchItem
-from c3f_slam.errors import InputError
 
 #: the thread pools of the numerical libraries, limited in each worker process
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")

@@ -16,8 +16,8 @@ import math
 from dataclasses import fields
 from pathlib import Path
 
+from c3f_core.atomic import atomic_write_text
 from c3f_slam.batch.job import STATUSES, Row
-from c3f_slam.io.atomic import atomic_write_text
 from c3f_slam.outputs import write_json
 
 JSON_NAME, CSV_NAME, HTML_NAME = "batch.json", "batch.csv", "index.html"

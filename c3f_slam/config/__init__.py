@@ -11,7 +11,7 @@ run reads it (a config file, ``--set part.field=value``, a previous run's summar
 - :mod:`.loading`: a tree from a preset, a YAML / JSON file and ``--set`` overrides, as YAML,
   and the help of every setting.
 
-A leaf of the runtime: it imports only :mod:`c3f_slam.errors` and :mod:`c3f_slam.settings`
+A leaf of the runtime: it imports only :mod:`c3f_core.errors` and :mod:`c3f_core.settings`
 (and PyYAML when a file is read), so every part of the runtime and the layers above can use it.
 """
 

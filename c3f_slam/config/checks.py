@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 
 def check(ok: bool, message: str) -> None:

@@ -19,10 +19,10 @@ from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
+from c3f_core.errors import InputError
+from c3f_core.settings import field_docs, field_types, tree_from_mapping, type_name
 from c3f_slam.config.presets import preset
 from c3f_slam.config.tree import SlamConfig
-from c3f_slam.errors import InputError
-from c3f_slam.settings import field_docs, field_types, tree_from_mapping, type_name
 
 
 @dataclass(frozen=True)

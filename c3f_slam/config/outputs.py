@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from c3f_core.errors import InputError
 from c3f_slam.config.checks import at_least, check
-from c3f_slam.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -21,12 +21,12 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
+from c3f_core.settings import tree_from_mapping
 from c3f_slam.config.checks import check
 from c3f_slam.config.mapping import CandidateConfig, KeyframeConfig, PoseGraphConfig, RefineConfig
 from c3f_slam.config.outputs import CoverageConfig, FusionConfig, TSDFConfig
 from c3f_slam.config.tracking import FallbackConfig, MatchFilterConfig, RejoinConfig
 from c3f_slam.config.tree import PRESET_NAMES, SlamConfig
-from c3f_slam.settings import tree_from_mapping
 
 COLON = SlamConfig()
 

@@ -26,6 +26,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
+from c3f_core.settings import tree_as_mapping, tree_from_mapping
 from c3f_slam.config.checks import at_least, check
 from c3f_slam.config.frames import FramesConfig, TissueConfig
 from c3f_slam.config.mapping import (
@@ -39,7 +40,6 @@ from c3f_slam.config.mapping import (
 from c3f_slam.config.outputs import ChecksConfig, CoverageConfig, FusionConfig
 from c3f_slam.config.smoothing import SmoothingConfig
 from c3f_slam.config.tracking import FallbackConfig, FragmentConfig, FrontendConfig, MatchFilterConfig, RejoinConfig
-from c3f_slam.settings import tree_as_mapping, tree_from_mapping
 
 PRESET_NAMES = ("colon", "room")
 MODES = ("full", "odometry")

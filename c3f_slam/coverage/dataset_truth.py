@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from c3f_core.atomic import atomic_write_text
+from c3f_core.errors import InputError
 from c3f_slam.coverage.centreline import Centreline
-from c3f_slam.errors import InputError
-from c3f_slam.io.atomic import atomic_write_text
 
 FLAGS_FILE = "mesh_observed.txt"
 

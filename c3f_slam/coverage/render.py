@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from c3f_core.atomic import atomic_write
 from c3f_slam.coverage.estimate import CoverageMap
-from c3f_slam.io.atomic import atomic_write
 
 UNSEEN_COLOUR = (0.05, 0.55, 1.0)  #: bright blue: stands out on pink-orange mucosa
 NO_COLOUR = (0.6, 0.6, 0.6)  #: observed cells without a reconstructed colour

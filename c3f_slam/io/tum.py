@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.atomic import atomic_write_text
+from c3f_core.errors import InputError
 from c3f_slam.geometry import make_pose, matrix_to_quaternion, quaternion_to_matrix
-from c3f_slam.io.atomic import atomic_write_text
 
 
 def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 
 @dataclass(frozen=True)

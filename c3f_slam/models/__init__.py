@@ -2,7 +2,7 @@
 
 - :mod:`.metadata`: the schema of the metadata every export carries (:class:`ModelMetadata`);
 - :mod:`.session`: :class:`OnnxModel`, the loader that checks file, metadata and graph and
-  validates feeds (one-line :class:`~c3f_slam.errors.InputError` otherwise);
+  validates feeds (one-line :class:`~c3f_core.errors.InputError` otherwise);
 - :mod:`.grid`: :class:`NetworkView`, frame pixels <-> network pixels (crop + resize);
 - :mod:`.nets`: :class:`DepthModel`, :class:`DescriptorModel`, :class:`PoseModel` on uint8
   RGB frames with their camera (descriptors from a dense-map file or a keypoint file);

@@ -33,7 +33,7 @@ import json
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.preprocess import IMAGENET_MEAN, IMAGENET_STD, SPECULAR_DILATION_PX, SPECULAR_THRESHOLD
 
 SCHEMA_VERSION = 1

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 from c3f_slam.matching.descriptors import sample_descriptor_map
 from c3f_slam.models.grid import UPSAMPLING, NetworkView
 from c3f_slam.models.metadata import ModelMetadata

@@ -3,7 +3,7 @@
 :class:`OnnxModel` is the one loader: it reads the :class:`ModelMetadata` stored in the file,
 checks that the graph's inputs and outputs are the ones the metadata (and the model kind)
 promise, and validates every feed before running. Every problem is an
-:class:`~c3f_slam.errors.InputError` with a one-line message that starts with the
+:class:`~c3f_core.errors.InputError` with a one-line message that starts with the
 command-line option and the file, e.g. ``--depth-model: x.onnx is a descriptors model,
 expected a depth model``.
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.models.metadata import ModelMetadata
 from c3f_slam.zoo import entry as zoo_entry
 from c3f_slam.zoo import is_zoo_name

@@ -15,7 +15,7 @@ import json
 from collections.abc import Sequence
 from pathlib import Path
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.models.metadata import ModelMetadata
 from c3f_slam.models.session import DEFAULT_PROVIDERS, OnnxModel
 from c3f_slam.zoo import sha256_of

@@ -20,9 +20,9 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
 from c3f_slam.config import FrontendConfig, SlamConfig
-from c3f_slam.errors import InputError
 from c3f_slam.geometry import invert_pose, project, transform_points
 from c3f_slam.matching import (
     Keypoints,

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.pipeline.frontend import FrameFeatures
 
 #: the cache folder of a run, inside its output folder

@@ -33,8 +33,8 @@ import numpy as np
 from open3d.geometry import TriangleMesh
 from threadpoolctl import threadpool_limits
 
+from c3f_core.errors import InputError
 from c3f_slam.config import SlamConfig
-from c3f_slam.errors import InputError
 from c3f_slam.frame_quality import QUALITY_CAUSES
 from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
 from c3f_slam.outputs import FrameLog, RunFolder, RunOutputs

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.fusion import write_mesh
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.outputs import RunOutputs, write_json

@@ -11,9 +11,9 @@ import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import FovGuess, PinholeCamera
 from c3f_slam.config import FrameQualityConfig, TissueConfig
-from c3f_slam.errors import InputError
 from c3f_slam.frame_quality import FrameQualityGate
 from c3f_slam.models import DepthModel, DescriptorModel
 from c3f_slam.models.session import DEFAULT_PROVIDERS

@@ -15,10 +15,10 @@ import numpy as np
 import open3d as o3d
 from tqdm import tqdm
 
+from c3f_core.atomic import atomic_write_text
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 from c3f_slam.io import read_tum
-from c3f_slam.io.atomic import atomic_write_text
 from c3f_slam.outputs import RunOutputs
 from c3f_slam.view.budget import PAGE_BUDGET, ViewBudget
 from c3f_slam.view.flythrough import FRAMES, flythrough_frames

@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 
 def can_open_browser() -> bool:

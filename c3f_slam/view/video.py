@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from c3f_slam.io.atomic import atomic_write
+from c3f_core.atomic import atomic_write
 
 FPS = 30.0  #: frames per second of the view's videos
 CRF = 23  #: x264 quality (lower is better and larger)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import inspect
 from pathlib import Path
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from datamodules.formats.base import PublishedSequence, SequenceFormat
 from datamodules.formats.c3vd import C3VDFormat
 from datamodules.formats.colon10k import Colon10KFormat

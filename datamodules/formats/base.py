@@ -7,7 +7,7 @@ the project uses them everywhere (RGB uint8; depth in metres along the optical a
 pinhole intrinsics in pixels. The file-level quirks of each data set (bit depths, scale
 constants, handedness, transposed matrices, numbering) stay inside its module.
 
-Bad files raise :class:`c3f_slam.errors.InputError` with one line that names the file.
+Bad files raise :class:`c3f_core.errors.InputError` with one line that names the file.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 
 MAX_SEARCH_DEPTH = 5  # folder levels searched below SRC for sequences
 _LAST_INT = re.compile(r"(\d+)(?!.*\d)")

@@ -40,7 +40,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from c3f_slam.geometry import is_rotation
 from datamodules.formats.base import (
     PublishedSequence,

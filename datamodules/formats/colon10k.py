@@ -22,8 +22,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 from datamodules.formats.base import PublishedSequence, SequenceFormat, decode_rgb, list_files, numbered
 
 PUBLISHED = PinholeCamera(270, 216, 145.4410, 145.4410, 135.6993, 107.8946)

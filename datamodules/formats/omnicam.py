@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 
 _KEYS = ("width", "height", "cx", "cy", "a0", "a2", "a3", "a4", "c", "d", "e")
 

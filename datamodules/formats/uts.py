@@ -41,8 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_core.errors import InputError
 from c3f_slam.camera import PinholeCamera
-from c3f_slam.errors import InputError
 from datamodules.formats.base import (
     PublishedSequence,
     SequenceFormat,

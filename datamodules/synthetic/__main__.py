@@ -19,8 +19,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from c3f_slam.cli_parser import OneLineParser
-from c3f_slam.errors import InputError
+from c3f_core.cli_parser import OneLineParser
+from c3f_core.errors import InputError
 
 
 def _parser() -> argparse.ArgumentParser:

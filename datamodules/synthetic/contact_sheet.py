@@ -7,9 +7,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.atomic import atomic_write
+from c3f_core.errors import InputError
 from c3f_slam.io import Sequence
-from c3f_slam.io.atomic import atomic_write
 from datamodules.synthetic.generate import read_event_labels
 from datamodules.synthetic.nuisances import read_nuisances
 

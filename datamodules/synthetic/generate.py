@@ -38,8 +38,8 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from c3f_core.atomic import move_into_place, staging_dir
 from c3f_slam.io import SequenceWriter
-from c3f_slam.io.atomic import move_into_place, staging_dir
 from datamodules.synthetic.layouts import layout_writer
 from datamodules.synthetic.nuisances import NuisanceChain
 from datamodules.synthetic.params import (

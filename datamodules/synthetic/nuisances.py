@@ -30,7 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 from datamodules.synthetic.noise import stream
 from datamodules.synthetic.params import BORDERS, NuisanceParams
 

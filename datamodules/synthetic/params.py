@@ -18,8 +18,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from c3f_slam.errors import InputError
-from c3f_slam.settings import convert_value, field_types
+from c3f_core.errors import InputError
+from c3f_core.settings import convert_value, field_types
 
 PATH_KINDS = ("A", "B", "random")
 LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, docs/datasets.md)

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Callable, Mapping
 from typing import NoReturn
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -1,6 +1,6 @@
 """Helpers for settings groups: small frozen dataclasses that validate themselves.
 
-A leaf module (it imports only :mod:`c3f_slam.errors`), so every layer can use it: the runtime
+A leaf module (it imports only :mod:`c3f_core.errors`), so every layer can use it: the runtime
 (:mod:`c3f_slam.config`), the simulator, the data modules (:mod:`datamodules.config`) and the
 LightningModules (:mod:`c3f_models.config`). In a LightningCLI config the groups are nested YAML
 (``model.init_args.optim.lr: 1.0e-4``) or options (``--model.optim.lr 1e-4``); in Python they are
@@ -30,7 +30,7 @@ from dataclasses import asdict, fields, is_dataclass, replace
 from functools import cache
 from typing import Any, TypeVar
 
-from c3f_slam.errors import InputError
+from c3f_core.errors import InputError
 
 Config = TypeVar("Config")
 
