@@ -91,7 +91,7 @@ class ReportConfig:
 
 @dataclass(frozen=True)
 class ZooModels:
-    """The zoo entries the demo starts from (``zoo/NAME``, :mod:`c3f_slam.zoo`): DepthNet (its
+    """The zoo entries the demo starts from (``zoo/NAME``, :mod:`c3f_slam.models.zoo`): DepthNet (its
     weights are test-time trained on the held-out sequence; its ONNX file is the network
     "without TTT") and ContraFeat (its ONNX file as it is)."""
 

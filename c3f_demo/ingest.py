@@ -5,12 +5,12 @@ training data modules and the SLAM runtime read (docs/datasets.md, Sequence layo
 the video, seconds: the runtime's motion prior and jitter ratio work in seconds), ``frames.csv``
 (per frame: its index in the video and its time), ``tissue_mask.png`` named by camera.json's
 ``tissue_mask`` when the video shows a border or overlays, and ``ingest.json`` (what was read and
-how). Frames are read with the runtime's own reader (:class:`c3f_slam.stream.FrameStream`:
+how). Frames are read with the runtime's own reader (:class:`c3f_slam.frames.stream.FrameStream`:
 intrinsics from ``--camera``, the ``--fov`` guess, or ``camera.json`` beside the video; a
 distorted lens is undistorted to a pinhole camera), every k-th (k the smallest that keeps at most
 ``--max-fps`` frames per second of video), at most ``--max-frames`` from the start, resized (area
 interpolation) so that the longer side is at most ``--max-side`` pixels; the intrinsics follow.
-The tissue area is the runtime's (:func:`c3f_slam.tissue.resolve_tissue_mask`: a mask named by
+The tissue area is the runtime's (:func:`c3f_slam.frames.tissue.resolve_tissue_mask`: a mask named by
 the camera file, else found from the first frames). A frame that repeats the previous picture (a
 re-encoded video; the runtime's frame-quality gate says ``duplicate``) is not written: it carries
 nothing, and test-time training would learn from a pair with no motion; ``ingest.json`` counts
@@ -57,11 +57,11 @@ def target_size(width: int, height: int, max_side: int) -> tuple[int, int]:
 
 def open_video(video: str | Path, camera: str | Path | None = None, fov: float | None = None, step: int = 1,
                max_frames: int | None = None):
-    """The runtime's :class:`~c3f_slam.stream.FrameStream` of ``video`` with its intrinsics (``camera``
+    """The runtime's :class:`~c3f_slam.frames.stream.FrameStream` of ``video`` with its intrinsics (``camera``
     file, else the ``fov`` guess, else camera.json beside the video); InputError when the video is
     missing or does not decode, or has no intrinsics."""
-    from c3f_slam.camera import FovGuess
-    from c3f_slam.stream import FrameStream
+    from c3f_slam.camera.intrinsics import FovGuess
+    from c3f_slam.frames.stream import FrameStream
 
     video = Path(video)
     if not video.is_file():
@@ -77,9 +77,9 @@ def ingest(video: str | Path, out: str | Path, camera: str | Path | None = None,
 
     from c3f_core.atomic import move_into_place, staging_dir
     from c3f_slam.config import FrameQualityConfig, TissueConfig
-    from c3f_slam.frame_quality import DUPLICATE, FrameQualityGate
+    from c3f_slam.frames.quality import DUPLICATE, FrameQualityGate
+    from c3f_slam.frames.tissue import resolve_tissue_mask
     from c3f_slam.io.sequence import SequenceWriter
-    from c3f_slam.tissue import resolve_tissue_mask
 
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -127,7 +127,7 @@ def ingest(video: str | Path, out: str | Path, camera: str | Path | None = None,
 
 
 def write_tissue_mask(seq: Path, tissue, size: tuple[int, int]) -> str | None:
-    """The tissue area (a :class:`c3f_slam.tissue.TissueMask` of the source frames) at the
+    """The tissue area (a :class:`c3f_slam.frames.tissue.TissueMask` of the source frames) at the
     sequence's frame ``size`` as ``seq/tissue_mask.png``, named by its camera.json's
     ``tissue_mask``; nothing when it is the whole frame. Returns the file name or None."""
     import cv2

@@ -412,7 +412,7 @@ def _jitter(d: ReportData) -> str:
              _num(r.get("seconds"), 1, 1)]
             for name, r in d.metrics["slam"].items() if r.get("status") == "ok"]
     return ("<p>Jitter ratio: the camera path's length over the length of its 1-s moving average "
-            "(<code>c3f_slam.trajectory_metrics.jitter_ratio</code>, each frame at its time in the video). 1 is a "
+            "(<code>c3f_slam.evaluation.trajectory.jitter_ratio</code>, each frame at its time in the video). 1 is a "
             "smooth path; a scope moves smoothly at this time scale, so a ratio well above 1 is shake of the "
             "estimate (wrong matches, depth that changes scale from frame to frame). It says nothing of drift or "
             "of a wrong scale, which stay smooth.</p>"

@@ -11,7 +11,7 @@ from c3f_demo.context import DemoContext
 from c3f_demo.figures import make_figures
 from c3f_demo.report import build_report
 from c3f_demo.stages import Stage
-from c3f_slam.outputs import write_json
+from c3f_slam.io.run_outputs import write_json
 
 
 def write_report(ctx: DemoContext, done: dict | None = None) -> dict:

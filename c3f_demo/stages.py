@@ -163,8 +163,7 @@ def _depth_model_configs(cfg: DemoConfig) -> list[Path]:
 
 def _zoo_note(kind: str, name: str) -> dict:
     """What the report says of a zoo model: its name, card summary, held-out numbers, training."""
-    from c3f_slam import zoo
-
+    from c3f_slam.models import zoo
     e = zoo.entry(name, "demo")
     card = e.own
     return {"zoo": name, "kind": kind, "summary": e.summary, "metrics": e.metrics,
@@ -202,8 +201,7 @@ class TrainDepth(_ZooOrTrain):
 
     def run(self, ctx, done=None):
         if ctx.cfg.from_zoo:
-            from c3f_slam import zoo
-
+            from c3f_slam.models import zoo
             zoo.entry(ctx.cfg.zoo.depth, "demo").file_for("weights", "demo", kind="depth")  # checked now
             return _zoo_note("depth", ctx.cfg.zoo.depth)
         d = ctx.cfg.depth
@@ -259,8 +257,7 @@ class TestTimeTrain(_Training):
     def _from_zoo(self, ctx: DemoContext) -> dict:
         """From the zoo weights with the paper's objective (``configs/depthnet/paper_objective.yaml``)
         and the zoo entry's model and frame settings."""
-        from c3f_slam import zoo
-
+        from c3f_slam.models import zoo
         t, name = ctx.cfg.ttt, ctx.cfg.zoo.depth
         model_args = {"init_weights": f"zoo:{name}", "optim": {"lr": t.lr}, "pose_warmup_steps": t.pose_warmup_steps}
         data_args = {"loader": {"batch_size": t.batch_size, "num_workers": 0}}
@@ -287,8 +284,7 @@ class TrainFeatures(_ZooOrTrain):
 
     def run(self, ctx, done=None):
         if ctx.cfg.from_zoo:
-            from c3f_slam import zoo
-
+            from c3f_slam.models import zoo
             zoo.entry(ctx.cfg.zoo.features, "demo").file_for("descriptors", "demo")  # checked now
             return _zoo_note("descriptors", ctx.cfg.zoo.features)
         f = ctx.cfg.features
@@ -356,7 +352,7 @@ class Export(Stage):
         """The zoo's ONNX files as they are (``depthnet_pretrained``, ``contrafeat``) and, after
         test-time training, the tuned DepthNet exported with the zoo model's recorded metric scale
         (nothing is measured on the held-out sequence's true depth)."""
-        from c3f_slam import zoo
+        from c3f_slam.models import zoo
         from c3f_slam.models.nets import DepthModel
 
         depth = zoo.entry(ctx.cfg.zoo.depth, "demo")

@@ -108,11 +108,11 @@ class View(Stage):
 
 
 def jitter(run: Path) -> dict:
-    """The trajectory's jitter ratio (:func:`c3f_slam.trajectory_metrics.jitter_ratio`: path length
+    """The trajectory's jitter ratio (:func:`c3f_slam.evaluation.trajectory.jitter_ratio`: path length
     over the length of its 1-s moving average; 1 = smooth) and path length (metres, the run's own
     scale); the run's timestamps are the frames' times in the video (the sequence's times.txt)."""
+    from c3f_slam.evaluation.trajectory import jitter_ratio, path_length
     from c3f_slam.io import read_tum
-    from c3f_slam.trajectory_metrics import jitter_ratio, path_length
 
     stamps, poses = read_tum(run / "trajectory.txt")
     positions = poses[:, :3, 3]

@@ -26,7 +26,7 @@ from c3f_models.depth.networks import DepthNetwork, PoseNetwork
 from c3f_models.depth.objective import LossConfig, LossTerms, SelfSupervisedLoss, compose_triplet_poses
 from c3f_models.depth.visual import colorize_depth, mask_to_rgb, panel
 from c3f_models.module_base import C3FModule
-from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
+from c3f_slam.evaluation.depth import METRIC_NAMES, depth_metrics
 from export.graphs import OPSET, OPSET_DEFORM, GraphSpec, has_deform_conv
 
 # the defaults of DepthNet's groups (frozen, so one instance serves every module)

@@ -12,7 +12,7 @@ from c3f_core.errors import InputError
 from c3f_core.settings import settings_as_dicts
 from c3f_models.checkpoints import load_weights, read_checkpoint_weights
 from c3f_models.config import ADAM_BETAS, OptimConfig
-from c3f_slam import zoo
+from c3f_slam.models import zoo
 
 INIT_WEIGHTS_OPTION = "model.init_weights"
 
@@ -33,7 +33,7 @@ class C3FModule(L.LightningModule):
 
     #: appended to the error when ``init_weights`` does not fit (which options decide the shapes)
     weights_hint: str = ""
-    #: the kind of zoo entry whose weights fit this module (:mod:`c3f_slam.zoo`)
+    #: the kind of zoo entry whose weights fit this module (:mod:`c3f_slam.models.zoo`)
     zoo_kind: str = ""
     #: state-dict key prefixes every checkpoint of this module has (they tell the kinds apart)
     checkpoint_prefixes: tuple[str, ...] = ()

@@ -1,17 +1,18 @@
-"""c3f_slam: the torch-free core and SLAM runtime of C3Fusion (it never imports torch).
+"""c3f_slam: the torch-free SLAM runtime of C3Fusion (it never imports torch).
 
-- shared by every package: ``camera`` (pinhole model), ``geometry`` (rigid-body maths in
-  NumPy; poses camera-to-world, metres), ``io`` (the project's sequence layout, TUM
-  trajectories, atomic writes), ``errors`` (``InputError``: bad user input, one line);
-- the runtime's parts: ``stream`` (frames of a folder or video), ``preprocess``, ``models``
-  (ONNX files and their metadata), ``matching`` (SIFT, matching, the match filter),
-  ``posegraph`` (pose graphs with line-process pruning), ``frustum``, ``fusion`` (TSDF),
-  ``outputs`` (the run folder's files);
-- ``pipeline``: the SLAM run itself (settings, sources, back-ends, run loop, evaluation);
-- measuring a run: ``trajectory_metrics`` (ATE, RPE, frame motion), ``trajectory_plot``,
-  ``depth_metrics`` (the seven depth metrics, median scaling; NumPy or torch tensors),
-  ``surface_metrics`` (coverage of the true surface);
-- ``cli``: ``python -m c3f_slam run | evaluate | inspect``.
+Grouped by job (the shared kernel, ``errors``/``settings``/``atomic``, is :mod:`c3f_core`):
+
+- ``geometry`` (rigid-body maths in NumPy; poses camera-to-world, metres), ``camera``
+  (intrinsics, lens models, calibration, frustum), ``io`` (the sequence layout, TUM
+  trajectories, the run folder's files, the SimCol3D writer), shared with training;
+- ``frames``: the stream of frames, the quality gate, the tissue area, pre-processing;
+- ``models`` (ONNX sessions, their metadata, the zoo), ``matching`` (SIFT, matching, the match
+  filter), ``posegraph`` (pose graphs with line-process pruning), ``fusion`` (TSDF),
+  ``coverage`` (the unseen wall);
+- ``config``: the settings tree; ``pipeline``: the SLAM run itself (sources, front-end,
+  back-end, run loop, evaluation); ``batch``: many runs; ``view``: the 3D view and videos;
+- ``evaluation``: measuring a run (trajectory, depth and surface metrics, plots);
+- ``cli``: ``python -m c3f_slam run | batch | evaluate | inspect | view | calibrate | simcol3d``.
 """
 
 __version__ = "0.1.0"

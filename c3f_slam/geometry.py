@@ -243,7 +243,7 @@ def motion_magnitudes(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def relative_motion(poses: np.ndarray, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Per pair of camera-to-world poses (i, i + ``delta``): the camera's translation (m) and
     rotation (degrees) between them, (N - delta,) each;
-    :func:`c3f_slam.trajectory_metrics.frame_motion` summarises them."""
+    :func:`c3f_slam.evaluation.trajectory.frame_motion` summarises them."""
     P = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
     if delta < 1:
         raise ValueError(f"delta must be >= 1, got {delta}")

@@ -44,9 +44,9 @@ from torch.utils.data import DataLoader, Dataset
 
 from c3f_core.errors import InputError
 from c3f_core.settings import as_config, settings_as_dicts
-from c3f_slam.camera import PinholeCamera
-from c3f_slam.preprocess import center_crop_resize, on_grid, prepare_network_input
-from c3f_slam.tissue import camera_mask_file, read_mask_png
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.frames.preprocess import center_crop_resize, on_grid, prepare_network_input
+from c3f_slam.frames.tissue import camera_mask_file, read_mask_png
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.formats import SequenceFormat, find_sequences
 from datamodules.resumable import ResumableLoader, ResumableSampler

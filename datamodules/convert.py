@@ -134,7 +134,7 @@ def write_sequence(seq: PublishedSequence, dst: Path, progress: bool = True) -> 
 def _write_mesh(path: Path, vertices: np.ndarray, triangles: np.ndarray) -> None:
     import open3d as o3d
 
-    from c3f_slam.fusion import write_mesh
+    from c3f_slam.fusion.tsdf import write_mesh
 
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
     write_mesh(mesh, path)

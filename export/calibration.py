@@ -18,9 +18,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from c3f_slam.depth_metrics import median_scale
+from c3f_slam.evaluation.depth import median_scale
+from c3f_slam.frames.preprocess import center_crop_resize
 from c3f_slam.models.metadata import Preprocessing
-from c3f_slam.preprocess import center_crop_resize
 from export.frames import evenly_spaced, frames_from_source
 
 

@@ -8,9 +8,9 @@ import numpy as np
 import torch
 
 from c3f_core.errors import InputError
+from c3f_slam.frames.preprocess import prepare_network_input
 from c3f_slam.io import Sequence
 from c3f_slam.models.metadata import Preprocessing
-from c3f_slam.preprocess import prepare_network_input
 
 
 def evenly_spaced(n: int, count: int) -> np.ndarray:
@@ -21,7 +21,7 @@ def evenly_spaced(n: int, count: int) -> np.ndarray:
 def frames_from_source(source, pre: Preprocessing, count: int = 4) -> torch.Tensor:
     """(count, 3, h, w) float32 RGB in [0, 1]: ``count`` evenly spaced frames of a sequence
     (anything with ``camera``, ``len`` and ``read_rgb``), through
-    :func:`c3f_slam.preprocess.prepare_network_input` with ``pre``'s crop/size/inpainting."""
+    :func:`c3f_slam.frames.preprocess.prepare_network_input` with ``pre``'s crop/size/inpainting."""
     n = len(source)
     if n == 0:
         raise InputError(f"{getattr(source, 'name', source)}: the sequence has no frames")

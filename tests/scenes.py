@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io import SequenceWriter
 from datamodules.synthetic.noise import blob_texture as plane_texture
 

@@ -415,7 +415,7 @@ def test_zoo_ablation_from_a_self_supervised_start(tmp_path, monkeypatch):
     objectives then start from its checkpoint, and a changed start (another hash) is not read
     back from a finished pair."""
     from benchmarks.protocols import zoo
-    from c3f_slam.zoo import sha256_of
+    from c3f_slam.models.zoo import sha256_of
 
     fits: list[tuple] = []
 

@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 from c3f_core.errors import InputError
-from c3f_slam.calibration import Undistortion, board_points, find_corners
-from c3f_slam.camera import FovGuess, PinholeCamera
-from c3f_slam.cli import main
+from c3f_slam.camera.calibration import Undistortion, board_points, find_corners
+from c3f_slam.camera.intrinsics import FovGuess, PinholeCamera
+from c3f_slam.cli.main import main
+from c3f_slam.frames.stream import FrameStream
 from c3f_slam.io import SequenceWriter
-from c3f_slam.stream import FrameStream
 from tests import onnx_fixtures as fx
 
 W, H = 640, 480

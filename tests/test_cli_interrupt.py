@@ -111,7 +111,7 @@ def test_datamodules_convert_interrupted(tmp_path, monkeypatch, capsys):
     (["inspect", "MODEL"], "c3f_slam.models.OnnxModel"),
 ])
 def test_slam_cli_interrupted(argv, target, tmp_path, monkeypatch, capsys):
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
 
     monkeypatch.setattr(target, _interrupt)
     assert main([str(tmp_path / a) if a.isupper() else a for a in argv]) == 130

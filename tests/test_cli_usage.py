@@ -3,7 +3,7 @@
 import pytest
 
 from c3f_models.cli import main as models_main
-from c3f_slam.cli import main as slam_main
+from c3f_slam.cli.main import main as slam_main
 from datamodules.__main__ import main as data_main
 from datamodules.synthetic.__main__ import main as sim_main
 

@@ -84,7 +84,7 @@ def test_cli_list(published, capsys):
 
 
 def test_slam_and_evaluate_run_on_a_converted_sequence(published, tmp_path):
-    from c3f_slam.cli import main as slam
+    from c3f_slam.cli.main import main as slam
 
     _, root = published("simcol3d")
     convert("simcol3d", root, tmp_path / "conv", progress=False, report=lambda line: None)

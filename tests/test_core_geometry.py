@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 
 from c3f_core.errors import InputError
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 
 
 def test_axis_angle_quarter_turn_about_z():

@@ -10,7 +10,7 @@ from numpy.testing import assert_allclose
 from c3f_core.atomic import atomic_write
 from c3f_core.errors import InputError
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io import Sequence, SequenceWriter, read_tum, write_tum
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.coverage import CoverageConfig, ViewSettings, centreline_from_path, compute_coverage
 from c3f_slam.geometry import transport_frames
@@ -105,7 +105,7 @@ def sim_sequence(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def coverage_run(sim_sequence, tmp_path_factory):
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
 
     out = tmp_path_factory.mktemp("coverage_run") / "out"
     assert main(["run", str(sim_sequence), "--out", str(out), "--set", "coverage.segment=0.01", *RUN]) == 0
@@ -142,7 +142,7 @@ def test_run_writes_coverage_outputs(coverage_run):
 def test_no_coverage_and_bad_segment(sim_sequence, tmp_path, capsys):
     import json
 
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
 
     out = tmp_path / "off"
     assert main(["run", str(sim_sequence), "--out", str(out), "--set", "coverage.enabled=false", *RUN]) == 0
@@ -160,7 +160,7 @@ def test_no_coverage_and_bad_segment(sim_sequence, tmp_path, capsys):
 def test_no_mesh_says_why(sim_sequence, tmp_path):
     import json
 
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
 
     out = tmp_path / "nomesh"
     assert main(["run", str(sim_sequence), "--out", str(out), "--set", "fusion.enabled=false", *RUN]) == 0
@@ -172,7 +172,7 @@ def test_no_mesh_says_why(sim_sequence, tmp_path):
 def test_evaluate_reports_estimate_vs_truth(coverage_run, sim_sequence, capsys):
     import json
 
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
 
     capsys.readouterr()
     assert main(["evaluate", str(coverage_run), "--gt", str(sim_sequence)]) == 0
@@ -207,7 +207,7 @@ def test_evaluate_reports_the_data_sets_own_flags(coverage_run, sim_sequence, tm
 
     import open3d as o3d
 
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
     from c3f_slam.coverage.dataset_truth import FLAGS_FILE, write_observed_flags
 
     gt = shutil.copytree(sim_sequence, tmp_path / "gt")
@@ -225,7 +225,7 @@ def test_evaluate_reports_the_data_sets_own_flags(coverage_run, sim_sequence, tm
 def test_malformed_dataset_flags_are_one_line_errors(coverage_run, sim_sequence, tmp_path, capsys):
     import shutil
 
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
     from c3f_slam.coverage.dataset_truth import FLAGS_FILE
 
     gt = shutil.copytree(sim_sequence, tmp_path / "gt")

@@ -8,8 +8,8 @@ from numpy.testing import assert_allclose
 
 from c3f_core.errors import InputError
 from c3f_slam import geometry as g
+from c3f_slam.frames.preprocess import specular_mask
 from c3f_slam.io import Sequence
-from c3f_slam.preprocess import specular_mask
 from datamodules.base import FrameTupleDataset, split_names
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig, TupleSamplingConfig
 from datamodules.sequence import C3FSequenceDataModule

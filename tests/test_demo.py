@@ -84,7 +84,7 @@ def test_report_writer_on_fake_inputs():
 def test_report_embeds_the_3d_view_and_videos(tmp_path):
     """The report with a real run's 3D view and an embedded video: one file with nothing to fetch;
     in headless Chromium with the network off it draws, every layer toggles, the video decodes."""
-    from c3f_slam.cli import main as slam_main
+    from c3f_slam.cli.main import main as slam_main
     from c3f_slam.view.budget import REPORT_BUDGET
     from c3f_slam.view.page import view_data
     from c3f_slam.view.scene import run_layers
@@ -383,7 +383,7 @@ def test_quick_demo_end_to_end(quick_demo):
               "figures/depth_samples.png"):
         assert (out / f).is_file(), f
     if from_zoo:  # the zoo's files as they are, the tuned network with the zoo model's metric scale
-        from c3f_slam import zoo
+        from c3f_slam.models import zoo
         from c3f_slam.models.nets import DepthModel
 
         entry = zoo.entry(demo_cfg.ZooModels().depth)

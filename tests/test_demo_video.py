@@ -25,7 +25,7 @@ from c3f_demo.ingest import frame_step, ingest, read_times, target_size
 from c3f_demo.report import SECTIONS, VIDEO_SECTIONS, build_report
 from c3f_demo.report_records import Figures, Image, ReportData
 from c3f_demo.video import frame_counts
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 
 ROOT = Path(__file__).resolve().parents[1]
 #: sections of the simulator demo that need its ground truth
@@ -88,8 +88,8 @@ def test_ingest_drops_repeats_keeps_video_times_and_records_the_tissue_area(tiny
     keeps its time in the video (times.txt: what the runtime's motion prior and jitter ratio read),
     and the scope's border is found once and named by camera.json, where the runtime and the
     training data modules read it."""
+    from c3f_slam.frames.tissue import camera_mask_file, read_mask_png
     from c3f_slam.io import Sequence
-    from c3f_slam.tissue import camera_mask_file, read_mask_png
 
     cap, frames = cv2.VideoCapture(str(tiny_video)), []
     while (ok_frame := cap.read())[0]:

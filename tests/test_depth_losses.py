@@ -15,7 +15,7 @@ from c3f_models.depth.objective import (
 )
 from c3f_models.geometry import invert_pose, pose_from_axis_angle, warp
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from tests.scenes import plane_texture, render_plane
 
 SIZE = 64

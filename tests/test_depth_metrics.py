@@ -1,4 +1,4 @@
-"""Depth metrics (c3f_slam.depth_metrics.depth_metrics) against values computed by hand."""
+"""Depth metrics (c3f_slam.evaluation.depth.depth_metrics) against values computed by hand."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
+from c3f_slam.evaluation.depth import METRIC_NAMES, depth_metrics
 
 GT = np.array([[0.01, 0.02], [0.04, 0.05]])  # metres
 PRED = np.array([[0.01, 0.01], [0.052, 0.05]])

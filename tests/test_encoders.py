@@ -169,7 +169,7 @@ def _fit_and_export(model: str, data: Path, root: Path, graphs: str, *extra: str
 @pytest.mark.e2e
 def test_mobilenet_fits_exports_and_runs_in_the_runtime(sim_dataset, tiny_sequence, tmp_path, monkeypatch):
     """Both models with MobileNetV3-Small from the YAML override: fit, export (parity checked), SLAM."""
-    from c3f_slam.cli import main as slam
+    from c3f_slam.cli.main import main as slam
 
     monkeypatch.setattr(sys, "argv", ["c3f_models"])
     depth_dir = _fit_and_export("depthnet", sim_dataset, tmp_path / "depth", "[depth, pose]")

@@ -18,9 +18,9 @@ from c3f_models import ContraFeat, DepthNet
 from c3f_models.cli import main
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.depth.config import DepthNetworkConfig
+from c3f_slam.frames.preprocess import prepare_network_input
 from c3f_slam.io import Sequence
 from c3f_slam.models.metadata import SCHEMA_VERSION, ModelMetadata
-from c3f_slam.preprocess import prepare_network_input
 from export import ParityError, export_model
 from export import exporter as exporter_mod
 
@@ -378,9 +378,9 @@ def test_export_records_the_metric_scale_of_the_training_data(depth_export):
     sequences of the recorded data settings; the SLAM runtime uses it by default."""
     import cv2
 
+    from c3f_slam.frames.preprocess import center_crop_resize
     from c3f_slam.models import DepthModel
     from c3f_slam.pipeline.frontend import ModelDepth
-    from c3f_slam.preprocess import center_crop_resize
     from datamodules.sequence import C3FSequenceDataModule
 
     _, out = depth_export

@@ -17,7 +17,7 @@ from c3f_models import ContraFeat, DepthNet
 from c3f_models.cli import main
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.depth.config import DepthNetworkConfig
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io import Sequence
 from c3f_slam.models import DepthModel, DescriptorModel
 from export import ParityError, export_model

@@ -1,4 +1,4 @@
-"""The frame-quality gate (c3f_slam.frame_quality) on synthetic frames made here: a smooth random
+"""The frame-quality gate (c3f_slam.frames.quality) on synthetic frames made here: a smooth random
 texture with lines and rings, seen through a 256 px window that slides about a pixel per frame.
 Each cause is put into one frame of such a sequence and must be the frame's status; the sharp
 frames around it, also JPEG-compressed or noisy, must all pass."""
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from c3f_core.errors import InputError
-from c3f_slam.frame_quality import (
+from c3f_slam.frames.quality import (
     BLURRED,
     COVERED,
     DARK,

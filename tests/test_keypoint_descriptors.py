@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
-from c3f_slam.cli import main
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.cli.main import main
 from c3f_slam.matching import Keypoints, sample_descriptor_map
 from c3f_slam.models import DescriptorModel, ModelMetadata, OnnxModel
+from c3f_slam.models.zoo import sha256_of
 from c3f_slam.pipeline.frontend import ContraFeatDescriptors
-from c3f_slam.zoo import sha256_of
 from tests import onnx_fixtures as fx
 
 # An 80x72 frame, centre crop 64x64 at (8, 4), network 32x32 (as tests/test_slam_models.py).

@@ -7,7 +7,7 @@ import pytest
 
 from c3f_core.errors import InputError
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.config import PREDICTED_DEPTH_RESIDUAL_SHARE, PRESETS, SlamConfig
 from c3f_slam.matching import (
     MatchFilterConfig,

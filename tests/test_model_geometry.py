@@ -8,7 +8,7 @@ from torch.testing import assert_close
 
 from c3f_models import geometry as tg
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from tests.scenes import plane_texture, render_plane
 
 TOL = dict(atol=1e-5, rtol=1e-5)

@@ -12,7 +12,7 @@ import onnxruntime as ort
 import pytest
 
 from c3f_core.errors import InputError
-from c3f_slam.cli import main
+from c3f_slam.cli.main import main
 from c3f_slam.models import OnnxModel
 from c3f_slam.models.session import check_providers
 from tests import onnx_fixtures as fx

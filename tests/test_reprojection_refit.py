@@ -103,7 +103,7 @@ def seq(tmp_path_factory):
 def test_a_run_with_the_refit_moves_its_poses_a_little(seq, tmp_path, baseline):
     """Wired into both back-ends: with the refit on, the trajectory of the same frames changes
     (so the refit ran) and stays close to the 3D fit's on exact depth; the setting is recorded."""
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
 
     trajectories = {}
     for refit in (False, True):

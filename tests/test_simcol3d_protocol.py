@@ -1,4 +1,4 @@
-"""The SimCol3D challenge's metrics and submission files (c3f_slam.simcol3d) and the
+"""The SimCol3D challenge's metrics and submission files (c3f_slam.io.simcol3d) and the
 ``python -m c3f_slam simcol3d`` command."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from c3f_core.errors import InputError
-from c3f_slam import simcol3d as sc
-from c3f_slam.cli import main
+from c3f_slam.cli.main import main
 from c3f_slam.geometry import axis_angle_to_matrix, make_pose
 from c3f_slam.io import Sequence
+from c3f_slam.io import simcol3d as sc
 from c3f_slam.io.tum import write_tum
 from datamodules.formats import simcol3d as simcol_format
 from tests import onnx_fixtures as fx

@@ -15,10 +15,10 @@ import pytest
 
 from c3f_core.errors import InputError
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.frames.preprocess import specular_mask
 from c3f_slam.geometry import relative_motion
 from c3f_slam.io import Sequence
-from c3f_slam.preprocess import specular_mask
 from datamodules.synthetic import generate_sequence, get_preset, make_tiny_sequence, tiny_params
 from datamodules.synthetic.__main__ import main as cli_main
 from datamodules.synthetic.camera_path import plan_path

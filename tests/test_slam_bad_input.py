@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import pytest
 
-from c3f_slam.cli import main as slam_main
+from c3f_slam.cli.main import main as slam_main
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE
 from c3f_slam.pipeline.keyframe_store import DATA_FILE as KEYFRAME_DATA
 from datamodules.__main__ import main as data_main

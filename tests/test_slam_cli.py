@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from c3f_slam.cli import main
-from c3f_slam.cli_settings import REMOVED
+from c3f_slam.cli.main import main
+from c3f_slam.cli.settings_options import REMOVED
 from datamodules.synthetic.fixture import make_tiny_sequence
 from tests.startup import packages_loaded_by
 

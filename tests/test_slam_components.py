@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from c3f_slam import geometry as g
-from c3f_slam.cli import main
+from c3f_slam.cli.main import main
 from c3f_slam.config import ComponentConfig
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.io import Sequence, SequenceWriter, read_tum
-from c3f_slam.outputs import RunOutputs
+from c3f_slam.io.run_outputs import RunOutputs
 from c3f_slam.pipeline import SlamConfig, run_slam
 from c3f_slam.pipeline.components import MapComponent, plan_components
 from c3f_slam.pipeline.frame_step import FrameInput

@@ -12,7 +12,7 @@ import yaml
 
 from c3f_core.errors import InputError
 from c3f_core.settings import field_docs
-from c3f_slam.cli import main
+from c3f_slam.cli.main import main
 from c3f_slam.config import PRESETS, SlamConfig, config_from_dict, preset
 from c3f_slam.config.loading import config_yaml, read_config_file, resolve_config
 from datamodules.synthetic.fixture import make_tiny_sequence

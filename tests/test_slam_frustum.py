@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
-from c3f_slam.frustum import frustum_overlap, grid_pixels
+from c3f_slam.camera.frustum import frustum_overlap, grid_pixels
+from c3f_slam.camera.intrinsics import PinholeCamera
 
 CAM = PinholeCamera.from_fov(64, 48, 90.0)
 PLANE = 0.05  # metres: the plane z = 5 cm, fronto-parallel to the first camera

@@ -13,10 +13,10 @@ import open3d as o3d
 import pytest
 
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.config import PRESETS, TSDFConfig
-from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
-from c3f_slam.surface_metrics import coverage_mesh, distance_to_mesh, sample_surface, surface_coverage
+from c3f_slam.evaluation.surface import coverage_mesh, distance_to_mesh, sample_surface, surface_coverage
+from c3f_slam.fusion.tsdf import FragmentFusion, TSDFVolume, write_mesh
 from tests.scenes import plane_texture, render_plane
 
 RADIUS = 0.02

@@ -227,7 +227,7 @@ def test_cli_loop_edge_cap_option(tiny_sequence, tmp_path, capsys):
     a negative value is one error line naming the setting."""
     import json
 
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
 
     for n, (args, expect) in enumerate(((["--set", "keyframes.max_loop_edges=3"], 3),
                                         (["--set", "keyframes.max_loop_edges=none"], None), ([], 8))):
@@ -244,7 +244,7 @@ def test_cli_loop_edge_cap_option(tiny_sequence, tmp_path, capsys):
 
 
 def test_block_rows_grow_and_read_back_exactly():
-    from c3f_slam.blocks import BlockRows
+    from c3f_slam.posegraph.blocks import BlockRows
 
     rows = BlockRows((3,), np.float32, block_rows=8, capacity=2)
     data = np.random.default_rng(0).normal(size=(21, 3)).astype(np.float32)

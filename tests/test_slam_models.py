@@ -18,15 +18,15 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
-from c3f_slam.cli import main
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.cli.main import main
 from c3f_slam.config import PREDICTED_DEPTH_RESIDUAL_SHARE
+from c3f_slam.frames.preprocess import prepare_network_input
+from c3f_slam.frames.stream import StreamFrame
 from c3f_slam.models import DepthModel, DescriptorModel, ModelMetadata, OnnxModel, PoseModel
 from c3f_slam.pipeline.frontend import ModelDepth
 from c3f_slam.pipeline.fusion_frames import CACHE_DIR, PredictedFrames
 from c3f_slam.pipeline.sources import resolve_sources
-from c3f_slam.preprocess import prepare_network_input
-from c3f_slam.stream import StreamFrame
 from tests import onnx_fixtures as fx
 from tests.test_import_boundary import BLOCK_TORCH
 
@@ -194,7 +194,7 @@ def test_pose_predict(tmp_path):
 LOAD_WITHOUT_TORCH = r"""
 import sys
 import numpy as np
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.models import DepthModel
 cam = PinholeCamera(80, 72, 60.0, 60.0, 39.5, 35.5)
 depth = DepthModel(sys.argv[1]).predict(np.full((72, 80, 3), 51, np.uint8), cam)

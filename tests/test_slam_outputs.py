@@ -9,7 +9,7 @@ import pytest
 
 from c3f_slam import geometry as g
 from c3f_slam.io import read_tum
-from c3f_slam.outputs import KeyframeGraph, RunOutputs, to_jsonable, write_trajectory
+from c3f_slam.io.run_outputs import KeyframeGraph, RunOutputs, to_jsonable, write_trajectory
 from c3f_slam.posegraph import PoseGraph
 
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -14,10 +14,10 @@ import pytest
 
 from c3f_core.errors import InputError
 from c3f_slam.config import preset as slam_preset
+from c3f_slam.frames.stream import OK, StreamFrame
 from c3f_slam.pipeline import run_slam
 from c3f_slam.pipeline.perception import PerceivedFrame, Prefetcher
 from c3f_slam.pipeline.sources import RunInputs
-from c3f_slam.stream import OK, StreamFrame
 from datamodules.synthetic.fixture import make_tiny_sequence
 from tests import onnx_fixtures as fx
 

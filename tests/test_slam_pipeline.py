@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from c3f_core.errors import InputError
+from c3f_slam.camera.frustum import frustum_overlap
 from c3f_slam.config import preset as slam_preset
-from c3f_slam.frustum import frustum_overlap
+from c3f_slam.evaluation.trajectory import evaluate_trajectory
 from c3f_slam.geometry import make_pose
 from c3f_slam.io import Sequence, read_tum, write_tum
 from c3f_slam.matching import MatchFilterConfig
@@ -22,7 +23,6 @@ from c3f_slam.pipeline.frame_step import KINDS
 from c3f_slam.pipeline.frontend import FrameFeatures, PairMatch, explain_match, match_frames
 from c3f_slam.pipeline.odometry import OdometrySlam
 from c3f_slam.pipeline.slam import FragmentSlam
-from c3f_slam.trajectory_metrics import evaluate_trajectory
 from datamodules.synthetic.fixture import make_tiny_sequence
 
 FRAMES, SIZE_PX = 36, 128

@@ -8,9 +8,9 @@ import pytest
 
 from c3f_core.errors import InputError
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
-from c3f_slam.cli import _parser
-from c3f_slam.cli_inputs import settings_from_args as _settings
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.cli.inputs import settings_from_args as _settings
+from c3f_slam.cli.main import _parser
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.pipeline import RunInputs, run_slam
 from c3f_slam.pipeline.fallback import RgbdFrame

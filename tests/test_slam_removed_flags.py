@@ -7,9 +7,9 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from c3f_slam.cli import _parser, main
-from c3f_slam.cli_inputs import settings_from_args
-from c3f_slam.cli_settings import REMOVED, removed_message
+from c3f_slam.cli.inputs import settings_from_args
+from c3f_slam.cli.main import _parser, main
+from c3f_slam.cli.settings_options import REMOVED, removed_message
 from c3f_slam.config import PAPER_RULES, config_from_dict, preset
 
 #: every former alias (the --no-X of a switch too)

@@ -145,7 +145,7 @@ def test_attached_revisit_merges_a_lone_component():
 
 @pytest.mark.parametrize("reuse", [False, True])
 def test_reuse_switch_in_config_and_cli(reuse, tiny_sequence, tmp_path):
-    from c3f_slam.cli import main
+    from c3f_slam.cli.main import main
 
     out = tmp_path / f"out_{reuse}"
     args = ["run", str(tiny_sequence), "--depth-source", "files", "--descriptors", "sift", "--out", str(out),

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from c3f_slam.cli import main
+from c3f_slam.cli.main import main
 from c3f_slam.pipeline.slam import FragmentSlam
 
 RUN = ["--set", "frames.max_frames=6", "--set", "fragments.min_correspondences=15", "--quiet"]

@@ -10,6 +10,7 @@ import pytest
 from c3f_core.errors import InputError
 from c3f_slam.config import SlamConfig
 from c3f_slam.config.smoothing import PREDICTED_DEPTH_MOTION_PRIOR_S, SmoothingConfig
+from c3f_slam.evaluation.trajectory import jitter_ratio
 from c3f_slam.geometry import axis_angle_to_matrix, invert_pose, make_pose
 from c3f_slam.pipeline.fragment_map import FragmentMap, blend_poses
 from c3f_slam.pipeline.frame_step import FrameInput
@@ -18,7 +19,6 @@ from c3f_slam.pipeline.keyframe_edges import KeyframeEdge
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.pipeline.smoothing import path_pieces, smooth_poses
 from c3f_slam.posegraph import EdgeKind
-from c3f_slam.trajectory_metrics import jitter_ratio
 
 K = np.array([[40.0, 0, 31.5], [0, 40.0, 31.5], [0, 0, 1]])
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
-from c3f_slam.stream import FrameStream, frame_status, open_stream
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.frames.stream import FrameStream, frame_status, open_stream
 from tests.scenes import plane_sequence, plane_texture
 
 W, H, FPS = 32, 24, 25.0
@@ -69,7 +69,7 @@ def test_sequence_folder(tmp_path):
 
 
 def test_folder_is_read_lazily(tmp_path, monkeypatch):
-    import c3f_slam.stream as stream_module
+    import c3f_slam.frames.stream as stream_module
 
     root = plane_sequence(tmp_path / "plane", frames=6, size=24)
     stream = FrameStream(root)

@@ -9,8 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from c3f_slam import geometry as g
-from c3f_slam.geometry import relative_motion
-from c3f_slam.trajectory_metrics import (
+from c3f_slam.evaluation.trajectory import (
     ErrorStats,
     apply_sim3,
     associate,
@@ -23,7 +22,8 @@ from c3f_slam.trajectory_metrics import (
     rpe,
     umeyama,
 )
-from c3f_slam.trajectory_plot import plot_trajectories
+from c3f_slam.evaluation.trajectory_plot import plot_trajectories
+from c3f_slam.geometry import relative_motion
 
 
 def _trajectory(n: int = 60, seed: int = 0) -> np.ndarray:

@@ -14,19 +14,19 @@ import pytest
 
 from c3f_core.errors import InputError
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
-from c3f_slam.cli import main
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.cli.main import main
 from c3f_slam.config import TissueConfig
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.coverage.visibility import ViewSettings, in_view
+from c3f_slam.frames.preprocess import fill_outside, on_grid, prepare_network_input
+from c3f_slam.frames.stream import StreamFrame
+from c3f_slam.frames.tissue import detect_tissue_mask, read_mask_png
 from c3f_slam.io import Sequence
 from c3f_slam.io.sequence import encode_depth, read_depth_png
 from c3f_slam.models import DepthModel
 from c3f_slam.pipeline import run_slam
 from c3f_slam.pipeline.frontend import ModelDepth
-from c3f_slam.preprocess import fill_outside, on_grid, prepare_network_input
-from c3f_slam.stream import StreamFrame
-from c3f_slam.tissue import detect_tissue_mask, read_mask_png
 from datamodules.synthetic.fixture import make_tiny_sequence
 from tests.onnx_fixtures import depth_model
 from tests.scenes import plane_texture, render_plane

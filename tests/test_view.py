@@ -16,7 +16,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from c3f_slam.cli import main
+from c3f_slam.cli.main import main
 from c3f_slam.coverage.render import UNSEEN_COLOUR
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.io.sequence import read_depth_png
@@ -73,7 +73,7 @@ def test_scaled_intrinsics_keep_pixel_centres():
 def test_render_depth_of_a_tube_from_its_axis():
     """On the axis of a tube of radius 2.5 cm (open ends), looking along it: each pixel sees the
     wall at depth R / tan(angle off the axis), or nothing when that is beyond the tube's end."""
-    from c3f_slam.camera import PinholeCamera
+    from c3f_slam.camera.intrinsics import PinholeCamera
     from c3f_slam.geometry import look_at
 
     cam = PinholeCamera.from_fov(32, 32, 60.0)
@@ -116,7 +116,7 @@ def test_frusta_and_smoothed_path():
 
 def test_unregistered_frames_say_so(evaluated):
     """A frame without a pose gets a grey panel with text, a registered one a render."""
-    from c3f_slam.stream import open_stream
+    from c3f_slam.frames.stream import open_stream
 
     seq, out = evaluated
     stamps, poses = read_tum(out / "trajectory.txt")
@@ -134,7 +134,7 @@ def test_unregistered_frames_say_so(evaluated):
 def test_the_rerender_shows_the_reconstruction_inside_the_tissue_area_only(evaluated):
     """With the run's tissue area (a scope's octagon, say), the reconstruction panel is black
     outside it and the same render inside it."""
-    from c3f_slam.stream import open_stream
+    from c3f_slam.frames.stream import open_stream
 
     seq, out = evaluated
     stamps, poses = read_tum(out / "trajectory.txt")

@@ -13,8 +13,8 @@ import yaml
 from onnx import TensorProto, helper, numpy_helper
 
 from c3f_core.errors import InputError
-from c3f_slam import zoo
-from c3f_slam.cli import main as slam_main
+from c3f_slam.cli.main import main as slam_main
+from c3f_slam.models import zoo
 from c3f_slam.models.nets import DepthModel
 from c3f_slam.models.session import OnnxModel
 from datamodules.synthetic.fixture import make_tiny_sequence

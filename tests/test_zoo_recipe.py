@@ -15,7 +15,7 @@ import yaml
 from c3f_models.zoo.card import headline
 from c3f_models.zoo.cli import main as zoo_main
 from c3f_models.zoo.recipes import RECIPES, quick
-from c3f_slam import zoo
+from c3f_slam.models import zoo
 
 pytestmark = [pytest.mark.e2e, pytest.mark.long]  # every test here runs the project's commands end to end, for minutes
 

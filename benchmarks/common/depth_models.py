@@ -11,7 +11,7 @@ import numpy as np
 
 from c3f_slam.io import Sequence
 from c3f_slam.models import DepthModel
-from c3f_slam.zoo import resolve
+from c3f_slam.models.zoo import resolve
 
 
 def add_depth_study_arguments(ap: argparse.ArgumentParser, every: int, report: Path, needs: str) -> None:

@@ -11,15 +11,15 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from benchmarks.common import ROOT
+from c3f_slam.evaluation.trajectory import evaluate_trajectory
 from c3f_slam.io import Sequence as SequenceFolder
 from c3f_slam.io import read_tum
-from c3f_slam.trajectory_metrics import evaluate_trajectory
 
 
 def run_and_score(cmd: Sequence[str], out: Path, seq: Path, label: str, cwd: Path = ROOT,
                   env: Mapping[str, str] | None = None) -> tuple[dict, dict]:
     """Run ``cmd`` (a run command writing the run folder ``out``) in ``cwd``; its summary.json and
-    :func:`c3f_slam.trajectory_metrics.evaluate_trajectory` of its trajectory against ``seq``'s
+    :func:`c3f_slam.evaluation.trajectory.evaluate_trajectory` of its trajectory against ``seq``'s
     poses (lengths in metres). SystemExit naming ``label`` when the command fails."""
     proc = subprocess.run(list(cmd), cwd=cwd, env=dict(env) if env is not None else None, capture_output=True,
                           text=True)

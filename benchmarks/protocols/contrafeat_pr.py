@@ -54,8 +54,8 @@ PAPER = {  # paper table 2, averages of three synthetic sequences (recall / prec
 
 def median_motion(seqs: list[Path]) -> str:
     """Median ground-truth motion between consecutive frames over sequences, for the report."""
+    from c3f_slam.evaluation.trajectory import frame_motion
     from c3f_slam.io import Sequence
-    from c3f_slam.trajectory_metrics import frame_motion
 
     steps = [frame_motion(Sequence(s).poses) for s in seqs]
     t = sorted(m.trans.median for m in steps)[len(steps) // 2]

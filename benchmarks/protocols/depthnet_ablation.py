@@ -54,8 +54,8 @@ def motion_per_frame(data: Path, names: list[str]) -> dict[str, float]:
     rotation (degrees), translation (mm) and translation / the sequence's median depth."""
     import numpy as np
 
+    from c3f_slam.evaluation.trajectory import frame_motion
     from c3f_slam.io.sequence import Sequence
-    from c3f_slam.trajectory_metrics import frame_motion
 
     rot, trans, rel = [], [], []
     for name in names:
@@ -116,7 +116,7 @@ def constant_depth_metrics(data: Path, test: list[str], size: int) -> dict:
     """
     import torch
 
-    from c3f_slam.depth_metrics import depth_metrics
+    from c3f_slam.evaluation.depth import depth_metrics
     from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
     from datamodules.sequence import C3FSequenceDataModule
 

@@ -196,8 +196,8 @@ def slam_runs(args: argparse.Namespace, seq: Path) -> dict[str, list[dict]]:
 
 def _frame(seq: Path) -> np.ndarray:
     """The sequence's middle frame as the depth network's (1, 3, 128, 128) input."""
+    from c3f_slam.frames.preprocess import prepare_network_input
     from c3f_slam.io import Sequence
-    from c3f_slam.preprocess import prepare_network_input
 
     s = Sequence(seq)
     rgb, _, _ = prepare_network_input(s.read_rgb(len(s) // 2), s.camera, None, (128, 128), True)

@@ -16,7 +16,7 @@ defaults) and ``after`` (this checkout, its defaults). Every run is
 Per run: the registered share (of all frames, and of the usable ones: not skipped); the share of
 mesh vertices that are near black (luma < 20 of 255:
 the border fused as surface; beside it, the share of the tissue pixels of the frames that dark);
-the jitter ratio (:func:`c3f_slam.trajectory_metrics.jitter_ratio`; for the simulator also the true
+the jitter ratio (:func:`c3f_slam.evaluation.trajectory.jitter_ratio`; for the simulator also the true
 path's); ATE as % of the path (simulator); the run's checks without ground truth (after only);
 frames/s (one run each, 2 cores: compare within a case only).
 
@@ -41,10 +41,10 @@ from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.common.slam_run import run_kept
 from c3f_slam.config import FrameQualityConfig
-from c3f_slam.frame_quality import FrameQualityGate
+from c3f_slam.evaluation.trajectory import evaluate_trajectory, jitter_ratio
+from c3f_slam.frames.preprocess import fill_outside, on_grid
+from c3f_slam.frames.quality import FrameQualityGate
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.preprocess import fill_outside, on_grid
-from c3f_slam.trajectory_metrics import evaluate_trajectory, jitter_ratio
 
 DARK_LUMA = 20.0  #: a vertex or pixel darker than this (0..255) is near black
 MODELS = ["--depth-model", "zoo:c3f-depth-r18w32", "--feature-model", "zoo:c3f-features-r18w32"]

@@ -50,10 +50,10 @@ from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.common.slam_run import run_kept
 from c3f_models.zoo.recipes import at_pace
+from c3f_slam.evaluation.surface import distance_to_mesh
+from c3f_slam.evaluation.trajectory import associate, ate, evaluate_trajectory, jitter_ratio
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.io.sequence import encode_depth, read_depth_png
-from c3f_slam.surface_metrics import distance_to_mesh
-from c3f_slam.trajectory_metrics import associate, ate, evaluate_trajectory, jitter_ratio
 
 FEATURES = ["--feature-model", "zoo:c3f-features-r18w32"]
 DEPTH_MODEL = ["--depth-model", "zoo:c3f-depth-r18w32"]

@@ -40,9 +40,9 @@ from benchmarks.common import RESULTS, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_slam.config import preset as slam_preset
+from c3f_slam.evaluation.trajectory import common_frames_ate, evaluate_trajectory, frame_motion
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.pipeline import RunInputs, run_slam
-from c3f_slam.trajectory_metrics import common_frames_ate, evaluate_trajectory, frame_motion
 from datamodules.synthetic.generate import read_event_labels
 
 

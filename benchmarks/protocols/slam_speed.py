@@ -136,7 +136,7 @@ def dense_only(feat: str | Path, work: Path) -> str | Path:
     find the export's keypoint graph beside it (a zoo name as it is: the zoo has no keypoint graph)."""
     if str(feat).startswith("zoo:"):
         return feat
-    from c3f_slam.zoo import sha256_of
+    from c3f_slam.models.zoo import sha256_of
 
     alone = work / "dense_only" / sha256_of(feat)[:16] / Path(feat).name  # one folder per file content
     if not alone.is_file():

@@ -36,8 +36,8 @@ import numpy as np
 from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from c3f_slam.evaluation.trajectory import evaluate_trajectory
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.trajectory_metrics import evaluate_trajectory
 from datamodules.synthetic.generate import read_event_labels
 
 PAPER_FRAMES = 4500  #: frames of the paper's sequences over the whole colon

@@ -6,7 +6,7 @@ and B of the zoo's training data and C of none) and is run as a user would run a
     python -m c3f_slam run SEQ --depth-model zoo:c3f-depth-r18w32 --feature-model zoo:c3f-features-r18w32
 
 Per run: the share of frames in the main map, ATE (Sim(3)) as % of the true path and its scale,
-the jitter ratio against the true path's (:func:`c3f_slam.trajectory_metrics.jitter_ratio`), and
+the jitter ratio against the true path's (:func:`c3f_slam.evaluation.trajectory.jitter_ratio`), and
 whether the run keeps >= 95 % of its frames in one map with ATE <= 2 % of the path. The pace is
 the motion per frame in units of the paper's (1.25 m of colon over 4,500 frames: 0.28 mm per
 frame at 30 frames/s); the zoo was trained at 1.6 times it.
@@ -28,8 +28,8 @@ from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.common.slam_run import run_kept
 from c3f_models.zoo.recipes import at_pace
+from c3f_slam.evaluation.trajectory import evaluate_trajectory, jitter_ratio
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.trajectory_metrics import evaluate_trajectory, jitter_ratio
 
 MODELS = ["--depth-model", "zoo:c3f-depth-r18w32", "--feature-model", "zoo:c3f-features-r18w32"]
 PRESETS = ("seq1", "seq2", "seq3", "seq4", "seq5")

@@ -99,8 +99,7 @@ def matches_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
 
     from c3f_models.contrafeat_module import ContraFeat
     from c3f_models.zoo.evaluate import descriptor_heldout
-    from c3f_slam import zoo
-
+    from c3f_slam.models import zoo
     entry = zoo.entry(a.features, "--features")
     cfg = yaml.safe_load((entry.folder / "config.yaml").read_text())["model"]["init_args"]
     model = ContraFeat(**{k: v for k, v in cfg.items() if k != "init_weights"})
@@ -165,8 +164,7 @@ def tune_and_export(model: str, config: Path, seq: Path, run: Path, steps: int, 
 
 def ttt_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     from c3f_models.zoo.evaluate import depth_heldout
-    from c3f_slam import zoo
-
+    from c3f_slam.models import zoo
     entry = zoo.entry(a.depth, "--depth")
     out = {"steps": a.ttt_steps}
     for name in TTT_SEQUENCES:
@@ -218,8 +216,7 @@ def _ablation_pairs(a: argparse.Namespace, seqs: list[Path], train: list[Path], 
 
 def ablation_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     """From the zoo weights (trained with a supervised term, so near the simulator's optimum)."""
-    from c3f_slam import zoo
-
+    from c3f_slam.models import zoo
     entry = zoo.entry(a.depth, "--depth")
     train = _ablation_train(a)
     return {"steps": a.ablation_steps, "seeds": list(a.ablation_seeds), "train": [p.name for p in train],
@@ -232,8 +229,7 @@ def ablation_selfsup_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     sequences), a network that predicts structure without having seen true depth; then both
     objectives as in :func:`ablation_section`. The paper starts from ImageNet weights, which
     this checkpoint stands in for (nothing is downloaded)."""
-    from c3f_slam import zoo
-
+    from c3f_slam.models import zoo
     entry = zoo.entry(a.depth, "--depth")
     train = _ablation_train(a)
     run = a.work / "ablation_selfsup" / "start"

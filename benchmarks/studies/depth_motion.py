@@ -16,7 +16,7 @@ there: the true depth agrees within 5 %), and for each such surface point it com
   ``|t| ratio`` = |t_est| / |t_true| (median over pairs) and ``cos`` between t_est and t_true
   (median); the same fit on the true depth is the control (ratio 1, cos 1);
 - the per-frame scale of the prediction, s_t = median(P_t) / median(z_t) (the inverse of
-  :func:`c3f_slam.depth_metrics.median_scale`, the exporter's metric scale): its spread over the
+  :func:`c3f_slam.evaluation.depth.median_scale`, the exporter's metric scale): its spread over the
   sequence (CV) and its median change between the frames of a pair, |log(s_{t+gap} / s_t)|,
   next to the true median |d_true|. A scale that jumps by more than the true depth change
   swamps the motion.
@@ -37,7 +37,7 @@ import numpy as np
 
 from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
-from c3f_slam.depth_metrics import median_scale
+from c3f_slam.evaluation.depth import median_scale
 from c3f_slam.geometry import backproject_pixels, relative_pose
 from c3f_slam.io import Sequence
 from c3f_slam.matching.ground_truth import project_keypoints

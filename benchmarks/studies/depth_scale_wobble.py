@@ -83,7 +83,7 @@ def oracle_slam(seq_dir: Path, depth_model: str, feature_model: str, out: Path, 
     """``c3f_slam run`` of ``seq_dir`` into ``out`` (in this process), with ``oracle`` the depth
     network's output multiplied, frame by frame, by the frame's true scale k, the frame
     recognised by its network input."""
-    from c3f_slam.cli import main as slam_main
+    from c3f_slam.cli.main import main as slam_main
     from c3f_slam.models import nets
 
     run = ["run", str(seq_dir), "--depth-model", depth_model, "--feature-model", feature_model, "--quiet",

@@ -80,9 +80,9 @@ def export(base_config: Path, ckpt: Path, out: Path) -> Path:
 
 def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
     from c3f_slam.config import preset as slam_preset
+    from c3f_slam.evaluation.trajectory import evaluate_trajectory
     from c3f_slam.io import Sequence, read_tum
     from c3f_slam.pipeline import RunInputs, run_slam
-    from c3f_slam.trajectory_metrics import evaluate_trajectory
 
     cfg = slam_preset("colon", fragments={"min_correspondences": min_corr}, fusion={"enabled": False})
     try:
@@ -97,8 +97,8 @@ def slam(sequence: Path, depth_model: Path, out: Path, min_corr: int) -> dict:
 
 def common_ate(sequence: Path, runs: dict) -> tuple[dict, int]:
     """ATE Sim(3) RMSE (m) of each run over the frames both registered, and their number."""
+    from c3f_slam.evaluation.trajectory import common_frames_ate
     from c3f_slam.io import Sequence, read_tum
-    from c3f_slam.trajectory_metrics import common_frames_ate
 
     if any("error" in r for r in runs.values()):
         return {}, 0
@@ -155,8 +155,8 @@ def report_body(a: argparse.Namespace, before: dict, after: dict, fit_s: float,
                 runs: dict) -> tuple[list[str], dict]:
     """Set-up bullets, the depth metrics before / after and the SLAM table (lengths in cm); also
     the ATE (m) of each run on the frames both registered."""
+    from c3f_slam.evaluation.trajectory import frame_motion
     from c3f_slam.io import Sequence
-    from c3f_slam.trajectory_metrics import frame_motion
 
     shared, n_shared = common_ate(a.sequence, runs)
     seq = Sequence(a.sequence)

@@ -25,9 +25,9 @@ from benchmarks.common import RESULTS
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_slam.config import preset as slam_preset
+from c3f_slam.evaluation.trajectory import evaluate_trajectory
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.pipeline import RunInputs, run_slam
-from c3f_slam.trajectory_metrics import evaluate_trajectory
 from datamodules.synthetic.room import room_sequence
 
 

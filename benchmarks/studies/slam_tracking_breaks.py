@@ -31,11 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common.report import Report
+from c3f_slam.frames.stream import FrameStream
 from c3f_slam.geometry import relative_motion
 from c3f_slam.io import Sequence, read_tum
 from c3f_slam.pipeline import SlamConfig
 from c3f_slam.pipeline.frontend import Frontend, SiftDescriptors, explain_match, guided_matcher
-from c3f_slam.stream import FrameStream
 from datamodules.synthetic.generate import read_event_labels
 
 

@@ -48,8 +48,7 @@ VARIANTS = {
 
 def variant(key: str, seq: Path, work: Path) -> dict:
     from c3f_models.zoo.evaluate import depth_heldout
-    from c3f_slam import zoo
-
+    from c3f_slam.models import zoo
     entry = zoo.entry(MODEL, "--model")
     run = work / "runs" / key / seq.name
     checkpoints = tune_and_export(MODEL, entry.folder / "config.yaml", seq, run, STEPS, tuple(VARIANTS[key][1]))
@@ -68,7 +67,7 @@ def objective_at_truth(seq: Path, triplets: int = 48) -> dict:
 
     from c3f_models.depth.objective import compose_triplet_poses
     from c3f_models.depthnet import DepthNet
-    from c3f_slam import zoo
+    from c3f_slam.models import zoo
     from datamodules.sequence import C3FSequenceDataModule
 
     entry = zoo.entry(MODEL, "--model")

@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from c3f_core.errors import InputError
-from c3f_slam.preprocess import IMAGENET_MEAN, IMAGENET_STD
+from c3f_slam.frames.preprocess import IMAGENET_MEAN, IMAGENET_STD
 
 #: the strides (input pixels per feature pixel) of the 5 maps, finest first
 STRIDES = (2, 4, 8, 16, 32)

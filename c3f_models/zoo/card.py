@@ -1,7 +1,7 @@
 """The model card of a zoo entry (``zoo/NAME/README.md``), Hugging Face's convention: YAML front
 matter (licence, data, ``model-index`` metrics) and then the text. The project's own
 machine-readable part sits under ``c3fusion`` (kind, files with their SHA-256, training, the
-held-out numbers); :mod:`c3f_slam.zoo` reads it back. Every number comes from the recipe run's
+held-out numbers); :mod:`c3f_slam.models.zoo` reads it back. Every number comes from the recipe run's
 ``recipe.json`` and ``evaluation.json``; nothing is typed in by hand.
 """
 
@@ -162,7 +162,7 @@ def body(recipe: Recipe, state: dict, step: int, files: dict, results: dict, hel
                   "is median(true) / median(predicted x the recorded metric scale): 1 means metric depth with no "
                   f"ground-truth scaling (recorded scale: {results['depth']['metric_scale_in_model']}).", "",
                   "SimCol3D challenge protocol (one least-squares scale per sequence, as its evaluation code; "
-                  "`c3f_slam.simcol3d`), mean over the sequences: "
+                  "`c3f_slam.io.simcol3d`), mean over the sequences: "
                   + ", ".join(f"{name} {results['depth']['simcol3d'][k]:.3f}" for k, name in SIMCOL3D.items())
                   + ".", ""]
     lines += [*_storage_lines(recipe, results), "## Deviations from the paper", "",
@@ -192,9 +192,8 @@ def summary_numbers(metrics: dict) -> str:
 
 def write_index(root: Path) -> Path:
     """``ROOT/README.md``: the zoo's table of entries (name, kind, summary, headline numbers),
-    made from the cards (:mod:`c3f_slam.zoo`) each time an entry is packaged."""
-    from c3f_slam import zoo
-
+    made from the cards (:mod:`c3f_slam.models.zoo`) each time an entry is packaged."""
+    from c3f_slam.models import zoo
     lines = ["# The C3Fusion model zoo", "",
              "Trained models the project ships, each made by one command (`python -m c3f_models zoo train NAME`) "
              "and described by its model card (`NAME/README.md`: data, training, held-out numbers, deviations "

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from c3f_core.cli_parser import OneLineParser, run_subcommand
 from c3f_core.errors import InputError
-from c3f_slam import zoo
+from c3f_slam.models import zoo
 
 
 def _parser() -> argparse.ArgumentParser:

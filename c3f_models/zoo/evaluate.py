@@ -6,7 +6,7 @@
   ground truth; per sequence its scale ratio (median over frames of median(true) /
   median(predicted)) and scale error |ratio - 1|; and the SimCol3D challenge's depth metrics
   (one least-squares scale per sequence; L1 and RMSE in cm, relative error in %,
-  :mod:`c3f_slam.simcol3d`).
+  :mod:`c3f_slam.io.simcol3d`).
 - descriptors (the shipped weights in the LightningModule's test step): recall and precision
   of SIFT, SIFT+kpf, ContraFeat and ContraFeat+kpf matches on frame pairs at the given gaps.
 
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from c3f_slam.depth_metrics import METRIC_NAMES, depth_metrics
+from c3f_slam.evaluation.depth import METRIC_NAMES, depth_metrics
 from c3f_slam.io import Sequence
+from c3f_slam.io.simcol3d import depth_metrics_per_trajectory, mean_over_trajectories
 from c3f_slam.models.nets import DepthModel
-from c3f_slam.simcol3d import depth_metrics_per_trajectory, mean_over_trajectories
 
 #: frame pairs of the descriptor evaluation: gaps (frames) and every STRIDE-th pair of each
 MATCH_GAPS, MATCH_STRIDE = (2, 4, 8), 3

@@ -27,7 +27,7 @@ from c3f_models.zoo.card import write_card, write_index
 from c3f_models.zoo.evaluate import depth_heldout, descriptor_heldout
 from c3f_models.zoo.recipes import Recipe, SimSpec
 from c3f_models.zoo.train import REPO, RecipeRun, newest_checkpoint, simulate
-from c3f_slam.zoo import sha256_of
+from c3f_slam.models.zoo import sha256_of
 
 ONNX_FILE = {"depth": "depthnet.onnx", "pose": "posenet.onnx", "descriptors": "contrafeat.onnx"}
 WEIGHTS = "weights.safetensors"

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from c3f_core.errors import InputError
-from c3f_slam.cli_inputs import add_input_options, inputs_from_args, settings_from_args
-from c3f_slam.cli_settings import add_settings_options
+from c3f_slam.cli.inputs import add_input_options, inputs_from_args, settings_from_args
+from c3f_slam.cli.settings_options import add_settings_options
 
 THREADS_HELP = ("onnxruntime threads per model in each worker (default: the worker's share of the cores less one, "
                 "at least 1)")

@@ -1,7 +1,7 @@
 """The sequences of a batch: a folder of converted sequences or videos, or a list file.
 
 A folder: each sub-folder (not hidden) is a sequence folder and each video file in it a video
-(``c3f_slam.stream.VIDEO_SUFFIXES``), in name order. A list file (any other file): one sequence
+(``c3f_slam.frames.stream.VIDEO_SUFFIXES``), in name order. A list file (any other file): one sequence
 folder or video per line, relative to the list file's folder unless absolute; blank lines and
 ``#`` comments are ignored. An entry that does not exist stays in the batch: its run fails with
 its own one-line error, the others go on. Each sequence gets a run folder name, unique in the
@@ -28,7 +28,7 @@ class BatchItem:
 
 
 def _video_suffixes() -> tuple[str, ...]:
-    from c3f_slam.stream import VIDEO_SUFFIXES  # OpenCV: only once a batch runs
+    from c3f_slam.frames.stream import VIDEO_SUFFIXES  # OpenCV: only once a batch runs
 
     return VIDEO_SUFFIXES
 

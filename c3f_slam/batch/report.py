@@ -18,7 +18,7 @@ from pathlib import Path
 
 from c3f_core.atomic import atomic_write_text
 from c3f_slam.batch.job import STATUSES, Row
-from c3f_slam.outputs import write_json
+from c3f_slam.io.run_outputs import write_json
 
 JSON_NAME, CSV_NAME, HTML_NAME = "batch.json", "batch.csv", "index.html"
 COLUMNS = tuple(f.name for f in fields(Row))

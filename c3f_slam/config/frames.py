@@ -1,6 +1,6 @@
 """Settings of the input frames: which are read (:class:`FramesConfig`), which carry nothing
-(:class:`FrameQualityConfig`, :mod:`c3f_slam.frame_quality`) and which part of each shows tissue
-(:class:`TissueConfig`, :mod:`c3f_slam.tissue`). Each group checks its own fields."""
+(:class:`FrameQualityConfig`, :mod:`c3f_slam.frames.quality`) and which part of each shows tissue
+(:class:`TissueConfig`, :mod:`c3f_slam.frames.tissue`). Each group checks its own fields."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ class FrameQualityConfig:
     min_reference: int = 5
     #: sharpness / reference below this: blurred. Sharpness is the detail of the finest octave
     #: over the next one's, in the direction that has the least
-    #: (:func:`c3f_slam.frame_quality._sharpness`), so it hardly depends on the amount of texture:
+    #: (:func:`c3f_slam.frames.quality._sharpness`), so it hardly depends on the amount of texture:
     #: sharp frames of six simulated sequences gave ratios of 0.72-1.77 and a real phantom clip
     #: >= 0.89, a Gaussian blur of 1.5 thumbnail px 0.18-0.30 (on the 446-px phantom frames that
     #: is a blur of about 4.5 px; 1.5 px there passes)
@@ -136,7 +136,7 @@ TISSUE_MODES = ("auto", "off")
 
 @dataclass(frozen=True)
 class TissueConfig:
-    """The image area that shows tissue (:mod:`c3f_slam.tissue`): the scope's black border and
+    """The image area that shows tissue (:mod:`c3f_slam.frames.tissue`): the scope's black border and
     burned-in overlays are left out of depth, keypoints, fusion and the unseen-wall estimate.
     Luma levels are 0..255."""
 

@@ -33,7 +33,7 @@ class TSDFConfig:
 
 @dataclass(frozen=True)
 class FusionConfig:
-    """TSDF fusion of the map with its final poses (:class:`c3f_slam.fusion.FragmentFusion`)."""
+    """TSDF fusion of the map with its final poses (:class:`c3f_slam.fusion.tsdf.FragmentFusion`)."""
 
     enabled: bool = True  #: fuse a mesh (and so estimate the unseen wall)
     tsdf: TSDFConfig = field(default_factory=TSDFConfig)  #: the volume

@@ -106,7 +106,7 @@ def settings_dict(cfg: CoverageConfig, view: ViewSettings, K: np.ndarray) -> dic
 
 def settings_from_dict(d: dict, mask: np.ndarray | None = None) -> tuple[CoverageConfig, ViewSettings, np.ndarray]:
     """Inverse of :func:`settings_dict`; ``mask``: the observing pixels of the images tested
-    (a run with a tissue mask records its share; :func:`c3f_slam.tissue.coverage_grid_mask`)."""
+    (a run with a tissue mask records its share; :func:`c3f_slam.frames.tissue.coverage_grid_mask`)."""
     names = {f.name for f in fields(CoverageConfig)}
     cfg = CoverageConfig(**{k: v for k, v in d.items() if k in names})
     w, h = d["image_size"]

@@ -21,7 +21,7 @@ from c3f_slam.geometry import invert_pose, project, transform_points
 class ViewSettings:
     """Image size (pixels), depth range (metres, along z) and occlusion tolerance
     (``tol`` + ``tol_rel`` x distance, metres) of the visibility test; ``mask`` (height, width)
-    bool: the pixels that observe (the tissue area, :mod:`c3f_slam.tissue`; None: all)."""
+    bool: the pixels that observe (the tissue area, :mod:`c3f_slam.frames.tissue`; None: all)."""
 
     width: int
     height: int

@@ -25,7 +25,7 @@ import numpy as np
 
 from c3f_core.atomic import atomic_write, atomic_write_text
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io.tum import read_tum, write_tum
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")

@@ -1,6 +1,6 @@
 """How a frame maps onto a network's pixel grid (centre crop, then resize).
 
-Pixel convention (as :mod:`c3f_slam.camera`): integer coordinates are pixel centres. A frame
+Pixel convention (as :mod:`c3f_slam.camera.intrinsics`): integer coordinates are pixel centres. A frame
 pixel x inside the crop box [x0, x0 + crop_w) lands at network pixel
 ``x_net = (x - x0 + 0.5) * net_w / crop_w - 0.5`` (same for y); this is the mapping of
 ``cv2.resize`` (half-pixel centres) and of :meth:`PinholeCamera.resize`.
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 
 UPSAMPLING = {"linear": cv2.INTER_LINEAR, "nearest": cv2.INTER_NEAREST_EXACT}
 

@@ -7,7 +7,7 @@ this module is the one definition of the schema. Every field is stored under its
 Conventions recorded here and relied on by the runtime:
 
 - Inputs are NCHW float32 RGB in [0, 1] at ``preprocessing.size`` (width, height), after the
-  training pre-processing (:func:`c3f_slam.preprocess.prepare_network_input`: centre crop,
+  training pre-processing (:func:`c3f_slam.frames.preprocess.prepare_network_input`: centre crop,
   resize, specular inpainting). ImageNet normalisation is inside the graph
   (``preprocessing.normalization_in_graph``); the mean/std are recorded for reference.
 - ``depth`` models output depth in metres (B, 1, H, W); the sigmoid disparity -> depth
@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from c3f_core.errors import InputError
-from c3f_slam.preprocess import IMAGENET_MEAN, IMAGENET_STD, SPECULAR_DILATION_PX, SPECULAR_THRESHOLD
+from c3f_slam.frames.preprocess import IMAGENET_MEAN, IMAGENET_STD, SPECULAR_DILATION_PX, SPECULAR_THRESHOLD
 
 SCHEMA_VERSION = 1
 KINDS = ("depth", "pose", "descriptors")

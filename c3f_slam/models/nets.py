@@ -1,9 +1,9 @@
 """DepthNet, ContraFeat and PoseNet ONNX exports on video frames (no torch).
 
 Each class opens its file with :class:`OnnxModel` (checking the kind) and runs the training
-pre-processing of the metadata (:func:`c3f_slam.preprocess.prepare_network_input`: centre
+pre-processing of the metadata (:func:`c3f_slam.frames.preprocess.prepare_network_input`: centre
 crop, resize, specular inpainting) on (H, W, 3) uint8 RGB frames with their
-:class:`~c3f_slam.camera.PinholeCamera`. Two levels of API:
+:class:`~c3f_slam.camera.intrinsics.PinholeCamera`. Two levels of API:
 
 - ``*_batch`` methods take network inputs, (B, 3, h, w) float32 RGB in [0, 1] (see
   :meth:`FrameModel.prepare`), and return the network-grid outputs;
@@ -22,14 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.frames.preprocess import prepare_network_input
 from c3f_slam.matching.descriptors import sample_descriptor_map
 from c3f_slam.models.grid import UPSAMPLING, NetworkView
 from c3f_slam.models.metadata import ModelMetadata
 from c3f_slam.models.session import DEFAULT_PROVIDERS, OnnxModel
 from c3f_slam.models.variants import keypoint_file_beside
-from c3f_slam.preprocess import prepare_network_input
-from c3f_slam.zoo import is_zoo_name
+from c3f_slam.models.zoo import is_zoo_name
 
 #: The command-line option that names each kind's file (prefix of error messages).
 OPTIONS = {"depth": "--depth-model", "descriptors": "--feature-model", "pose": "--pose-model"}

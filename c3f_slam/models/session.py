@@ -26,8 +26,8 @@ import numpy as np
 
 from c3f_core.errors import InputError
 from c3f_slam.models.metadata import ModelMetadata
-from c3f_slam.zoo import entry as zoo_entry
-from c3f_slam.zoo import is_zoo_name
+from c3f_slam.models.zoo import entry as zoo_entry
+from c3f_slam.models.zoo import is_zoo_name
 
 #: (input names, output name) of the graph, per model kind.
 GRAPH_IO: dict[str, tuple[tuple[str, ...], str]] = {
@@ -87,7 +87,7 @@ class OnnxModel:
 
     Args:
         path: the .onnx file, or ``zoo:NAME`` for the zoo entry's file of ``expect_kind`` (its
-            SHA-256 checked against the card; :mod:`c3f_slam.zoo`).
+            SHA-256 checked against the card; :mod:`c3f_slam.models.zoo`).
         expect_kind: ``depth``, ``descriptors`` or ``pose``; another kind is an InputError.
         threads: onnxruntime intra-op threads.
         option: the command-line option that named the file (prefix of every error message;

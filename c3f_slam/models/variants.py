@@ -18,7 +18,7 @@ from pathlib import Path
 from c3f_core.errors import InputError
 from c3f_slam.models.metadata import ModelMetadata
 from c3f_slam.models.session import DEFAULT_PROVIDERS, OnnxModel
-from c3f_slam.zoo import sha256_of
+from c3f_slam.models.zoo import sha256_of
 
 #: the manifest an export writes beside its files
 MANIFEST = "export.json"

@@ -18,7 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from c3f_slam.config import SlamConfig
-from c3f_slam.outputs import KeyframeGraph
+from c3f_slam.io.run_outputs import KeyframeGraph
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.frame_step import FrameDecision, FrameInput
 from c3f_slam.pipeline.timings import Timings

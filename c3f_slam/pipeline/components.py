@@ -22,9 +22,9 @@ import numpy as np
 from open3d.geometry import TriangleMesh
 
 from c3f_slam.config import ComponentConfig
-from c3f_slam.fusion import write_mesh
-from c3f_slam.outputs import RunOutputs
-from c3f_slam.trajectory_metrics import path_length
+from c3f_slam.evaluation.trajectory import path_length
+from c3f_slam.fusion.tsdf import write_mesh
+from c3f_slam.io.run_outputs import RunOutputs
 
 
 @dataclass

@@ -24,10 +24,10 @@ import open3d as o3d
 from c3f_slam.coverage import CoverageMap, CoverageUnavailable, compute_coverage, settings_from_dict
 from c3f_slam.coverage.dataset_truth import FLAGS_FILE, dataset_unseen, read_observed_flags
 from c3f_slam.coverage.render import draw_coverage_map
+from c3f_slam.evaluation.trajectory import associate
+from c3f_slam.frames.tissue import read_mask_png
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.outputs import RunOutputs
-from c3f_slam.tissue import read_mask_png
-from c3f_slam.trajectory_metrics import associate
+from c3f_slam.io.run_outputs import RunOutputs
 
 TRUTH_MAP = "coverage_map_truth.png"
 

@@ -22,7 +22,7 @@ import time
 import numpy as np
 from open3d.geometry import TriangleMesh
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.config import SlamConfig
 from c3f_slam.coverage import (
     CoverageConfig,
@@ -33,12 +33,12 @@ from c3f_slam.coverage import (
     settings_dict,
 )
 from c3f_slam.coverage.render import draw_coverage_map, unseen_mesh
-from c3f_slam.fusion import write_mesh
-from c3f_slam.outputs import RunOutputs, write_json
+from c3f_slam.frames.tissue import TissueMask
+from c3f_slam.fusion.tsdf import write_mesh
+from c3f_slam.io.run_outputs import RunOutputs, write_json
 from c3f_slam.pipeline.backend import SlamMap
 from c3f_slam.pipeline.frontend import ModelDepth
 from c3f_slam.pipeline.sources import RunSources
-from c3f_slam.tissue import TissueMask
 
 
 def fusion_camera(sources: RunSources) -> PinholeCamera:

@@ -28,7 +28,7 @@ from scipy.spatial.transform import Rotation
 
 from c3f_slam.config import SlamConfig
 from c3f_slam.geometry import invert_pose
-from c3f_slam.outputs import KeyframeGraph
+from c3f_slam.io.run_outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.fragments import Fragment

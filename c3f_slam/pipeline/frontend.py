@@ -21,8 +21,10 @@ import cv2
 import numpy as np
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.config import FrontendConfig, SlamConfig
+from c3f_slam.frames.preprocess import SPECULAR_DILATION_PX, on_grid, specular_mask
+from c3f_slam.frames.stream import StreamFrame
 from c3f_slam.geometry import invert_pose, project, transform_points
 from c3f_slam.matching import (
     Keypoints,
@@ -35,8 +37,6 @@ from c3f_slam.matching import (
 )
 from c3f_slam.matching.reprojection import refine_by_reprojection
 from c3f_slam.models import DepthModel, DescriptorModel, NetworkView
-from c3f_slam.preprocess import SPECULAR_DILATION_PX, on_grid, specular_mask
-from c3f_slam.stream import StreamFrame
 
 
 class DescriptorProvider(Protocol):
@@ -86,7 +86,7 @@ class ContraFeatDescriptors:
 
     def __init__(self, model: DescriptorModel, camera: PinholeCamera, tissue: np.ndarray | None = None) -> None:
         """``tissue``: (H, W) bool tissue area of the frames (None: the whole frame); the network
-        sees the border filled from the tissue (:func:`c3f_slam.preprocess.prepare_network_input`)."""
+        sees the border filled from the tissue (:func:`c3f_slam.frames.preprocess.prepare_network_input`)."""
         self.model = model
         self.camera = camera
         self.tissue = tissue

@@ -1,6 +1,6 @@
 """Where fusion gets a processed frame's RGB and depth back (frames are never kept in memory).
 
-:class:`c3f_slam.fusion.FragmentFusion` re-reads the frames of the fragments it fuses at the
+:class:`c3f_slam.fusion.tsdf.FragmentFusion` re-reads the frames of the fragments it fuses at the
 end of the run (the main map, each written component), by log row. Two sources:
 
 - :class:`SequenceFrames` (RGB-D mode): re-read ``rgb/`` and ``depth/`` files of the sequence,
@@ -28,10 +28,10 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from c3f_slam.frames.preprocess import center_crop_resize
+from c3f_slam.frames.stream import StreamFrame
 from c3f_slam.io.sequence import Sequence, read_rgb
 from c3f_slam.pipeline.frontend import DepthPrediction, ModelDepth
-from c3f_slam.preprocess import center_crop_resize
-from c3f_slam.stream import StreamFrame
 
 CACHE_DIR = ".depth_cache"
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from c3f_slam.config import SlamConfig
-from c3f_slam.outputs import KeyframeGraph
+from c3f_slam.io.run_outputs import KeyframeGraph
 from c3f_slam.pipeline.backend import FrameLog
 from c3f_slam.pipeline.components import MapComponent
 from c3f_slam.pipeline.frame_step import EXTENDED, LOST, FrameDecision, FrameInput

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from c3f_slam.frames.stream import StreamFrame
 from c3f_slam.pipeline.frontend import DepthPrediction, DepthProvider, FrameFeatures, Frontend, ModelDepth
-from c3f_slam.stream import StreamFrame
 
 
 @dataclass(frozen=True)

@@ -40,8 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from c3f_slam.blocks import BlockRows
 from c3f_slam.config import CandidateConfig
+from c3f_slam.posegraph.blocks import BlockRows
 
 
 def global_descriptor(descriptors: np.ndarray) -> np.ndarray:
@@ -77,7 +77,7 @@ def _matvec(G: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.concatenate([G[a:a + _BLOCK] @ v for a in range(0, len(G), _BLOCK)])
 
 
-#: rows per storage block of :class:`AppearanceIndex` (:class:`c3f_slam.blocks.BlockRows`);
+#: rows per storage block of :class:`AppearanceIndex` (:class:`c3f_slam.posegraph.blocks.BlockRows`);
 #: equal to :data:`_BLOCK`, so the products are the same as on one matrix
 _STORE_ROWS = 2048
 

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from c3f_slam.camera.frustum import frustum_overlap
 from c3f_slam.config import FragmentConfig, KeyframeConfig
-from c3f_slam.frustum import frustum_overlap
 from c3f_slam.geometry import invert_pose, motion_magnitudes
 from c3f_slam.pipeline.keyframe_edges import KeyframeEdge
 from c3f_slam.posegraph import EdgeKind, PoseGraph

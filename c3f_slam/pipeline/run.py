@@ -3,9 +3,9 @@
 :func:`run_slam` opens the run (inputs checked and opened once: :mod:`.sources`), then a
 :class:`SlamRun` (a context manager that owns the run's resources: the BLAS thread limit,
 the progress bar, the frames fusion re-reads, the back-end) takes one frame at a time
-(:meth:`SlamRun.step`): :class:`c3f_slam.stream.FrameStream` reads it and perception
+(:meth:`SlamRun.step`): :class:`c3f_slam.frames.stream.FrameStream` reads it and perception
 (:mod:`.perception`, a worker thread a few frames ahead of the loop: ``frames.prefetch``) gives,
-inside the frames' tissue area (:mod:`c3f_slam.tissue`: the scope's border and overlays left out),
+inside the frames' tissue area (:mod:`c3f_slam.frames.tissue`: the scope's border and overlays left out),
 its depth (files, or DepthNet ONNX) and its keypoints, descriptors (SIFT or ContraFeat ONNX)
 and 3D points; flagged frames (black, saturated, and those the frame-quality gate finds blurred,
 dark, washed out, covered or repeated: ``frames.quality``) are skipped and counted by cause, the back-end
@@ -35,9 +35,10 @@ from threadpoolctl import threadpool_limits
 
 from c3f_core.errors import InputError
 from c3f_slam.config import SlamConfig
-from c3f_slam.frame_quality import QUALITY_CAUSES
-from c3f_slam.fusion import FragmentFusion, TSDFVolume, write_mesh
-from c3f_slam.outputs import FrameLog, RunFolder, RunOutputs
+from c3f_slam.frames.quality import QUALITY_CAUSES
+from c3f_slam.frames.stream import UNREADABLE, FrameStream, StreamFrame
+from c3f_slam.fusion.tsdf import FragmentFusion, TSDFVolume, write_mesh
+from c3f_slam.io.run_outputs import FrameLog, RunFolder, RunOutputs
 from c3f_slam.pipeline.backend import BackendFactory, SlamBackend
 from c3f_slam.pipeline.components import (
     ComponentEntry,
@@ -57,7 +58,6 @@ from c3f_slam.pipeline.self_checks import self_checks
 from c3f_slam.pipeline.slam import FragmentSlam
 from c3f_slam.pipeline.sources import RunInputs, RunSources, open_sources
 from c3f_slam.pipeline.timings import Timings
-from c3f_slam.stream import UNREADABLE, FrameStream, StreamFrame
 
 SKIP_REASONS = ("black", "saturated", "featureless", "unreadable", *QUALITY_CAUSES)
 

@@ -19,13 +19,13 @@ import numpy as np
 import open3d as o3d
 
 from c3f_core.errors import InputError
-from c3f_slam.fusion import write_mesh
+from c3f_slam.evaluation.surface import coverage_mesh, surface_coverage
+from c3f_slam.evaluation.trajectory import associate, ate, evaluate_trajectory
+from c3f_slam.evaluation.trajectory_plot import plot_trajectories
+from c3f_slam.fusion.tsdf import write_mesh
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.outputs import RunOutputs, write_json
+from c3f_slam.io.run_outputs import RunOutputs, write_json
 from c3f_slam.pipeline.coverage_evaluation import format_unseen, unseen_truth
-from c3f_slam.surface_metrics import coverage_mesh, surface_coverage
-from c3f_slam.trajectory_metrics import associate, ate, evaluate_trajectory
-from c3f_slam.trajectory_plot import plot_trajectories
 
 #: written last by :func:`evaluate_run`: its presence means the evaluation is complete
 EVALUATION_NAME = "evaluation.json"

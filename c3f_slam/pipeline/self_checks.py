@@ -31,13 +31,13 @@ import cv2
 import numpy as np
 from open3d.geometry import TriangleMesh
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.config import SlamConfig
+from c3f_slam.evaluation.trajectory import jitter_ratio
+from c3f_slam.frames.preprocess import specular_mask
 from c3f_slam.geometry import invert_pose, project, transform_points
 from c3f_slam.pipeline.backend import SlamMap
 from c3f_slam.pipeline.sources import RunSources
-from c3f_slam.preprocess import specular_mask
-from c3f_slam.trajectory_metrics import jitter_ratio
 from c3f_slam.view.raycast import NO_HIT, MeshScene, pinhole_rays
 
 #: the fewest pixels a comparison needs to be reported (fewer: None)

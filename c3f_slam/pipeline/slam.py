@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from c3f_slam.camera.frustum import frustum_overlap
 from c3f_slam.config import SlamConfig
-from c3f_slam.frustum import frustum_overlap
 from c3f_slam.pipeline.fallback import LinkRecovery
 from c3f_slam.pipeline.fragment_map import FragmentMap
 from c3f_slam.pipeline.fragments import FIRST, intra_fragment_targets, new_fragment_reason

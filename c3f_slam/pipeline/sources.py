@@ -12,9 +12,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import FovGuess, PinholeCamera
+from c3f_slam.camera.intrinsics import FovGuess, PinholeCamera
 from c3f_slam.config import FrameQualityConfig, TissueConfig
-from c3f_slam.frame_quality import FrameQualityGate
+from c3f_slam.frames.quality import FrameQualityGate
+from c3f_slam.frames.stream import FrameStream
+from c3f_slam.frames.tissue import TissueMask, resolve_tissue_mask, whole_frame
 from c3f_slam.models import DepthModel, DescriptorModel
 from c3f_slam.models.session import DEFAULT_PROVIDERS
 from c3f_slam.pipeline.frontend import (
@@ -25,8 +27,6 @@ from c3f_slam.pipeline.frontend import (
     ModelDepth,
     SiftDescriptors,
 )
-from c3f_slam.stream import FrameStream
-from c3f_slam.tissue import TissueMask, resolve_tissue_mask, whole_frame
 
 DESCRIPTORS = ("sift", "contrafeat")
 DEPTH_SOURCES = ("files", "model")
@@ -118,7 +118,7 @@ class RunSources:
     stream: FrameStream
     describer: DescriptorProvider
     depth: DepthProvider
-    tissue: TissueMask  #: the frames' tissue area (:mod:`c3f_slam.tissue`)
+    tissue: TissueMask  #: the frames' tissue area (:mod:`c3f_slam.frames.tissue`)
     max_bad_frames: int  #: RunInputs.max_bad_frames
 
     @property

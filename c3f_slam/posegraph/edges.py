@@ -18,7 +18,7 @@ from enum import Enum
 
 import numpy as np
 
-from c3f_slam.blocks import BlockRows
+from c3f_slam.posegraph.blocks import BlockRows
 from c3f_slam.posegraph.information import edge_rms
 
 
@@ -38,7 +38,7 @@ _KIND_NAMES = tuple(kind.value for kind in EdgeKind)
 _TRI = np.triu_indices(6)
 _N_TRI = len(_TRI[0])  # 21; the last entry is (5, 5), the correspondence count
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0]).tobytes()
-#: edge matrices are stored in blocks of this many edges (:class:`c3f_slam.blocks.BlockRows`)
+#: edge matrices are stored in blocks of this many edges (:class:`c3f_slam.posegraph.blocks.BlockRows`)
 _EDGE_BLOCK = 4096
 
 
@@ -55,7 +55,7 @@ class EdgeStore:
     ``array``s (fast scalar reads in the graph walks), T_ij as its top 3x4 rows and the
     symmetric information matrix as its 21-value upper triangle (float64, exact copies:
     matrices that are not exactly rigid / symmetric are kept whole in a side dict) in blocks
-    of :data:`_EDGE_BLOCK` edges (:class:`~c3f_slam.blocks.BlockRows`), flags, kind codes and
+    of :data:`_EDGE_BLOCK` edges (:class:`~c3f_slam.posegraph.blocks.BlockRows`), flags, kind codes and
     confidences as (doubling) NumPy arrays. The flag / code / confidence arrays are replaced
     when they grow: read them through the store, do not keep them across :meth:`add`."""
 

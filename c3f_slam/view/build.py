@@ -17,9 +17,9 @@ from tqdm import tqdm
 
 from c3f_core.atomic import atomic_write_text
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io import read_tum
-from c3f_slam.outputs import RunOutputs
+from c3f_slam.io.run_outputs import RunOutputs
 from c3f_slam.view.budget import PAGE_BUDGET, ViewBudget
 from c3f_slam.view.flythrough import FRAMES, flythrough_frames
 from c3f_slam.view.layers import Layer
@@ -68,7 +68,7 @@ def model_mesh(out: RunOutputs) -> o3d.geometry.TriangleMesh | None:
 
 def _input_stream(summary: dict, sequence: str | Path | None):
     """The frames the run read, from ``sequence`` or summary.json's ``sequence``."""
-    from c3f_slam.stream import open_stream  # OpenCV
+    from c3f_slam.frames.stream import open_stream  # OpenCV
 
     source = Path(sequence) if sequence is not None else Path(summary.get("sequence") or "")
     if not source.exists() or str(source) in ("", "."):

@@ -16,9 +16,9 @@ from collections.abc import Iterator
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.evaluation.trajectory import path_length
 from c3f_slam.geometry import look_at
-from c3f_slam.trajectory_metrics import path_length
 from c3f_slam.view.raycast import MeshScene, render_pinhole
 from c3f_slam.view.rerender import RenderClock
 from c3f_slam.view.video import label

@@ -65,7 +65,7 @@ def panel_factor(height: int) -> int:
 def rerender_frames(frames, K: np.ndarray, width: int, height: int, ms: MeshScene, lookup: PoseLookup,
                     clock: RenderClock, tissue: np.ndarray | None = None) -> Iterator[np.ndarray]:
     """Side-by-side frames (input | reconstruction) of the stream ``frames``
-    (:class:`c3f_slam.stream.StreamFrame`) of a ``width`` x ``height`` camera ``K``; ``clock``
+    (:class:`c3f_slam.frames.stream.StreamFrame`) of a ``width`` x ``height`` camera ``K``; ``clock``
     gathers the render time; ``tissue`` ((height, width) bool, True = tissue): the render is
     black outside it."""
     f = panel_factor(height)

@@ -22,9 +22,9 @@ import numpy as np
 import open3d as o3d
 
 from c3f_slam.coverage.render import UNSEEN_COLOUR
+from c3f_slam.evaluation.trajectory import associate, ate
 from c3f_slam.io import Sequence, read_tum
-from c3f_slam.outputs import RunOutputs
-from c3f_slam.trajectory_metrics import associate, ate
+from c3f_slam.io.run_outputs import RunOutputs
 from c3f_slam.view.budget import ViewBudget
 from c3f_slam.view.layers import Layer, frusta, mesh_layer, polyline_segments, triangles_coloured
 from c3f_slam.view.raycast import crop_near

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 
 MAX_SEARCH_DEPTH = 5  # folder levels searched below SRC for sequences
 _LAST_INT = re.compile(r"(\d+)(?!.*\d)")

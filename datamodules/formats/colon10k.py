@@ -23,7 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from datamodules.formats.base import PublishedSequence, SequenceFormat, decode_rgb, list_files, numbered
 
 PUBLISHED = PinholeCamera(270, 216, 145.4410, 145.4410, 135.6993, 107.8946)

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 
 _KEYS = ("width", "height", "cx", "cy", "a0", "a2", "a3", "a4", "c", "d", "e")
 

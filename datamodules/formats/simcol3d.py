@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from datamodules.formats.base import (
     PublishedSequence,
     SequenceFormat,

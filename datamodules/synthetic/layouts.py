@@ -56,7 +56,7 @@ import cv2
 import numpy as np
 
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.geometry import invert_pose
 from datamodules.formats import c3vd, simcol3d, uts
 from datamodules.formats.omnicam import C3VD_CALIBRATION

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from datamodules.synthetic.colon import Colon
 from datamodules.synthetic.noise import smoothstep
 from datamodules.synthetic.params import AppearanceParams

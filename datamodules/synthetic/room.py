@@ -18,7 +18,7 @@ import numpy as np
 import open3d as o3d
 
 from c3f_slam import geometry as g
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io import SequenceWriter
 from datamodules.synthetic.noise import blob_texture
 

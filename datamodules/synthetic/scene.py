@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from datamodules.synthetic import noise
 from datamodules.synthetic.camera_path import CameraPath, plan_path
 from datamodules.synthetic.colon import Colon, build_colon

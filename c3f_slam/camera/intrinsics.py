@@ -8,7 +8,7 @@ x right, y down, z forward.
 Lens distortion (``model`` and ``distortion``, OpenCV's conventions): ``pinhole`` with 0, 4,
 5, 8, 12 or 14 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tx, ty]]]]), or
 ``fisheye`` (OpenCV's equidistant model) with exactly k1..k4. The runtime undistorts such
-frames to a pinhole camera (:class:`c3f_slam.calibration.Undistortion`).
+frames to a pinhole camera (:class:`c3f_slam.camera.calibration.Undistortion`).
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ import numpy as np
 
 from c3f_core.errors import InputError
 from c3f_slam.config import TissueConfig
-from c3f_slam.preprocess import fill_outside
+from c3f_slam.frames.preprocess import fill_outside
 
 #: detection runs on frames scaled down to at most this many pixels on the long side
 THUMBNAIL_PX = 256
@@ -222,7 +222,7 @@ def detect_tissue_mask(frames: list[np.ndarray], cfg: TissueConfig) -> TissueMas
 
 
 def sample_frames(stream, count: int, window: int) -> list[np.ndarray]:
-    """Up to ``count`` usable RGB frames of ``stream`` (a :class:`c3f_slam.stream.FrameStream`),
+    """Up to ``count`` usable RGB frames of ``stream`` (a :class:`c3f_slam.frames.stream.FrameStream`),
     evenly spread over its first ``window`` frames (its own start and stride), read through a
     copy so the stream itself is untouched."""
     probe = copy.copy(stream)

@@ -7,8 +7,8 @@ Layout of an output folder (:class:`RunOutputs`)::
       summary.json          settings, counts, timings, metrics (JSON; NaN written as null)
       keyframe_graph.json   keyframes (frame, timestamp, position, fragment, lone) and edges
       keyframe_graph.png    top view (x vs z, cm) of the keyframe graph
-      mesh.ply              fused mesh (written with c3f_slam.fusion.write_mesh)
-      trajectory.png        estimate vs ground truth (c3f_slam.trajectory_plot.plot_trajectories)
+      mesh.ply              fused mesh (written with c3f_slam.fusion.tsdf.write_mesh)
+      trajectory.png        estimate vs ground truth (c3f_slam.evaluation.trajectory_plot.plot_trajectories)
       coverage.ply          ground-truth mesh painted seen / unseen (evaluate)
       coverage.json         unseen share of the wall, overall and per segment (c3f_slam.pipeline.coverage_stage)
       coverage_map.png      the unrolled wall, unseen parts flagged

@@ -1,5 +1,5 @@
 """The options that say what a run reads and with which models, shared by ``python -m c3f_slam
-run`` and ``batch`` (:mod:`c3f_slam.cli`, :mod:`c3f_slam.batch.cli`), and what they give: the
+run`` and ``batch`` (:mod:`c3f_slam.cli.main`, :mod:`c3f_slam.batch.cli`), and what they give: the
 settings tree (:func:`settings_from_args`) and the :class:`c3f_slam.pipeline.RunInputs`
 (:func:`inputs_from_args`). Nothing heavy is imported until a command runs."""
 
@@ -57,7 +57,7 @@ def settings_from_args(args: argparse.Namespace):
 def inputs_from_args(args: argparse.Namespace, threads: int | None = None):
     """The :class:`c3f_slam.pipeline.RunInputs` of the options (``threads``: instead of ``--threads``).
     InputError for ``--threads`` below 1, an unknown provider or a ``--fov`` out of range."""
-    from c3f_slam.camera import FovGuess
+    from c3f_slam.camera.intrinsics import FovGuess
     from c3f_slam.models.session import check_providers  # onnxruntime, Open3D, OpenCV: not for --print-config
     from c3f_slam.pipeline import RunInputs
 

@@ -7,7 +7,7 @@ None, status). Black frames (mean luma < ``black_threshold``) and saturated fram
 ``saturated_share`` of pixels with luma >= ``saturated_threshold``) are flagged, not
 dropped, so the runtime can skip and report them; so are, with a :attr:`FrameStream.quality`
 gate, frames that carry nothing (blurred, dark, washed out, covered, repeated:
-:mod:`c3f_slam.frame_quality`), their cause as the status. A frame that cannot be read (a missing or
+:mod:`c3f_slam.frames.quality`), their cause as the status. A frame that cannot be read (a missing or
 corrupt image file, a video frame that does not decode) is yielded with status
 ``unreadable`` and no pixels (``error`` says why); the runtime skips and counts those up to a
 limit. A video that ends before the frame count its container declares (damaged or cut
@@ -18,9 +18,9 @@ folder gives the poses.txt timestamps when present, else index / ``fps`` (``fps`
 frame index itself).
 
 Intrinsics: a video's come from ``camera`` (a camera.json, default the one beside the video, or a
-:class:`c3f_slam.camera.FovGuess`), a folder's from its camera.json. A distorted camera (a
+:class:`c3f_slam.camera.intrinsics.FovGuess`), a folder's from its camera.json. A distorted camera (a
 ``fisheye`` model, or pinhole distortion coefficients) has its frames undistorted to a pinhole
-camera of the same size (:class:`c3f_slam.calibration.Undistortion`); :attr:`FrameStream.camera`
+camera of the same size (:class:`c3f_slam.camera.calibration.Undistortion`); :attr:`FrameStream.camera`
 is then that pinhole camera; :attr:`FrameStream.camera_file` is the camera.json read (None for a
 camera given as an object or guessed) and :attr:`FrameStream.camera_source` says where the
 intrinsics came from.
@@ -37,9 +37,9 @@ import cv2
 import numpy as np
 
 from c3f_core.errors import InputError
-from c3f_slam.calibration import Undistortion
-from c3f_slam.camera import FovGuess, PinholeCamera
-from c3f_slam.frame_quality import FrameQualityGate
+from c3f_slam.camera.calibration import Undistortion
+from c3f_slam.camera.intrinsics import FovGuess, PinholeCamera
+from c3f_slam.frames.quality import FrameQualityGate
 from c3f_slam.io.sequence import Sequence, read_depth_png, read_rgb
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".mpg", ".mpeg", ".m4v", ".wmv", ".webm")
@@ -164,7 +164,7 @@ class FrameStream:
         self.sequence: Sequence | None = None
         self.truncation: Truncation | None = None  #: set while iterating a video that ends early
         #: the frame-quality gate every otherwise usable frame passes, in order (None: none); its
-        #: cause becomes the frame's status (:mod:`c3f_slam.frame_quality`)
+        #: cause becomes the frame's status (:mod:`c3f_slam.frames.quality`)
         self.quality: FrameQualityGate | None = None
         if not self.source.exists():
             raise InputError(f"{self.source}: no such file or folder")

@@ -5,12 +5,12 @@
 The board's inner corners are found (``cv2.findChessboardCorners``, refined to sub-pixel with
 ``cv2.cornerSubPix``) and the camera is fitted with ``cv2.calibrateCamera`` (``pinhole``: k1,
 k2, p1, p2, k3) or ``cv2.fisheye.calibrate`` (``fisheye``: k1..k4). The result is a camera.json
-of the project's format (:class:`c3f_slam.camera.PinholeCamera`: pixels, OpenCV's camera
+of the project's format (:class:`c3f_slam.camera.intrinsics.PinholeCamera`: pixels, OpenCV's camera
 frame). ``--board`` counts *inner* corners (a board of 10 x 7 squares is 9x6); ``--square`` is
 the side of a square in metres (it sets the scale of the board poses, not the intrinsics).
 
 :class:`Undistortion` turns frames of a distorted camera into pinhole frames of the same size
-(remap maps computed once); :class:`c3f_slam.stream.FrameStream` applies it to every frame.
+(remap maps computed once); :class:`c3f_slam.frames.stream.FrameStream` applies it to every frame.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 
 from c3f_core.atomic import atomic_write_text
 from c3f_core.errors import InputError
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io.sequence import IMAGE_SUFFIXES, read_rgb
 
 MODELS = ("pinhole", "fisheye")

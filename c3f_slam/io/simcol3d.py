@@ -376,7 +376,7 @@ def poses_for_frames(stamps: np.ndarray, poses: np.ndarray, frame_stamps: np.nda
     writes registered frames only): frames are matched by timestamp (within 0.02 s); a frame
     between two matched ones is interpolated, one before the first or after the last takes
     that pose. Returns ((N, 4, 4) poses, number of frames filled)."""
-    from c3f_slam.trajectory_metrics import associate
+    from c3f_slam.evaluation.trajectory import associate
 
     ie, ig = associate(stamps, frame_stamps)
     if len(ie) == 0:
@@ -406,7 +406,7 @@ def write_submission(sequence: str | Path, out: str | Path, depth_model: str | N
     else 1, as ``c3f_slam run`` does) and, with ``trajectory`` (TUM, camera-to-world, metres),
     ``out/pose/FrameBuffer_NNNN_to_FrameBuffer_MMMM.txt`` for every consecutive pair. Returns
     counts: ``frames``, ``depth_files``, ``pose_files``, ``filled_poses``, ``depth_scale``."""
-    from c3f_slam.stream import FrameStream
+    from c3f_slam.frames.stream import FrameStream
 
     if depth_model is None and trajectory is None:
         raise InputError("nothing to write: give --depth-model and/or --trajectory")

@@ -5,7 +5,7 @@
   border filled from the tissue, inpainting);
   training (:mod:`datamodules.base`) and the ONNX runtime (:mod:`c3f_slam.models`) both call it.
 - :func:`on_grid` / :func:`fill_outside`: a frame-grid mask on a network grid, and the pixels
-  outside a mask filled from the inside (the scope's border, :mod:`c3f_slam.tissue`).
+  outside a mask filled from the inside (the scope's border, :mod:`c3f_slam.frames.tissue`).
 - :func:`specular_mask` / :func:`inpaint_specular` (docs/design.md, Pre-processing): the
   specular highlights are the pixels whose YUV luma Y exceeds 0.9 of full range, dilated with a
   13-px kernel; they are inpainted in the input (OpenCV Telea) and excluded from the losses.
@@ -16,7 +16,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from c3f_slam.camera import PinholeCamera
+from c3f_slam.camera.intrinsics import PinholeCamera
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)  # RGB in [0, 1]; the nets normalise inside (and in their ONNX graphs)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -126,7 +126,7 @@ def prepare_network_input(
 
     Centre crop ``crop`` = (width, height), resize to ``size`` = (width, height)
     (:func:`center_crop_resize`); with ``tissue`` ((H, W) bool, True = tissue: the frame's
-    :class:`c3f_slam.tissue.TissueMask`), the pixels outside it filled by a smooth continuation of
+    :class:`c3f_slam.frames.tissue.TissueMask`), the pixels outside it filled by a smooth continuation of
     the tissue (:func:`fill_outside`), so the black border does not bias the
     prediction; then, with ``specular``, the specular mask of the resized frame
     (``specular_threshold``, ``specular_dilation_px``) and Telea inpainting of its pixels.

@@ -18,7 +18,7 @@
 ``--depth-source`` / ``--descriptors`` default to the models given: model depth with
 ``--depth-model``, ContraFeat with ``--feature-model``, else files and SIFT. Every other
 setting of a run is one of the settings tree (:mod:`c3f_slam.config`): ``--preset``, then
-``--config``, then ``--set`` in order (:mod:`c3f_slam.cli_settings`; the older tuning flags
+``--config``, then ``--set`` in order (:mod:`c3f_slam.cli.settings_options`; the older tuning flags
 were removed, and giving one names the ``--set`` that replaces it); ``--print-config`` shows
 the result.
 
@@ -33,8 +33,8 @@ import sys
 from collections.abc import Sequence
 
 from c3f_core.cli_parser import OneLineParser, run_subcommand
-from c3f_slam.cli_inputs import add_input_options, inputs_from_args, settings_from_args
-from c3f_slam.cli_settings import add_settings_options
+from c3f_slam.cli.inputs import add_input_options, inputs_from_args, settings_from_args
+from c3f_slam.cli.settings_options import add_settings_options
 
 
 def _run_parser(sub: argparse._SubParsersAction) -> None:
@@ -107,7 +107,7 @@ def _parser() -> argparse.ArgumentParser:
     _view_parser(sub)
     _calibrate_parser(sub)
     c = sub.add_parser("simcol3d", help="write a sequence's depth (and relative poses) as SimCol3D challenge "
-                                        "submission files (c3f_slam.simcol3d)")
+                                        "submission files (c3f_slam.io.simcol3d)")
     c.add_argument("sequence", help="sequence folder (rgb/, camera.json), e.g. a SimCol3D one made by "
                                     "`python -m datamodules convert simcol3d`")
     c.add_argument("--out", required=True,
@@ -179,7 +179,7 @@ def _inspect(args: argparse.Namespace) -> int:
 
 
 def _simcol3d(args: argparse.Namespace) -> int:
-    from c3f_slam.simcol3d import write_submission
+    from c3f_slam.io.simcol3d import write_submission
 
     r = write_submission(args.sequence, args.out, args.depth_model, threads=args.threads,
                          depth_scale=args.depth_scale, trajectory=args.trajectory, progress=not args.quiet)
@@ -194,7 +194,7 @@ def _simcol3d(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from c3f_slam.calibration import calibrate_command
+    from c3f_slam.camera.calibration import calibrate_command
 
     r = calibrate_command(args.input, args.out, args.board, args.square, args.model, args.every)
     cam = r.camera
