@@ -11,13 +11,13 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from c3f_models.contrafeat_module import ContraFeat
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.contrafeat.module import ContraFeat
+    from c3f_models.depth.module import DepthNet
 
 from c3f_slam import __version__  # the one project version (exports record it)
 
 #: public name -> the module that defines it (imported on first access)
-LAZY_EXPORTS = {"DepthNet": "c3f_models.depthnet", "ContraFeat": "c3f_models.contrafeat_module"}
+LAZY_EXPORTS = {"DepthNet": "c3f_models.depth.module", "ContraFeat": "c3f_models.contrafeat.module"}
 
 
 def __getattr__(name: str) -> Any:

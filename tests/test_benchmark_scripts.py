@@ -150,7 +150,7 @@ def test_contrafeat_match_image_stacks_one_row_per_checkpoint(plane_dataset, tmp
     import torch
 
     from benchmarks.common.contrafeat import SMALL_MODEL
-    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.contrafeat.module import ContraFeat
 
     ckpts = []
     for k in range(2):
@@ -175,7 +175,7 @@ def test_contrafeat_eval_reports_each_checkpoint_and_residual(plane_dataset, tmp
 
     from benchmarks.common.contrafeat import SMALL_MODEL
     from benchmarks.studies import contrafeat_eval
-    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.contrafeat.module import ContraFeat
 
     torch.manual_seed(0)
     ckpt = tmp_path / "m.ckpt"

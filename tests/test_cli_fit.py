@@ -61,7 +61,7 @@ def test_smoke_fit_then_resume(plane_dataset, tmp_path, monkeypatch, capsys):
 def test_ctrl_c_during_fit_saves_a_checkpoint_and_is_one_line(plane_dataset, tmp_path, monkeypatch, capsys):
     """Ctrl-C (a KeyboardInterrupt in a training step): the steps done so far are saved to
     checkpoints/interrupted.ckpt, one error line says where, exit 130; the run resumes from it."""
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.depth.module import DepthNet
 
     monkeypatch.chdir(ROOT)
     common = [

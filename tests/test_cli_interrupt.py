@@ -24,7 +24,7 @@ def _one_error(capsys) -> str:
 @pytest.mark.e2e
 def test_validate_interrupted(plane_dataset, tmp_path, monkeypatch, capsys):
     from c3f_models.cli import main
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.depth.module import DepthNet
 
     monkeypatch.chdir(ROOT)
     monkeypatch.setattr(DepthNet, "validation_step", _interrupt)

@@ -17,9 +17,9 @@ from c3f_models.cli import main
 from c3f_models.config import OptimConfig
 from c3f_models.contrafeat.config import ContraFeatLossConfig, ContraFeatNetworkConfig, MatchEvaluationConfig
 from c3f_models.contrafeat.loss import batch_info_nce, info_nce
+from c3f_models.contrafeat.module import METHODS, ContraFeat
 from c3f_models.contrafeat.network import ContraFeatNet, sample_descriptors
 from c3f_models.contrafeat.pairs import GroundTruthSettings, KeypointSettings
-from c3f_models.contrafeat_module import METHODS, ContraFeat
 from c3f_slam.io import Sequence
 from c3f_slam.matching import sample_descriptor_map
 from datamodules.config import FramesConfig, LoaderConfig
@@ -101,7 +101,7 @@ def test_pretrained_weights_local_file(tmp_path):
 @pytest.mark.parametrize("dcn", [False, True])
 def test_pretrained_from_depthnet_checkpoint(tmp_path, dcn):
     """A DepthNet checkpoint's depth encoder starts ContraFeat (a DCN encoder does not fit)."""
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.depth.module import DepthNet
 
     depth = DepthNet({"encoder_layers": 18, "dcn": dcn, "pose_encoder_layers": 18})
     ckpt = tmp_path / "depthnet.ckpt"

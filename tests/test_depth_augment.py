@@ -38,7 +38,7 @@ def test_identity_factors_change_nothing():
 
 
 def test_training_inputs_only(monkeypatch):
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.depth.module import DepthNet
 
     seen = []
 
@@ -46,7 +46,7 @@ def test_training_inputs_only(monkeypatch):
         seen.append(cfg.p)
         return frames
 
-    monkeypatch.setattr("c3f_models.depthnet.color_augment", spy)
+    monkeypatch.setattr("c3f_models.depth.module.color_augment", spy)
     net = DepthNet(network={"encoder_width": 8, "pose_encoder_width": 8, "num_scales": 1}, augment={"p": 0.5})
     batch = {"image": torch.rand(2, 3, 3, 32, 32), "K": torch.eye(3).expand(2, 3, 3) * 16}
     batch["K"] = batch["K"].clone()

@@ -16,8 +16,8 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from c3f_core.errors import InputError
 from c3f_models.config import OptimConfig
 from c3f_models.depth.config import DepthEvaluationConfig, DepthNetworkConfig
+from c3f_models.depth.module import DepthNet
 from c3f_models.depth.objective import LossConfig
-from c3f_models.depthnet import DepthNet
 from datamodules.config import FramesConfig, LoaderConfig
 from datamodules.sequence import C3FSequenceDataModule
 

@@ -17,11 +17,11 @@ import torchvision
 from c3f_core.errors import InputError
 from c3f_models.cli import main
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
+from c3f_models.contrafeat.module import ContraFeat
 from c3f_models.contrafeat.network import ContraFeatNet
-from c3f_models.contrafeat_module import ContraFeat
 from c3f_models.depth.config import DepthNetworkConfig
+from c3f_models.depth.module import DepthNet
 from c3f_models.depth.networks import DepthNetwork, PoseNetwork
-from c3f_models.depthnet import DepthNet
 from c3f_models.encoders import ENCODERS, STRIDES, MobileNetConfig, MobileNetEncoder, ResnetConfig, ResnetEncoder
 from c3f_slam.models.metadata import ModelMetadata
 

@@ -94,7 +94,7 @@ def test_checkpoint_with_flat_options_is_refused(depth_export, tmp_path, capsys,
     new = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
     assert {"network", "loss", "optim", "evaluation"} <= set(new["hyper_parameters"])  # the grouped form
     old = tmp_path / "flat.ckpt"
-    flat = {"_class_path": "c3f_models.depthnet.DepthNet", "encoder_layers": 18, "dcn": False, "lambda_dc": 0.1,
+    flat = {"_class_path": "c3f_models.depth.module.DepthNet", "encoder_layers": 18, "dcn": False, "lambda_dc": 0.1,
             "lr": 1e-4, "_instantiator": "lightning.pytorch.cli.instantiate_module"}
     torch.save({"state_dict": new["state_dict"], "hyper_parameters": flat, "global_step": 1}, old)
     args = ["--output_dir", str(tmp_path / "out")] if subcommand == "export" else ["--trainer.logger", "false"]
@@ -172,7 +172,7 @@ def test_checkpoint_of_another_model_class_is_refused_by_the_cli(depth_export, t
     run, _ = depth_export
     cf = ContraFeat(CONTRA_16)
     other = tmp_path / "contrafeat.ckpt"
-    hparams = {"_class_path": "c3f_models.contrafeat_module.ContraFeat", **dict(cf.hparams),
+    hparams = {"_class_path": "c3f_models.contrafeat.module.ContraFeat", **dict(cf.hparams),
                "_instantiator": "lightning.pytorch.cli.instantiate_module"}
     torch.save({"state_dict": cf.state_dict(), "hyper_parameters": hparams, "global_step": 1}, other)
     out = tmp_path / "out"
@@ -181,7 +181,7 @@ def test_checkpoint_of_another_model_class_is_refused_by_the_cli(depth_export, t
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: --ckpt_path: {other} holds a ContraFeat"), err
-    assert "c3f_models.depthnet.DepthNet" in err[0] and not out.exists()
+    assert "c3f_models.depth.module.DepthNet" in err[0] and not out.exists()
 
 
 @pytest.mark.e2e

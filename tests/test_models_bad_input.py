@@ -88,7 +88,8 @@ def export_truncated_checkpoint(fx: Fits, tmp: Path) -> Case:
 
 
 def export_checkpoint_of_another_model(fx: Fits, tmp: Path) -> Case:
-    return _export(fx, tmp, fx.ckpt("feat"), "holds a ContraFeat", "the config's model is c3f_models.depthnet.DepthNet")
+    return _export(fx, tmp, fx.ckpt("feat"), "holds a ContraFeat",
+                   "the config's model is c3f_models.depth.module.DepthNet")
 
 
 class _Payload:

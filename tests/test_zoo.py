@@ -44,7 +44,7 @@ def _weights(path: Path, module) -> Path:
 def fake_zoo(tmp_path, monkeypatch) -> Path:
     """A zoo with a depth entry (closed-form ONNX depth, DepthNet weights of width 8) and a
     descriptors entry (closed-form ONNX descriptors, no weights file needed for the runtime)."""
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.depth.module import DepthNet
 
     root = tmp_path / "zoo"
     depth = root / "tiny-depth"
@@ -128,8 +128,8 @@ def test_zoo_cli_list_show_verify(fake_zoo, capsys):
 def test_init_weights_by_name(fake_zoo):
     import torch
 
-    from c3f_models.contrafeat_module import ContraFeat
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.contrafeat.module import ContraFeat
+    from c3f_models.depth.module import DepthNet
 
     net = DepthNet(network={"encoder_width": 8, "pose_encoder_width": 8, "num_scales": 1},
                    init_weights="zoo:tiny-depth")

@@ -72,7 +72,7 @@ def test_onnx_stores_float16_and_runs_by_name(quick_entry, monkeypatch):
 def test_weights_start_a_model_by_name(quick_entry, monkeypatch):
     import torch
 
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.depth.module import DepthNet
 
     _, entry_dir = quick_entry
     monkeypatch.setenv(zoo.ENV, str(entry_dir.parent))
@@ -93,7 +93,7 @@ def test_rerun_skips_training(quick_entry):
 def test_descriptor_recipe_end_to_end(tmp_path, monkeypatch):
     """The ContraFeat recipe at toy size: float32 ONNX storage, float16 weights, card numbers read
     back, loadable by name in the runtime and as init_weights."""
-    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.contrafeat.module import ContraFeat
     from c3f_slam.models.nets import DescriptorModel
 
     name = "c3f-features-r18w32"

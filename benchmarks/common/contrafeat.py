@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from c3f_models.contrafeat_module import METHODS, ContraFeat
+from c3f_models.contrafeat.module import METHODS, ContraFeat
 from c3f_models.zoo.evaluate import descriptor_metrics
 
 LABELS = {"sift": "SIFT", "sift_kpf": "SIFT+kpf", "cdf": "CDF", "cdf_kpf": "CDF+kpf"}

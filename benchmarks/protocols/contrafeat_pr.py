@@ -43,7 +43,7 @@ from benchmarks.common.contrafeat import (
 )
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
-from c3f_models.contrafeat_module import METHODS, ContraFeat
+from c3f_models.contrafeat.module import METHODS, ContraFeat
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
 from datamodules.pairs import ContraFeatDataModule, PairSamplingConfig
 

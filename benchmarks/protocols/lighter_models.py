@@ -122,7 +122,7 @@ def match_metrics(dense: Path, heldout: list[Path]) -> dict:
     """The zoo card's match evaluation with the ONNX dense graph as the network."""
     import torch
 
-    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.contrafeat.module import ContraFeat
     from c3f_models.zoo.evaluate import descriptor_heldout
 
     cfg = yaml.safe_load((ROOT / "zoo" / FEATURES / "config.yaml").read_text())["model"]["init_args"]

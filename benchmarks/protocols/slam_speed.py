@@ -100,8 +100,8 @@ def paper_size_models(seq: Path, work: Path) -> tuple[Path, Path]:
         return depth, feat
     import torch
 
-    from c3f_models.contrafeat_module import ContraFeat
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.contrafeat.module import ContraFeat
+    from c3f_models.depth.module import DepthNet
     from export import export_model
 
     torch.manual_seed(0)

@@ -97,7 +97,7 @@ def depth_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
 def matches_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     import yaml
 
-    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.contrafeat.module import ContraFeat
     from c3f_models.zoo.evaluate import descriptor_heldout
     from c3f_slam.models import zoo
     entry = zoo.entry(a.features, "--features")

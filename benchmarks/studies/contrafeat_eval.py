@@ -22,7 +22,7 @@ import torch
 
 from benchmarks.common import contrafeat as cf
 from benchmarks.common.report import Report
-from c3f_models.contrafeat_module import ContraFeat
+from c3f_models.contrafeat.module import ContraFeat
 
 
 def load(ckpt: Path, residual_m: float) -> tuple[ContraFeat, int]:

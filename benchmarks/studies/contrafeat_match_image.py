@@ -19,8 +19,8 @@ import numpy as np
 import torch
 
 from benchmarks.common.contrafeat import SMALL_MODEL, load_weights
+from c3f_models.contrafeat.module import ContraFeat
 from c3f_models.contrafeat.pairs import batch_frames, make_pairs
-from c3f_models.contrafeat_module import ContraFeat
 from c3f_slam.matching.match_accuracy import near_misses
 from c3f_slam.matching.visual import draw_matches
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig

@@ -57,7 +57,7 @@ def _gradient_row(name: str, ckpt: Path | None, a: argparse.Namespace, batches: 
     |grad L_dc| / |grad L_ph| ratios, for the seeded initialisation or ``ckpt``'s weights."""
     import torch
 
-    from c3f_models.depthnet import DepthNet
+    from c3f_models.depth.module import DepthNet
 
     torch.manual_seed(a.seed)
     model = DepthNet({"encoder_layers": 18, "dcn": False, "num_scales": a.num_scales})

@@ -65,8 +65,8 @@ def objective_at_truth(seq: Path, triplets: int = 48) -> dict:
     import torch
     import yaml
 
+    from c3f_models.depth.module import DepthNet
     from c3f_models.depth.objective import compose_triplet_poses
-    from c3f_models.depthnet import DepthNet
     from c3f_slam.models import zoo
     from datamodules.sequence import C3FSequenceDataModule
 

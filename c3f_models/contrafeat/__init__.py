@@ -4,7 +4,7 @@
 - :mod:`.loss`: InfoNCE over the ground-truth matches of a frame pair (tau = 0.01);
 - :mod:`.data`: frame pairs at several frame gaps (``ContraFeatDataModule``);
 - :mod:`.pairs`: per-pair keypoints and ground truth (NumPy, shared with the benchmark);
-- the LightningModule is :class:`c3f_models.contrafeat_module.ContraFeat`.
+- the LightningModule is :class:`c3f_models.contrafeat.module.ContraFeat`.
 """
 
 from c3f_models.contrafeat.loss import info_nce

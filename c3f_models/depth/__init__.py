@@ -1,6 +1,6 @@
 """DepthNet's parts: disparity decoder, depth network and PoseNet, losses (the encoders: :mod:`c3f_models.encoders`).
 
-The LightningModule that ties them together is :class:`c3f_models.depthnet.DepthNet`.
+The LightningModule that ties them together is :class:`c3f_models.depth.module.DepthNet`.
 """
 
 from c3f_models.depth.decoder import DepthDecoder, depth_to_disp, disp_to_depth

@@ -88,7 +88,7 @@ def evaluate(run: RecipeRun, stage: Path, heldout: list[Path], ckpt: Path) -> di
         export(run, ckpt, stage / "float32", storage="float32")
         return {"depth": depth_heldout(stage / ONNX_FILE["depth"], heldout),
                 "depth_float32": depth_heldout(stage / "float32" / ONNX_FILE["depth"], heldout)}
-    from c3f_models.contrafeat_module import ContraFeat
+    from c3f_models.contrafeat.module import ContraFeat
 
     cfg = model_config(run)["model"]["init_args"]
     out = {}
