@@ -51,7 +51,7 @@ def settings_from_args(args: argparse.Namespace):
     from c3f_slam.config.loading import read_config_file, resolve_config
 
     config = read_config_file(args.config) if args.config else None
-    return resolve_config(args.preset, config, args.set), (config.summary if config else None)
+    return resolve_config(args.preset, config, args.set), (config.record if config else None)
 
 
 def inputs_from_args(args: argparse.Namespace, threads: int | None = None):

@@ -13,7 +13,9 @@ import argparse
 from collections.abc import Sequence
 from typing import Any
 
-from c3f_slam.config import PAPER_RULES, PRESET_NAMES
+from c3f_core.settings_cli import add_settings_options as add_settings_options_of
+from c3f_slam.config import PAPER_RULES
+from c3f_slam.config.loading import SLAM_SETTINGS
 
 
 def _sets(*items: str) -> str:
@@ -63,14 +65,6 @@ def removed_message(usage: str) -> str:
     return f"{usage} was removed: use {REMOVED[usage]}"
 
 
-class _SetItems(argparse.Action):
-    """``--set``: append a ``part.field=value`` item to ``namespace.set`` (checked when the tree is built)."""
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
-                 option_string: str | None = None) -> None:
-        namespace.set = [*(getattr(namespace, "set", None) or []), values]
-
-
 class _Removed(argparse.Action):
     """A removed flag (hidden from ``--help``): one ``error:`` line naming its replacement, exit status 2."""
 
@@ -84,19 +78,11 @@ class _Removed(argparse.Action):
 
 
 def add_settings_options(r: argparse.ArgumentParser) -> None:
-    """``--preset``, ``--config``, ``--set``, ``--print-config`` on the run (or batch) parser, and
-    the removed flags as hidden options that say what replaces them."""
-    g = r.add_argument_group("settings (every setting, its default and meaning: --print-config)")
-    g.add_argument("--preset", choices=PRESET_NAMES,
-                   help="the settings the others start from: colon (millimetre scale, default) or room (centimetre)")
-    g.add_argument("--config", metavar="FILE",
-                   help="settings file, YAML or JSON (complete or partial, as --print-config writes it), or a "
-                        "previous run's summary.json as is: replays that run's settings")
-    g.add_argument("--set", action=_SetItems, default=[], metavar="PART.FIELD=VALUE",
-                   help="change one setting, e.g. --set fragments.min_overlap=0.8 --set fusion.tsdf.voxel_size=0.002 "
-                        "(after --config; repeatable, the last wins)")
-    g.add_argument("--print-config", action="store_true",
-                   help="print the settings this command line gives (YAML, each with its type and meaning) and exit")
+    """``--preset``, ``--config``, ``--set``, ``--print-config`` on the run (or batch) parser (the
+    options of every command, :func:`c3f_core.settings_cli.add_settings_options`), and the removed
+    flags as hidden options that say what replaces them."""
+    add_settings_options_of(r, SLAM_SETTINGS, example="fragments.min_overlap=0.8 --set fusion.tsdf.voxel_size=0.002",
+                            replay="a previous run's summary.json")
     for usage in REMOVED:
         flag, _, value = usage.partition(" ")
         r.add_argument(flag, action=_Removed, usage=usage, nargs="?" if value else 0, dest=argparse.SUPPRESS,
