@@ -99,8 +99,9 @@ def match_evaluation(ctx: DemoContext) -> dict:
         desc = [provider.describe(im, kp) for im, kp in zip(rgb, kps)]
         ev = match_and_evaluate(desc[0], desc[1], kps[0].xy, kps[1].xy, depth[0], depth[1], K, gt, proj,
                                 metric=provider.metric, ratio=fcfg.ratio, pixel_radius=PIXEL_RADIUS)
-        near, _ = near_misses(ev.matches, kps[1].xy, proj, ev.correct, PIXEL_RADIUS)
-        rows.append(draw_matches(rgb[0], rgb[1], kps[0].xy, kps[1].xy, ev.matches, ev.correct, scale=2, near=near))
+        near, _ = near_misses(ev.matches, kps[1].xy, proj, ev.correct, pixel_radius=PIXEL_RADIUS)
+        rows.append(draw_matches(rgb[0], rgb[1], kps[0].xy, kps[1].xy, ev.matches, correct=ev.correct, scale=2,
+                                 near=near))
         c = ev.counts
         out[name] = {"found": c.found, "correct": c.correct, "precision": c.precision, "recall": c.recall,
                      "near_misses": c.near_misses}

@@ -70,7 +70,7 @@ def open_video(video: str | Path, camera: str | Path | None = None, fov: float |
     return FrameStream(video, camera=lens, use_depth=False, step=step, max_frames=max_frames)
 
 
-def ingest(video: str | Path, out: str | Path, camera: str | Path | None = None, fov: float | None = None,
+def ingest(video: str | Path, out: str | Path, *, camera: str | Path | None = None, fov: float | None = None,
            max_fps: float = 30.0, max_frames: int = 600, max_side: int = 256) -> dict:
     """Write the sequence folder ``out`` from ``video`` (module docstring); returns ``ingest.json``'s record."""
     import cv2
@@ -169,7 +169,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
-        rec = ingest(args.video, args.out, args.camera, args.fov, args.max_fps, args.max_frames, args.max_side)
+        rec = ingest(args.video, args.out, camera=args.camera, fov=args.fov, max_fps=args.max_fps,
+                     max_frames=args.max_frames, max_side=args.max_side)
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -131,8 +131,9 @@ class C3FTrainer(L.Trainer):
         from export import export_model  # torch.onnx is imported only when exporting
 
         written = export_model(
-            model, ckpt_path, output_dir, datamodule, frames, num_frames, tolerance, dynamic_size, weights_only,
-            graphs, storage, metric_scale, precision, calibration_frames,
+            model, ckpt_path, output_dir, datamodule=datamodule, frames=frames, num_frames=num_frames,
+            tolerance=tolerance, dynamic_size=dynamic_size, weights_only=weights_only, graphs=graphs, storage=storage,
+            metric_scale=metric_scale, precision=precision, calibration_frames=calibration_frames,
         )
         for path in written:
             print(f"wrote {path}")

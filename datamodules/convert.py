@@ -37,7 +37,7 @@ from datamodules.formats import PUBLISHED, PublishedSequence, find_sequences, ma
 NOMINAL_FPS = 30.0
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Converted:
     """What one converted sequence holds."""
 
@@ -127,8 +127,9 @@ def write_sequence(seq: PublishedSequence, dst: Path, progress: bool = True) -> 
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return Converted(seq.name, dst, len(seq), seq.has_depth, seq.has_poses, mesh is not None, dropped,
-                     time.perf_counter() - t0)
+    return Converted(name=seq.name, path=dst, frames=len(seq), depth=seq.has_depth, poses=seq.has_poses,
+                     mesh=mesh is not None, depth_dropped=dropped,
+                     seconds=time.perf_counter() - t0)
 
 
 def _write_mesh(path: Path, vertices: np.ndarray, triangles: np.ndarray) -> None:

@@ -127,6 +127,7 @@ def export_model(
     model: Exportable,
     ckpt_path: str | Path | None,
     output_dir: str | Path,
+    *,
     datamodule=None,
     frames: str | Path | None = None,
     num_frames: int = 4,
@@ -250,8 +251,8 @@ def _checked_graphs(specs: list[GraphSpec], every: list[GraphSpec], images, dyna
 
 def _onnx_proto(spec: GraphSpec, example: tuple, dynamic_size: bool, encoding: _Encoding) -> onnx.ModelProto:
     """The ONNX model of ``spec`` traced on ``example``, in ``encoding``'s storage and precision."""
-    proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size,
-                    spec.point_inputs)
+    proto = to_onnx(spec.module, example, spec.input_names, spec.output_name, spec.opset, dynamic_size=dynamic_size,
+                    point_inputs=spec.point_inputs)
     if encoding.precision != "float32":
         calibration = ()
         if encoding.calibration is not None:

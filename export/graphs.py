@@ -59,7 +59,7 @@ def has_deform_conv(module: nn.Module) -> bool:
     return any(isinstance(m, DeformConv2d) for m in module.modules())
 
 
-@dataclass
+@dataclass(kw_only=True)
 class GraphSpec:
     """One graph to export: its module, ONNX names, file name and output description.
 

@@ -34,6 +34,7 @@ def to_onnx(
     input_names: tuple[str, ...],
     output_name: str,
     opset: int,
+    *,
     dynamic_size: bool = True,
     point_inputs: tuple[str, ...] = (),
 ) -> onnx.ModelProto:

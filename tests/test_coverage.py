@@ -13,7 +13,7 @@ from c3f_slam.geometry import transport_frames
 from tests.scenes import tube_mesh, tube_views
 
 CAM = PinholeCamera.from_fov(32, 32, 60.0)
-VIEW = ViewSettings(CAM.width, CAM.height, 0.001, 0.2)
+VIEW = ViewSettings(width=CAM.width, height=CAM.height, depth_min=0.001, depth_max=0.2)
 CFG = CoverageConfig()
 S0, SIGMA = 0.05, 0.0025  # the fold: 5 cm along the tube, Gaussian width 2.5 mm
 
@@ -69,7 +69,7 @@ def test_band_never_in_view_is_its_share():
 
 def _forward(fold: bool, drop=None):
     cam = PinholeCamera.from_fov(48, 48, 110.0)
-    view = ViewSettings(cam.width, cam.height, 0.001, 0.2)
+    view = ViewSettings(width=cam.width, height=cam.height, depth_min=0.001, depth_max=0.2)
     mesh = tube_mesh(fold=(S0, 0.4, SIGMA) if fold else None, drop=drop)
     return compute_coverage(mesh, tube_views(np.arange(0, 0.1001, 0.002)), cam.K, view, CFG)
 

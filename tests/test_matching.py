@@ -99,7 +99,7 @@ def test_gt_identity_with_itself():
     img, depth = _render(T)
     kp = detect_sift(img, 200, contrast_threshold=0.01).xy
     assert len(kp) > 20
-    gt = ground_truth_matches(kp, kp, depth, depth, K, T, T, RADIUS)
+    gt = ground_truth_matches(kp, kp, depth, depth, K, T, T, pixel_radius=RADIUS)
     assert np.array_equal(gt, np.stack([np.arange(len(kp))] * 2, axis=1))
 
 
@@ -136,18 +136,18 @@ def test_gt_occluded_point_has_no_match():
     _, d_j = _render(T_wj)
     kp_i = np.array([[30.0, 40.0], [60.0, 30.0], [50.0, 60.0]])
     uv = _analytic_projection(kp_i, T_wi, T_wj)
-    gt = ground_truth_matches(kp_i, uv, d_i, d_j, K, T_wi, T_wj, RADIUS)
+    gt = ground_truth_matches(kp_i, uv, d_i, d_j, K, T_wi, T_wj, pixel_radius=RADIUS)
     assert gt.tolist() == [[0, 0], [1, 1], [2, 2]]
     occluded = d_j.copy()
     u, v = np.round(uv[1]).astype(int)
     occluded[v - 3 : v + 4, u - 3 : u + 4] = 0.02  # a nearer surface (fold) in front of point 1
-    gt, proj = ground_truth_matches(kp_i, uv, d_i, occluded, K, T_wi, T_wj, RADIUS, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, uv, d_i, occluded, K, T_wi, T_wj, pixel_radius=RADIUS, return_projection=True)
     assert gt.tolist() == [[0, 0], [2, 2]]
     assert proj.visible.tolist() == [True, False, True]
     # no depth in i: no match either
     d_hole = d_i.copy()
     d_hole[35:46, 25:36] = 0
-    assert ground_truth_matches(kp_i, uv, d_hole, d_j, K, T_wi, T_wj, RADIUS).tolist() == [[1, 1], [2, 2]]
+    assert ground_truth_matches(kp_i, uv, d_hole, d_j, K, T_wi, T_wj, pixel_radius=RADIUS).tolist() == [[1, 1], [2, 2]]
 
 
 def test_gt_nearest_within_radius_one_to_one():
@@ -157,7 +157,7 @@ def test_gt_nearest_within_radius_one_to_one():
     kp_j = np.array([[40.2, 40.0], [70.0, 23.5]])  # i1 loses 40.2 to i0; i2 is 3.5 px away
     assert ground_truth_matches(kp_i, kp_j, d, d, K, T, T, pixel_radius=2.0).tolist() == [[0, 0]]
     assert ground_truth_matches(kp_i, kp_j, d, d, K, T, T, pixel_radius=4.0).tolist() == [[0, 0], [2, 1]]
-    assert ground_truth_matches(kp_i, np.zeros((0, 2)), d, d, K, T, T, RADIUS).shape == (0, 2)
+    assert ground_truth_matches(kp_i, np.zeros((0, 2)), d, d, K, T, T, pixel_radius=RADIUS).shape == (0, 2)
 
 
 # ---------------------------------------------------------------- descriptors
@@ -386,10 +386,10 @@ def test_precision_recall_counts():
     rng = np.random.default_rng(7)
     kp_i = rng.uniform([20, 20], [70, 60], (30, 2))
     kp_j = _analytic_projection(kp_i, T_wi, T_wj)
-    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, RADIUS, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, pixel_radius=RADIUS, return_projection=True)
     assert len(gt) == 30
     found = np.array([[0, 0], [1, 1], [2, 3], [3, 2]])
-    c, correct = evaluate_matches(found, kp_j, gt, proj, RADIUS)
+    c, correct = evaluate_matches(found, kp_j, gt, proj, pixel_radius=RADIUS)
     assert correct.tolist() == [True, True, False, False]
     assert (c.found, c.correct, c.recalled, c.ground_truth) == (4, 2, 2, 30)
     assert np.isclose(c.precision, 0.5) and np.isclose(c.recall, 2 / 30)
@@ -406,12 +406,12 @@ def test_precision_recall_counts():
 def test_draw_matches():
     a = np.zeros((20, 30, 3), np.uint8)
     kp_i, kp_j = np.array([[5.0, 5.0]]), np.array([[6.0, 7.0]])
-    img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), np.array([False]), scale=2)
+    img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), correct=np.array([False]), scale=2)
     assert img.shape == (40, 120, 3) and img.dtype == np.uint8
     assert (img[..., 0] > 200).any() and not (img[..., 1] > 200).any()  # red only
-    img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), np.array([False]), scale=2, near=np.array([True]))
+    img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), correct=np.array([False]), scale=2, near=np.array([True]))
     assert ((img[..., 0] > 200) & (img[..., 1] > 200) & (img[..., 2] < 100)).any()  # yellow
-    img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), np.array([True]), scale=2, near=np.array([True]))
+    img = draw_matches(a, a, kp_i, kp_j, np.array([[0, 0]]), correct=np.array([True]), scale=2, near=np.array([True]))
     assert (img[..., 1] > 200).any() and not (img[..., 0] > 100).any()  # a correct match stays green
 
 
@@ -424,12 +424,12 @@ def test_near_misses_split_wrong_matches():
     # j: 0 re-detected exactly; 1 only 3 px away (no counterpart within 2 px); 2 exactly,
     # plus a keypoint 4 px from it; 3 far from everything
     kp_j = np.array([proj_j[0], proj_j[1] + [3.0, 0.0], proj_j[2], proj_j[2] + [0.0, 4.0], [5.0, 5.0]])
-    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, RADIUS, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, pixel_radius=RADIUS, return_projection=True)
     assert sorted(gt[:, 0].tolist()) == [0, 2]
     found = np.array([[0, 0], [1, 1], [2, 3], [3, 4]])
-    c, correct = evaluate_matches(found, kp_j, gt, proj, RADIUS)
+    c, correct = evaluate_matches(found, kp_j, gt, proj, pixel_radius=RADIUS)
     assert correct.tolist() == [True, False, False, False]
-    near, lonely = near_misses(found, kp_j, proj, correct, RADIUS)
+    near, lonely = near_misses(found, kp_j, proj, correct, pixel_radius=RADIUS)
     assert near.tolist() == [False, True, True, False]  # 3 px and 4 px off are near; match 3 is gross
     assert lonely.tolist() == [False, True, False, False]  # 2's counterpart existed, 1's did not
     assert (c.near_misses, c.near_misses_without_counterpart, c.gross_errors) == (2, 1, 1)
@@ -437,7 +437,7 @@ def test_near_misses_split_wrong_matches():
     assert np.isclose(c.near_miss_share, 2 / 3) and np.isclose(c.no_counterpart_share, 1 / 3)
     assert np.isnan(MatchCounts().near_miss_share)
     # a tighter near radius makes the 4 px miss gross
-    near, _ = near_misses(found, kp_j, proj, correct, RADIUS, near_radius=3.5)
+    near, _ = near_misses(found, kp_j, proj, correct, pixel_radius=RADIUS, near_radius=3.5)
     assert near.tolist() == [False, True, False, False]
     assert MatchCounts.from_array(c.to_array()) == c
 

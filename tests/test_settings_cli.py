@@ -33,33 +33,33 @@ class Tree:
     part: Part = field(default_factory=Part)
 
 
-SPEC = SettingsSpec(presets={"small": Tree, "big": lambda: Tree(preset="big", part=Part(size=9))},
+TOY = SettingsSpec(presets={"small": Tree, "big": lambda: Tree(preset="big", part=Part(size=9))},
                     default="small", record_key="settings", usage="python -m toy --config THIS_FILE")
 
 
 def _args(argv):
     ap = OneLineParser(prog="toy")
-    add_settings_options(ap, SPEC, example="part.size=4", replay="an earlier run's record.json")
+    add_settings_options(ap, TOY, example="part.size=4", replay="an earlier run's record.json")
     return ap.parse_args(argv)
 
 
 def test_order_is_preset_then_file_then_set(tmp_path):
     f = tmp_path / "c.yaml"
     f.write_text("preset: big\nname: b\npart: {scale: 0.5}\n")
-    tree = SPEC.from_args(_args(["--config", str(f), "--set", "part.scale=none", "--set", "name=c"]))
+    tree = TOY.from_args(_args(["--config", str(f), "--set", "part.scale=none", "--set", "name=c"]))
     assert tree == Tree(preset="big", name="c", part=Part(size=9, scale=None))
 
 
 def test_yaml_reads_back_and_records_replay(tmp_path):
-    tree = SPEC.resolve("big", None, ["part.scale=0.25"])
-    text = SPEC.yaml(tree)
+    tree = TOY.resolve("big", None, ["part.scale=0.25"])
+    text = TOY.yaml(tree)
     assert text.startswith("# C3Fusion settings: python -m toy") and "size: 9  # int: pixels" in text
     (tmp_path / "p.yaml").write_text(text)
-    assert SPEC.resolve(None, read_config_file(tmp_path / "p.yaml")) == tree
+    assert TOY.resolve(None, read_config_file(tmp_path / "p.yaml")) == tree
     record = tmp_path / "record.json"
     record.write_text(json.dumps({"settings": {"preset": "big", "part": {"scale": 0.25}}, "result": 1}))
-    replay = read_config_file(record, SPEC.record_key)
-    assert SPEC.resolve(None, replay) == tree and replay.record["result"] == 1
+    replay = read_config_file(record, TOY.record_key)
+    assert TOY.resolve(None, replay) == tree and replay.record["result"] == 1
 
 
 @pytest.mark.parametrize("argv, words", [
@@ -71,18 +71,18 @@ def test_yaml_reads_back_and_records_replay(tmp_path):
 ])
 def test_bad_settings_are_one_line_naming_the_setting(argv, words):
     with pytest.raises(InputError, match=words.replace("(", r"\(").replace(".", r"\.")):
-        SPEC.from_args(_args(argv))
+        TOY.from_args(_args(argv))
 
 
 def test_contradicting_and_unknown_presets(tmp_path):
     f = tmp_path / "c.yaml"
     f.write_text("preset: big\n")
     with pytest.raises(InputError, match="contradicts"):
-        SPEC.from_args(_args(["--preset", "small", "--config", str(f)]))
+        TOY.from_args(_args(["--preset", "small", "--config", str(f)]))
     with pytest.raises(SystemExit):
         _args(["--preset", "huge"])
     with pytest.raises(InputError, match="unknown preset 'huge'"):
-        SPEC.resolve(None, None, ["preset=huge"])
+        TOY.resolve(None, None, ["preset=huge"])
 
 
 def test_one_preset_has_no_preset_option():

@@ -232,7 +232,7 @@ def test_sources_follow_the_models_given():
 def test_predicted_frames_cache_round_trip(tmp_path):
     provider = ModelDepth(DepthModel(fx.depth_model(tmp_path / "d.onnx", SIZE, CROP)), CAM)
     rgb = _ramp_frame()
-    frame = StreamFrame(7, 0.25, rgb, None, "ok", 100.0)
+    frame = StreamFrame(index=7, timestamp=0.25, rgb=rgb, depth=None, status="ok", mean_luma=100.0)
     frames = PredictedFrames(tmp_path / "out" / CACHE_DIR, provider)
     assert provider.depth(frame).shape == (72, 80)
     frames.record(0, frame)
@@ -246,7 +246,7 @@ def test_predicted_frames_cache_round_trip(tmp_path):
 
 def test_model_depth_scale_multiplies_both_grids(tmp_path):
     model = DepthModel(fx.depth_model(tmp_path / "d.onnx", SIZE, CROP))
-    frame = StreamFrame(3, 0.1, _ramp_frame(), None, "ok", 100.0)
+    frame = StreamFrame(index=3, timestamp=0.1, rgb=_ramp_frame(), depth=None, status="ok", mean_luma=100.0)
     plain, scaled = ModelDepth(model, CAM).predict(frame), ModelDepth(model, CAM, scale=2.5).predict(frame)
     assert plain.network.max() > 0
     np.testing.assert_allclose(scaled.network, 2.5 * plain.network, rtol=1e-6)
@@ -262,7 +262,7 @@ def test_model_depth_scale_defaults_to_the_recorded_metric_scale(tmp_path):
     meta.depth["metric_scale"] = 4.0
     model = DepthModel(fx.write(tmp_path / "d.onnx", fx.depth_graph(SIZE), meta))
     assert model.metric_scale == 4.0
-    frame = StreamFrame(3, 0.1, _ramp_frame(), None, "ok", 100.0)
+    frame = StreamFrame(index=3, timestamp=0.1, rgb=_ramp_frame(), depth=None, status="ok", mean_luma=100.0)
     provider = ModelDepth(model, CAM)
     assert (provider.scale, provider.scale_source) == (4.0, "model metadata")
     np.testing.assert_allclose(provider.predict(frame).network, 4.0 * model.predict_network(frame.rgb, CAM)[0],

@@ -25,7 +25,7 @@ from tests import onnx_fixtures as fx
 def _frames(n: int):
     rgb = np.zeros((4, 4, 3), np.uint8)
     for i in range(n):
-        yield StreamFrame(i, float(i), rgb, None, OK, 0.0)
+        yield StreamFrame(index=i, timestamp=float(i), rgb=rgb, depth=None, status=OK, mean_luma=0.0)
 
 
 class _Recorder:

@@ -67,7 +67,7 @@ def test_selector_cap_recent_and_appearance():
     descs = [sift_like(rng) for _ in range(n)]
     for d in descs:
         index.add(global_descriptor(d))
-    c = select_candidates(n, cfg, index.scores(global_descriptor(descs[42])))
+    c = select_candidates(n, cfg, appearance=index.scores(global_descriptor(descs[42])))
     assert len(c.ids) == 12 and c.ids == sorted(set(c.ids))
     assert {296, 297, 298, 299} <= set(c.ids)  # the most recent ones, always
     assert 42 in c.ids and c.sources[42] == "appearance"
@@ -77,8 +77,9 @@ def test_selector_cap_recent_and_appearance():
     assert select_candidates(n, CandidateConfig(max_candidates=None)).ids == list(range(n))
     # never more than the cap, whatever the parts ask for
     tight = CandidateConfig(max_candidates=3, recent=4, spatial=8)
-    c = select_candidates(n, tight, index.scores(global_descriptor(descs[42])), np.tile(np.eye(4), (n, 1, 1)),
-                          np.eye(4))
+    c = select_candidates(n, tight, appearance=index.scores(global_descriptor(descs[42])), poses=np.tile(np.eye(4),
+                                                                                                         (n, 1, 1)),
+                          T_query=np.eye(4))
     assert c.ids == [297, 298, 299]
 
 
@@ -93,7 +94,7 @@ def test_spatial_neighbours_radius_direction_and_component():
     assert spatial_neighbours(poses, T, 0.012, 60.0, k=10, accept=lambda v: v % 2 == 0) == [8, 6]
     assert spatial_neighbours(poses, T, 0.012, 60.0, k=10, exclude={8}) == [6, 9, 5]
     cfg = CandidateConfig(max_candidates=6, recent=2, spatial=3, spatial_radius=0.012)
-    c = select_candidates(20, cfg, np.zeros(20), poses, T)
+    c = select_candidates(20, cfg, appearance=np.zeros(20), poses=poses, T_query=T)
     assert {k for k, src in c.sources.items() if src == "spatial"} == {6, 8, 9}
     assert {18, 19} <= set(c.ids) and len(c.ids) == 6 and c.appearance == 1
 

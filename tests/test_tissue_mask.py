@@ -151,8 +151,8 @@ def test_coverage_counts_only_points_seen_inside_the_mask():
     z = np.full(u.size, 0.05)
     pts = np.stack([(u.ravel() - cam.cx) / cam.fx * z, (v.ravel() - cam.cy) / cam.fy * z, z], axis=1)
     mask = _border("octagon")
-    plain = in_view(pts, np.eye(4), cam.K, ViewSettings(W, H, 0.01, 0.1))
-    masked = in_view(pts, np.eye(4), cam.K, ViewSettings(W, H, 0.01, 0.1, mask=mask))
+    plain = in_view(pts, np.eye(4), cam.K, ViewSettings(width=W, height=H, depth_min=0.01, depth_max=0.1))
+    masked = in_view(pts, np.eye(4), cam.K, ViewSettings(width=W, height=H, depth_min=0.01, depth_max=0.1, mask=mask))
     assert plain.all() and np.array_equal(masked, mask.ravel())
 
 
@@ -226,7 +226,7 @@ def test_model_depth_is_zero_outside_the_tissue_on_both_grids(scoped, depth_onnx
     seq = Sequence(scoped)
     truth = read_mask_png(scoped / "tissue_mask.png", 128, 128)
     depth = ModelDepth(DepthModel(depth_onnx), seq.camera, tissue=truth)
-    frame = StreamFrame(0, 0.0, seq.read_rgb(0), None, "ok", 100.0)
+    frame = StreamFrame(index=0, timestamp=0.0, rgb=seq.read_rgb(0), depth=None, status="ok", mean_luma=100.0)
     pred = depth.predict(frame)
     grid = on_grid(truth, (0, 0, 128, 128), (64, 64))
     assert (pred.frame[~truth] == 0).all() and (pred.frame[truth] > 0).mean() > 0.99

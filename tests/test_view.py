@@ -123,8 +123,9 @@ def test_unregistered_frames_say_so(evaluated):
     keep = np.arange(len(stamps)) != 3
     stream = open_stream(seq, use_depth=False, max_frames=5)
     cam, ms, clock = stream.camera, MeshScene.of(o3d.io.read_triangle_mesh(str(out / "mesh.ply"))), RenderClock()
-    frames = list(rerender_frames(stream, cam.K, cam.width, cam.height, ms, PoseLookup(stamps[keep], poses[keep]),
-                                  clock))
+    frames = list(rerender_frames(stream, K=cam.K, width=cam.width, height=cam.height, ms=ms,
+                                  lookup=PoseLookup(stamps[keep], poses[keep]),
+                                  clock=clock))
     assert len(frames) == 5 and frames[0].shape == (256, 512, 3) and clock.frames == 4
     right = frames[3][40:, 256:]  # below the label
     assert np.median(right) == 40 and right.max() > 200  # grey, with the white "not registered"
@@ -143,8 +144,9 @@ def test_the_rerender_shows_the_reconstruction_inside_the_tissue_area_only(evalu
     def panels(tissue):
         stream = open_stream(seq, use_depth=False, max_frames=3)
         cam = stream.camera
-        frames = rerender_frames(stream, cam.K, cam.width, cam.height, ms, PoseLookup(stamps, poses), RenderClock(),
-                                 tissue)
+        frames = rerender_frames(stream, K=cam.K, width=cam.width, height=cam.height, ms=ms,
+                                 lookup=PoseLookup(stamps, poses), clock=RenderClock(),
+                                 tissue=tissue)
         return [f[:, f.shape[1] // 2:] for f in frames], cam
 
     plain, cam = panels(None)

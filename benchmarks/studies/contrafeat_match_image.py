@@ -55,8 +55,10 @@ def main() -> None:
         counts, details = model.evaluate_pairs(maps, frames, pairs)
         p, ev = details[args.pair]
         fi, fj = frames[p.b][p.i], frames[p.b][p.j]
-        near, _ = near_misses(ev.matches, p.kp_j.xy, p.projection, ev.correct, model.gt_settings.pixel_radius)
-        rows.append(draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, ev.correct, scale=2, near=near))
+        near, _ = near_misses(ev.matches, p.kp_j.xy, p.projection, ev.correct,
+                              pixel_radius=model.gt_settings.pixel_radius)
+        rows.append(draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, correct=ev.correct, scale=2,
+                                 near=near))
         print(f"{ckpt}: this pair {int(np.sum(ev.correct))} correct of {len(ev.matches)} matches "
               f"({int(np.sum(near))} of the wrong ones near misses; {len(p.gt)} ground-truth); "
               "first batch CDF recall/precision "

@@ -120,12 +120,16 @@ class ContraFeat(C3FModule):
         keypoints in input pixels -> (B, N, C) unit descriptors there, ``contrafeat_kp.onnx``)."""
         dim = int(self.net.descriptor_dim)
         return [
-            GraphSpec("descriptors", DescriptorGraph(self.net), ("image",), "descriptors", "unit L2 norm",
-                      "dense descriptors, unit length per pixel", "contrafeat.onnx", OPSET, dim, sampling="dense"),
-            GraphSpec("descriptors", KeypointDescriptorGraph(self.net), ("image", "keypoints"), "descriptors",
-                      "unit L2 norm", "descriptors at the keypoints (bilinear, clamped at the border, "
-                      "re-normalised), unit length per keypoint", "contrafeat_kp.onnx", OPSET, dim,
-                      name="descriptors_kp", sampling="keypoints"),
+            GraphSpec(kind="descriptors", module=DescriptorGraph(self.net), input_names=("image",),
+                      output_name="descriptors", output_units="unit L2 norm",
+                      output_meaning="dense descriptors, unit length per pixel", file_name="contrafeat.onnx",
+                      opset=OPSET, output_channels=dim, sampling="dense"),
+            GraphSpec(kind="descriptors", module=KeypointDescriptorGraph(self.net), input_names=("image", "keypoints"),
+                      output_name="descriptors", output_units="unit L2 norm",
+                      output_meaning="descriptors at the keypoints (bilinear, clamped at the border, re-normalised), "
+                                     "unit length per keypoint",
+                      file_name="contrafeat_kp.onnx", opset=OPSET, output_channels=dim, name="descriptors_kp",
+                      sampling="keypoints"),
         ]
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
@@ -242,9 +246,9 @@ class ContraFeat(C3FModule):
             fi, fj = stats["frames"][p.b][p.i], stats["frames"][p.b][p.j]
             scale = max(1, 256 // fi.image.shape[0])
             self._visuals.append(
-                draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, ev.correct, scale=scale,
+                draw_matches(fi.image, fj.image, p.kp_i.xy, p.kp_j.xy, ev.matches, correct=ev.correct, scale=scale,
                              near=near_misses(ev.matches, p.kp_j.xy, p.projection, ev.correct,
-                                              self.gt_settings.pixel_radius)[0])
+                                              pixel_radius=self.gt_settings.pixel_radius)[0])
             )
 
     def _eval_epoch_end(self, stage: str) -> None:

@@ -33,7 +33,7 @@ class Frame:
     specular: np.ndarray | None = None
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PairData:
     """Keypoints of frames i and j and their ground-truth matches (M, 2)."""
 
@@ -126,7 +126,8 @@ def dense_correspondences(
     if len(xy) > settings.points:
         xy = xy[rng.choice(len(xy), settings.points, replace=False)]
     xy = xy.astype(np.float64)
-    proj = project_keypoints(xy, fi.depth, fj.depth, fi.K, fi.pose, fj.pose, gt_settings.depth_tolerance)
+    proj = project_keypoints(xy, fi.depth, fj.depth, fi.K, fi.pose, fj.pose,
+                             depth_tolerance=gt_settings.depth_tolerance)
     uv = proj.uv
     keep = proj.visible.copy()
     with np.errstate(invalid="ignore"):
@@ -187,5 +188,5 @@ def make_pairs(
             extra = (
                 dense_correspondences(fi, fj, dense, gt_settings, rng, kp_settings.mask_specular) if use_dense else None
             )
-            out.append(PairData(b, 0, j, kps[0], kps[j], gt, proj, extra))
+            out.append(PairData(b=b, i=0, j=j, kp_i=kps[0], kp_j=kps[j], gt=gt, projection=proj, dense=extra))
     return out

@@ -101,11 +101,14 @@ class DepthNet(C3FModule):
         """The depth graph (image -> depth, metres) and the pose graph (two images -> T_ba)."""
         depth = DepthGraph(self.depth_net)
         return [
-            GraphSpec("depth", depth, ("image",), "depth", "m", "depth along the optical axis (z), metres",
-                      "depthnet.onnx", OPSET_DEFORM if has_deform_conv(depth) else OPSET, 1,
+            GraphSpec(kind="depth", module=depth, input_names=("image",), output_name="depth", output_units="m",
+                      output_meaning="depth along the optical axis (z), metres", file_name="depthnet.onnx",
+                      opset=OPSET_DEFORM if has_deform_conv(depth) else OPSET, output_channels=1,
                       depth_range=(self.depth_net.min_depth, self.depth_net.max_depth)),
-            GraphSpec("pose", PoseGraph(self.pose_net), ("image_a", "image_b"), "T_ba", "m",
-                      "rigid transform from camera-a to camera-b coordinates (image_a earlier)", "posenet.onnx", OPSET),
+            GraphSpec(kind="pose", module=PoseGraph(self.pose_net), input_names=("image_a", "image_b"),
+                      output_name="T_ba", output_units="m",
+                      output_meaning="rigid transform from camera-a to camera-b coordinates (image_a earlier)",
+                      file_name="posenet.onnx", opset=OPSET),
         ]
 
     def predict_step(self, batch, batch_idx: int = 0) -> torch.Tensor:

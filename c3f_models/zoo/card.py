@@ -174,7 +174,7 @@ def body(recipe: Recipe, state: dict, step: int, files: dict, results: dict, hel
     return "\n".join(lines)
 
 
-def write_card(path: Path, recipe: Recipe, state: dict, step: int, files: dict, results: dict,
+def write_card(path: Path, recipe: Recipe, *, state: dict, step: int, files: dict, results: dict,
                heldout: tuple[SimSpec, ...]) -> Path:
     meta = front_matter(recipe, state, step, files, results, heldout)
     text = "---\n" + yaml.safe_dump(meta, sort_keys=False, allow_unicode=True) + "---\n" + body(

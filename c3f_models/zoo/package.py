@@ -121,7 +121,7 @@ def package(run: RecipeRun, zoo_dir: Path, heldout: tuple[SimSpec, ...], heldout
     (stage / "evaluation.json").write_text(json.dumps(results, indent=2) + "\n")
     files = {name: {"role": role, "sha256": sha256_of(stage / name), "bytes": (stage / name).stat().st_size}
              for name, role in _entry_files(r).items()}
-    write_card(stage / "README.md", r, run.read_state(), step, files, results, heldout)
+    write_card(stage / "README.md", r, state=run.read_state(), step=step, files=files, results=results, heldout=heldout)
     dest = install(stage, zoo_dir / r.name, [*files, "README.md", "config.yaml", "evaluation.json"])
     write_index(zoo_dir)
     return dest

@@ -84,7 +84,8 @@ def compute_coverage(surface: o3d.geometry.TriangleMesh, poses: np.ndarray, K: n
     if len(surface.triangles) == 0:
         raise CoverageUnavailable("the surface has no triangles")
     pts, colours = surface_samples(surface)
-    wall = fit_wall(line, pts, colours, cfg.cell_length, cfg.angle_bins, cfg.max_radius, cfg.fill_gap)
+    wall = fit_wall(line, pts, colours=colours, cell_length=cfg.cell_length, angle_bins=cfg.angle_bins,
+                    max_radius=cfg.max_radius, fill_gap=cfg.fill_gap)
     if wall is None:
         raise CoverageUnavailable(f"no surface within {cfg.max_radius * 100:.0f} cm of the camera path")
     frames = subsample_poses(P, cfg.max_frames)
@@ -110,6 +111,7 @@ def settings_from_dict(d: dict, mask: np.ndarray | None = None) -> tuple[Coverag
     names = {f.name for f in fields(CoverageConfig)}
     cfg = CoverageConfig(**{k: v for k, v in d.items() if k in names})
     w, h = d["image_size"]
-    view = ViewSettings(int(w), int(h), float(d["depth_min"]), float(d["depth_max"]), cfg.occlusion_tol,
-                        cfg.occlusion_tol_rel, mask)
+    view = ViewSettings(width=int(w), height=int(h), depth_min=float(d["depth_min"]),
+                        depth_max=float(d["depth_max"]), tol=cfg.occlusion_tol,
+                        tol_rel=cfg.occlusion_tol_rel, mask=mask)
     return cfg, view, np.asarray(d["K"], dtype=np.float64)

@@ -17,7 +17,7 @@ import open3d as o3d
 from c3f_slam.geometry import invert_pose, project, transform_points
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ViewSettings:
     """Image size (pixels), depth range (metres, along z) and occlusion tolerance
     (``tol`` + ``tol_rel`` x distance, metres) of the visibility test; ``mask`` (height, width)

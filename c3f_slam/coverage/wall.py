@@ -81,7 +81,7 @@ def surface_samples(mesh: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.nda
     return pts, (np.concatenate([C, C[F].mean(axis=1)]) if len(F) else C)
 
 
-def fit_wall(centreline: Centreline, points: np.ndarray, colours: np.ndarray | None, cell_length: float,
+def fit_wall(centreline: Centreline, points: np.ndarray, *, colours: np.ndarray | None, cell_length: float,
              angle_bins: int, max_radius: float, fill_gap: float) -> WallModel | None:
     """The wall model from surface ``points`` (K, 3) and their ``colours``; None when no point
     lies on the wall of the explored segment."""

@@ -115,7 +115,7 @@ class ErrorStats:
         return dict(self.__dict__)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ATEResult:
     """ATE (metres) after alignment ``mode``; ``errors`` per pose, ``aligned`` the moved estimate."""
 
@@ -150,7 +150,7 @@ def ate(est_poses: np.ndarray, gt_poses: np.ndarray, align: str = "sim3") -> ATE
         raise ValueError(f"align must be sim3, se3 or none, got {align!r}")
     aligned = apply_sim3(s, R, t, est)
     err = np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1)
-    return ATEResult(align, ErrorStats.of(err), s, R, t, err, aligned)
+    return ATEResult(mode=align, stats=ErrorStats.of(err), scale=s, R=R, t=t, errors=err, aligned=aligned)
 
 
 @dataclass

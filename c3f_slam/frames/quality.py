@@ -78,7 +78,7 @@ class FrameQuality:
         return {k: round(v, 4) if isinstance(v, float) else v for k, v in asdict(self).items()}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class _Masks:
     """Thumbnail sizes (w, h) and masks of one frame size."""
 
@@ -208,8 +208,9 @@ class FrameQualityGate:
         if not dup_inside.any():
             raise InputError("frame-quality mask is too thin: no thumbnail pixel lies wholly inside it")
         dup_gradient = _eroded(dup_inside)
-        return _Masks(k, thumb, dup, inside, _eroded(inside), dup_inside, dup_gradient,
-                      dup_gradient.astype(np.float32), bool(inside.all()))
+        return _Masks(factor=k, thumb=thumb, dup=dup, inside=inside, laplacian=_eroded(inside),
+                      dup_inside=dup_inside, dup_gradient=dup_gradient,
+                      dup_weight=dup_gradient.astype(np.float32), all_inside=bool(inside.all()))
 
     def _is_duplicate(self, difference: tuple[float, float] | None) -> bool:
         """Whether a (mean |diff|, motion rms) difference is no more than compression noise: its

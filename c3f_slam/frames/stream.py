@@ -54,7 +54,7 @@ BLACK_THRESHOLD = 5.0
 SATURATED_THRESHOLD, SATURATED_SHARE = 250.0, 0.9
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StreamFrame:
     """One frame: ``rgb`` (H, W, 3) uint8 (None when unreadable), ``depth`` (H, W) float32
     metres or None, ``status`` "ok" / "black" / "saturated" / "unreadable", ``mean_luma`` in
@@ -264,7 +264,8 @@ class FrameStream:
                 rgb = read_rgb(seq.rgb_paths[index])
                 depth = read_depth_png(seq.depth_paths[index], seq.camera.depth_scale) if want_depth else None
             except InputError as exc:
-                yield StreamFrame(index, stamp, None, None, UNREADABLE, 0.0, str(exc))
+                yield StreamFrame(index=index, timestamp=stamp, rgb=None, depth=None, status=UNREADABLE,
+                                  mean_luma=0.0, error=str(exc))
                 continue
             seq.camera.check_image(rgb.shape, str(seq.rgb_paths[index]))  # wrong intrinsics: an error
             if depth is not None:
@@ -300,7 +301,7 @@ class FrameStream:
             status, mean = frame_status(rgb, *self._thresholds)
             if status == OK and self.quality is not None:  # blurred, dark, washed out, covered, repeated
                 status = self.quality.assess(rgb).status
-            yield StreamFrame(index, stamp, rgb, depth, status, mean)
+            yield StreamFrame(index=index, timestamp=stamp, rgb=rgb, depth=depth, status=status, mean_luma=mean)
 
 
 def open_stream(source: str | Path, **kwargs) -> FrameStream:

@@ -426,12 +426,13 @@ def write_submission(sequence: str | Path, out: str | Path, depth_model: str | N
             raise InputError(f"{sequence}: one frame, no relative pose to write")
         res["pose_files"] = len(write_relative_poses(Path(out) / "pose", full, numbers))
     if depth_model is not None:
-        res["depth_files"], res["depth_scale"] = _write_depths(stream, numbers, Path(out) / "depth", depth_model,
-                                                               threads, depth_scale, progress)
+        res["depth_files"], res["depth_scale"] = _write_depths(
+            stream, numbers=numbers, folder=Path(out) / "depth", depth_model=depth_model, threads=threads,
+            depth_scale=depth_scale, progress=progress)
     return res
 
 
-def _write_depths(stream, numbers: list[int], folder: Path, depth_model: str, threads: int,
+def _write_depths(stream, *, numbers: list[int], folder: Path, depth_model: str, threads: int,
                   depth_scale: float | None, progress: bool) -> tuple[int, float]:
     """Predict and write the depth of every frame of ``stream``; returns (files, factor applied)."""
     from tqdm import tqdm

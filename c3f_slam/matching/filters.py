@@ -40,7 +40,7 @@ from c3f_slam.config import MatchFilterConfig
 from c3f_slam.matching.kabsch import kabsch, residuals, rotation_from_covariance
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FilterResult:
     """Outcome of :func:`filter_matches`.
 
@@ -213,7 +213,8 @@ def filter_matches(
         raise ValueError(f"pts_i and pts_j must have the same shape, got {pts_i.shape} and {pts_j.shape}")
 
     def reject(idx: np.ndarray, reason: str, T=None, res=None, cn=float("inf"), area=0.0) -> FilterResult:
-        return FilterResult(idx, T, np.zeros(len(idx)) if res is None else res, cn, area, False, reason)
+        return FilterResult(inlier_indices=idx, T_ij=T, residuals=np.zeros(len(idx)) if res is None else res,
+                            condition_number=cn, area=area, accepted=False, reason=reason)
 
     idx = np.flatnonzero(np.isfinite(pts_i).all(1) & np.isfinite(pts_j).all(1))
     if priority is not None:
@@ -249,7 +250,8 @@ def filter_matches(
     if cfg.use_area and area < cfg.min_area:
         return reject(idx, f"surface area too small ({area:.3g} m^2 < {cfg.min_area:g} m^2)", T, res, cn, area)
     order = np.argsort(idx, kind="stable")
-    return FilterResult(idx[order], T, res[order], cn, area, True, "")
+    return FilterResult(inlier_indices=idx[order], T_ij=T, residuals=res[order], condition_number=cn, area=area,
+                        accepted=True, reason="")
 
 
 __all__ = [

@@ -112,6 +112,7 @@ def near_misses(
     kp_j: np.ndarray,
     projection: Projection,
     correct: np.ndarray,
+    *,
     pixel_radius: float,
     near_radius: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -142,6 +143,7 @@ def evaluate_matches(
     kp_j: np.ndarray,
     gt_matches: np.ndarray,
     projection: Projection,
+    *,
     pixel_radius: float,
     accepted: bool = True,
     near_radius: float | None = None,
@@ -151,7 +153,7 @@ def evaluate_matches(
     gt_matches = np.asarray(gt_matches, dtype=np.int64).reshape(-1, 2)
     correct = classify_matches(matches, kp_j, gt_matches, projection, pixel_radius)
     recalled = int(np.isin(np.unique(matches[correct, 0]), gt_matches[:, 0]).sum())
-    near, lonely = near_misses(matches, kp_j, projection, correct, pixel_radius, near_radius)
+    near, lonely = near_misses(matches, kp_j, projection, correct, pixel_radius=pixel_radius, near_radius=near_radius)
     counts = MatchCounts(
         found=len(matches), correct=int(correct.sum()), recalled=recalled,
         ground_truth=len(gt_matches), pairs=1, accepted_pairs=int(accepted),
@@ -160,7 +162,7 @@ def evaluate_matches(
     return counts, correct
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PairEvaluation:
     """Matches of one pair with one descriptor, before and after the keypoint filter."""
 
@@ -193,11 +195,14 @@ def match_and_evaluate(
 ) -> PairEvaluation:
     """Mutual-NN matching, then the keypoint filter (3D points from the depth maps), both scored."""
     matches, dist = mutual_nearest_neighbours(desc_i, desc_j, metric=metric, ratio=ratio)
-    counts, correct = evaluate_matches(matches, kp_j, gt_matches, projection, pixel_radius, near_radius=near_radius)
+    counts, correct = evaluate_matches(matches, kp_j, gt_matches, projection, pixel_radius=pixel_radius,
+                                       near_radius=near_radius)
     pts_i = lift_keypoints(np.asarray(kp_i)[matches[:, 0]], depth_i, K, depth_sampling)
     pts_j = lift_keypoints(np.asarray(kp_j)[matches[:, 1]], depth_j, K, depth_sampling)
     result = filter_matches(pts_i, pts_j, filter_cfg, priority=dist)
     kpf = matches[result.kept]
-    kpf_counts, kpf_correct = evaluate_matches(kpf, kp_j, gt_matches, projection, pixel_radius, result.accepted,
-                                               near_radius)
-    return PairEvaluation(matches, correct, counts, kpf, kpf_correct, kpf_counts, result)
+    kpf_counts, kpf_correct = evaluate_matches(kpf, kp_j, gt_matches, projection, pixel_radius=pixel_radius,
+                                               accepted=result.accepted,
+                                               near_radius=near_radius)
+    return PairEvaluation(matches=matches, correct=correct, counts=counts, kpf_matches=kpf, kpf_correct=kpf_correct,
+                          kpf_counts=kpf_counts, filter=result)

@@ -17,6 +17,7 @@ def draw_matches(
     kp_i: np.ndarray,
     kp_j: np.ndarray,
     matches: np.ndarray,
+    *,
     correct: np.ndarray | None = None,
     max_lines: int | None = 200,
     scale: int = 1,

@@ -46,7 +46,7 @@ ROLE_KIND = {"depth": "depth", "pose": "depth", "descriptors": "descriptors"}
 def zoo_root() -> Path:
     """The zoo folder: ``$C3F_ZOO`` if set, else ``zoo/`` at the repository's root."""
     env = os.environ.get(ENV)
-    return Path(env) if env else Path(__file__).resolve().parents[1] / "zoo"
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "zoo"
 
 
 def is_zoo_name(value: object) -> bool:

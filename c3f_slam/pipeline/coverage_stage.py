@@ -58,7 +58,8 @@ def view_settings(camera: PinholeCamera, cfg: SlamConfig, mask: np.ndarray | Non
     and the pixels that observe (``mask``, the tissue area; None: all)."""
     c, t = cfg.coverage, cfg.fusion.tsdf
     near, far = c.depth_range(t.depth_min, t.depth_max)
-    return ViewSettings(camera.width, camera.height, near, far, c.occlusion_tol, c.occlusion_tol_rel, mask)
+    return ViewSettings(width=camera.width, height=camera.height, depth_min=near, depth_max=far, tol=c.occlusion_tol,
+                        tol_rel=c.occlusion_tol_rel, mask=mask)
 
 
 def coverage_report(cov: CoverageMap, cfg: CoverageConfig, view: ViewSettings, K: np.ndarray) -> dict:
@@ -69,7 +70,7 @@ def coverage_report(cov: CoverageMap, cfg: CoverageConfig, view: ViewSettings, K
 
 
 def write_coverage(outputs: RunOutputs, mesh: TriangleMesh | None, poses: np.ndarray, camera: PinholeCamera,
-                   cfg: SlamConfig, mask: np.ndarray | None = None) -> dict:
+                   cfg: SlamConfig, *, mask: np.ndarray | None = None) -> dict:
     """Estimate and write the coverage outputs; returns summary.json's fields (``unseen_share``,
     ``coverage``: status and files). ``poses``: camera-to-world (F, 4, 4) in time order, NaN
     where unregistered; ``mask``: the tissue area of ``camera``'s images (written as
@@ -104,7 +105,7 @@ def run_coverage(outputs: RunOutputs, mesh: TriangleMesh | None, slam_map: SlamM
     try:
         _, _, poses, registered = slam_map.trajectory()
         poses = np.where(np.asarray(registered, bool)[:, None, None], poses, np.nan)
-        out = write_coverage(outputs, mesh, poses, fusion_camera(sources), cfg, fusion_mask(sources))
+        out = write_coverage(outputs, mesh, poses, fusion_camera(sources), cfg, mask=fusion_mask(sources))
     except Exception as exc:  # the run's own outputs stay valid
         out = {"unseen_share": None, "coverage": {"status": "error", "error": f"{type(exc).__name__}: {exc}"}}
     out["coverage"]["seconds"] = time.perf_counter() - t0

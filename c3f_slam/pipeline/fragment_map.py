@@ -141,7 +141,8 @@ class FragmentMap:
                       information: dict[int, np.ndarray]) -> int:
         """Place keyframe ``node`` and add its ``edges`` (:func:`link_new_keyframe`); returns the
         number of components merged."""
-        return link_new_keyframe(self.graph, node, edges, dense_information, self.sparse, information)
+        return link_new_keyframe(self.graph, node, edges, dense_information, sparse=self.sparse,
+                                 information=information)
 
     def attach(self, fid: int, frame: FrameInput, reason: str, keep: list[KeyframeEdge],
                odometry: KeyframeEdge | None = None) -> int:
@@ -167,7 +168,7 @@ class FragmentMap:
         which merges their components, then the schedule's turn."""
         act = self.active
         assert act is not None
-        link_across_break(self.graph, tail_node, act.node, T_ij, points_j, self.sparse)
+        link_across_break(self.graph, tail_node, act.node, T_ij, points_j, sparse=self.sparse)
         self.after_keyframe(act.node, True)
 
     def after_keyframe(self, node: int, trigger: bool) -> None:
@@ -202,8 +203,8 @@ class FragmentMap:
         for _, rows in self._frame_groups():
             nodes = [self.log.node[r] for r in rows.tolist()]
             world = np.stack([self.graph.pose(k) @ self.log.node_pose(r) for k, r in zip(nodes, rows.tolist())])
-            smooth = smooth_poses(stamps[rows], world, rule.prior_s, rule.max_gap_s, rule.robust_k,
-                                  rule.robust_iterations)
+            smooth = smooth_poses(stamps[rows], world, rule.prior_s, max_gap_s=rule.max_gap_s, robust_k=rule.robust_k,
+                                  robust_iterations=rule.robust_iterations)
             node_inv = np.stack([invert_pose(self.graph.pose(k)) for k in nodes])
             self.log.set_node_poses(rows, node_inv @ smooth)
 

@@ -135,6 +135,7 @@ def join_components(graph: PoseGraph, i: int, j: int, T_ij: np.ndarray) -> bool:
 
 def link_new_keyframe(graph: PoseGraph, node: int, edges: list[KeyframeEdge],
                       dense_information: Callable[[PairMatch], np.ndarray],
+                      *,
                       sparse: Components | None = None, information: dict[int, np.ndarray] | None = None) -> int:
     """Place the new keyframe ``node`` (:func:`place_new_frame`) and add its ``edges``: odometry
     certain, the others uncertain; a ``fallback`` edge with ``dense_information(match)`` (its
@@ -174,6 +175,7 @@ def link_revisit(graph: PoseGraph, keep: list[KeyframeEdge], sparse: Components 
 
 
 def link_across_break(graph: PoseGraph, i: int, j: int, T_ij: np.ndarray, points_j: np.ndarray,
+                      *,
                       sparse: Components | None = None) -> None:
     """Merge the components of ``i`` and ``j`` (:func:`join_components`) and add the uncertain
     ``rejoin`` edge p_i = T_ij p_j with the matched points of frame j."""

@@ -40,7 +40,7 @@ class PlacementCounts:
     reasons: dict[str, int] = field(default_factory=lambda: defaultdict(int))  #: new-fragment reasons
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class NewFragment:
     """The frame that opens fragment ``fid`` and what it comes after: ``link`` its sparse
     match to the previous frame (T_prev,cur) or None, ``dense`` the dense fallback's in its

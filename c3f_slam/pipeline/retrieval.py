@@ -158,6 +158,7 @@ def spatial_neighbours(
     radius: float,
     max_angle_deg: float,
     k: int,
+    *,
     accept: Callable[[int], bool] | None = None,
     exclude: set[int] | frozenset[int] = frozenset(),
 ) -> list[int]:
@@ -185,6 +186,7 @@ def spatial_neighbours(
 def select_candidates(
     n_keyframes: int,
     cfg: CandidateConfig,
+    *,
     appearance: np.ndarray | None = None,
     poses: np.ndarray | None = None,
     T_query: np.ndarray | None = None,
@@ -208,7 +210,7 @@ def select_candidates(
     if T_query is not None and poses is not None and len(chosen) < cap:
         room = min(cfg.spatial, cap - len(chosen))
         for k in spatial_neighbours(poses[:n], T_query, cfg.spatial_radius, cfg.spatial_max_angle_deg, room,
-                                    accept, exclude=set(chosen)):
+                                    accept=accept, exclude=set(chosen)):
             chosen[k] = "spatial"
     room = cap - len(chosen)
     if appearance is not None and room > 0:
@@ -247,7 +249,7 @@ class KeyframeRetrieval:
         n = len(self.index)
         cap = self.cfg.max_candidates
         scores = None if cap is None or n <= cap else self.index.scores(g)
-        return select_candidates(n, self.cfg, scores, poses, T_query, accept)
+        return select_candidates(n, self.cfg, appearance=scores, poses=poses, T_query=T_query, accept=accept)
 
     def add(self, g: np.ndarray) -> int:
         return self.index.add(g)

@@ -252,8 +252,9 @@ def run_slam(
     try:
         inputs = inputs.resolved()
         summary.update(descriptors=inputs.descriptors, depth_source=inputs.depth_source)
-        sources = open_sources(sequence, inputs, cfg.frames.stride, cfg.frames.max_frames, cfg.tissue,
-                               cfg.frames.quality)
+        sources = open_sources(sequence, inputs, stride=cfg.frames.stride, max_frames=cfg.frames.max_frames,
+                               tissue=cfg.tissue,
+                               quality=cfg.frames.quality)
         summary.update(sources.summary())
         sources.tissue.write_png(outputs.tissue_mask)
         cfg = cfg.for_frame_size(sources.camera.width, sources.camera.height).for_depth_source(inputs.depth_source)

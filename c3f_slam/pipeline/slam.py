@@ -164,7 +164,8 @@ class FragmentSlam:
             assert prev_frag is not None
             self.rejoin.record(prev_frag.node, tail, [prev_frag.node_pose(i) for i in range(len(tail))])
         fid = self.map.start_fragment(frame.index, frame.timestamp)
-        return fid, self.placer.place(NewFragment(fid, frame, reason, link, dense, prev_frag, self.prev))
+        return fid, self.placer.place(NewFragment(fid=fid, frame=frame, reason=reason, link=link, dense=dense,
+                                                  prev_frag=prev_frag, prev=self.prev))
 
     # ------------------------------------------------------------------ end of the stream
     def stats(self) -> dict:

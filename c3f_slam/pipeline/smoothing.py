@@ -118,7 +118,7 @@ def smooth_piece(stamps: np.ndarray, poses: np.ndarray, time_constant_s: float, 
     return out
 
 
-def smooth_poses(stamps: np.ndarray, poses: np.ndarray, time_constant_s: float, max_gap_s: float = 0.5,
+def smooth_poses(stamps: np.ndarray, poses: np.ndarray, time_constant_s: float, *, max_gap_s: float = 0.5,
                  robust_k: float = 0.0, robust_iterations: int = 3) -> np.ndarray:
     """``poses`` (N, 4, 4, camera-to-world, metres; one component's registered frames in stream
     order with their ``stamps`` in seconds) under the constant-velocity prior of time constant

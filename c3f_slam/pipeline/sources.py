@@ -109,7 +109,7 @@ def make_providers(inputs: RunInputs, camera: PinholeCamera | None = None,
     return desc, depth
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RunSources:
     """The opened inputs of a run: the frame stream and the two providers."""
 
@@ -150,7 +150,7 @@ class RunSources:
         return out
 
 
-def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_frames: int | None = None,
+def open_sources(sequence: str | Path, inputs: RunInputs, *, stride: int = 1, max_frames: int | None = None,
                  tissue: TissueConfig | None = None, quality: FrameQualityConfig | None = None) -> RunSources:
     """Check resolved ``inputs`` (:meth:`RunInputs.resolved`) against ``sequence`` (a sequence
     folder, or a video with model depth), find the frames' tissue area (``tissue``; None: the
@@ -177,7 +177,8 @@ def open_sources(sequence: str | Path, inputs: RunInputs, stride: int = 1, max_f
     if quality is not None and quality.enabled:
         stream.quality = FrameQualityGate(quality, None if mask.whole_frame else mask.pixels)
     describer, depth = make_providers(inputs, stream.camera, mask)
-    return RunSources(descriptors, depth_source, stream, describer, depth, mask, inputs.max_bad_frames)
+    return RunSources(descriptors=descriptors, depth_source=depth_source, stream=stream, describer=describer,
+                      depth=depth, tissue=mask, max_bad_frames=inputs.max_bad_frames)
 
 
 def _camera_file(stream: FrameStream, camera: str | Path | PinholeCamera | FovGuess | None) -> Path | None:

@@ -34,7 +34,7 @@ from c3f_slam.posegraph.config import PoseGraphConfig
 _reg = o3d.pipelines.registration
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Open3DProblem:
     """A pose graph in Open3D's terms, lengths in units of ``max_correspondence_distance``.
 

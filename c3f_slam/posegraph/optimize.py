@@ -69,7 +69,7 @@ class Window:
     outside: bool
 
 
-@dataclass
+@dataclass(kw_only=True)
 class WindowEdges:
     """The window's edges: graph ends ``ei`` / ``ej``, ``uncertain`` flags, the Open3D edges
     (``source`` / ``target`` local node ids, ``X`` / ``L`` in internal units, fixed ends folded
@@ -135,7 +135,8 @@ def optimize_window(parts: GraphParts, cfg: PoseGraphConfig, reference_node: int
     initial = [np.eye(4)] if window.outside else []
     initial += [_scale_pose(parts.poses.buffer[v], k_scale) for v in window.free]
     reference = 0 if window.outside else int(local[reference_node])
-    problem = Open3DProblem(initial, edges.source, edges.target, edges.X, edges.L, edges.uncertain, reference)
+    problem = Open3DProblem(node_poses=initial, source=edges.source, target=edges.target, transformation=edges.X,
+                            information=edges.L, uncertain=edges.uncertain, reference_node=reference)
     solution = solve(problem, cfg)
     write_back(parts, window, edges, solution, local, k_scale)
     return window, edges.fixed_nodes
@@ -218,7 +219,7 @@ def window_edges(parts: GraphParts, window: Window, local: np.ndarray, k_scale: 
     X[:, :3, 3] *= k_scale
     sc = np.array([k_scale] * 3 + [1.0] * 3)
     L *= np.outer(sc, sc)
-    return WindowEdges(ei, ej, unc, src, tgt, X, L, fixed)
+    return WindowEdges(ei=ei, ej=ej, uncertain=unc, source=src, target=tgt, X=X, L=L, fixed_nodes=fixed)
 
 
 def write_back(parts: GraphParts, window: Window, edges: WindowEdges, solution: Open3DSolution, local: np.ndarray,

@@ -111,7 +111,8 @@ def write_videos(out: RunOutputs, summary: dict, sequence: str | Path | None, pr
         tissue = tissue if tissue.shape == (cam.height, cam.width) else None
     done = {}
     jobs = ((RERENDER, len(stream), lambda c: rerender_frames(
-                stream, cam.K, cam.width, cam.height, ms, PoseLookup(stamps, poses), c, tissue)),
+                stream, K=cam.K, width=cam.width, height=cam.height, ms=ms, lookup=PoseLookup(stamps, poses), clock=c,
+                tissue=tissue)),
             (FLYTHROUGH, FRAMES, lambda c: flythrough_frames(ms, poses, c)))
     for name, total, frames in jobs:
         clock = RenderClock()

@@ -62,7 +62,7 @@ def panel_factor(height: int) -> int:
     return max(1, math.ceil(MIN_PANEL / height))
 
 
-def rerender_frames(frames, K: np.ndarray, width: int, height: int, ms: MeshScene, lookup: PoseLookup,
+def rerender_frames(frames, *, K: np.ndarray, width: int, height: int, ms: MeshScene, lookup: PoseLookup,
                     clock: RenderClock, tissue: np.ndarray | None = None) -> Iterator[np.ndarray]:
     """Side-by-side frames (input | reconstruction) of the stream ``frames``
     (:class:`c3f_slam.frames.stream.StreamFrame`) of a ``width`` x ``height`` camera ``K``; ``clock``
