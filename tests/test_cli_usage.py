@@ -15,7 +15,7 @@ CASES = [
     (slam_main, ["inspect"], "the following arguments are required: model"),
     (data_main, ["convert", "nope", "src", "--out", "o"], "argument dataset: invalid choice: 'nope'"),
     (data_main, ["list"], "the following arguments are required: dataset, src"),
-    (sim_main, ["generate", "--frames", "x", "--out", "o"], "argument --frames: invalid int value: 'x'"),
+    (sim_main, ["generate", "--frames", "x", "--out", "o"], "--frames was removed: use --set path.frames=N"),
     (sim_main, ["contact-sheet"], "the following arguments are required"),
     (models_main, ["fit", "--nope", "1"], "unrecognized arguments: --nope 1"),
     (models_main, ["bogus"], "invalid choice: 'bogus'"),

@@ -14,6 +14,7 @@ import open3d as o3d
 import pytest
 
 from c3f_core.errors import InputError
+from c3f_core.settings import tree_from_mapping
 from c3f_slam import geometry as g
 from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.frames.preprocess import specular_mask
@@ -25,7 +26,7 @@ from datamodules.synthetic.camera_path import plan_path
 from datamodules.synthetic.colon import build_colon
 from datamodules.synthetic.generate import read_event_labels
 from datamodules.synthetic.noise import stream
-from datamodules.synthetic.params import PAPER_TABLE, PRESETS, ColonParams, SimParams, apply_overrides
+from datamodules.synthetic.params import PAPER_TABLE, PRESETS, SIM_SETTINGS, ColonParams, PathParams, SimParams
 from datamodules.synthetic.render import cast_depth, make_scene
 from datamodules.synthetic.scene import build_scene, render_frames
 
@@ -99,7 +100,7 @@ def test_same_seed_gives_byte_identical_files(tmp_path, tiny):
 def test_cli_in_a_new_process_reproduces_the_fixture(tmp_path, tiny):
     """Same seed + parameters through the CLI, in another process: same bytes."""
     out = tmp_path / "cli"
-    cmd = [sys.executable, "-m", "datamodules.synthetic", "generate", "--params", str(tiny / "params.json"),
+    cmd = [sys.executable, "-m", "datamodules.synthetic", "generate", "--config", str(tiny / "params.json"),
            "--out", str(out), "--no-progress"]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
@@ -190,9 +191,7 @@ def test_paths_move_as_specified():
     base = SimParams().path
     runs = {}
     for kind, loop in (("A", False), ("B", False), ("random", False), ("A", True)):
-        p = apply_overrides(SimParams(), {"path.kind": kind, "path.loop": loop, "path.frames": 160,
-                                          "path.closeups": 12, "path.bursts": 12, "path.occlusions": 12,
-                                          "path.roll_events": 6}).path
+        p = PathParams(kind=kind, loop=loop, frames=160, closeups=12, bursts=12, occlusions=12, roll_events=6)
         path = plan_path(colon, p, stream(5, 3), scene)
         s = path.controls.s
         assert (path.wall_distance >= base.min_wall_distance * 0.999).all()
@@ -215,8 +214,7 @@ def test_event_labels_cover_the_fast_motion():
     event's label too, so no fast motion is labelled as a plain frame (frames.csv)."""
     colon = build_colon(ColonParams(length=0.4, polyps=0), stream(5, 1))
     scene = make_scene(colon)
-    p = apply_overrides(SimParams(), {"path.frames": 600, "path.coverage": 0.3, "path.closeups": 8,
-                                      "path.bursts": 0, "path.occlusions": 8, "path.roll_events": 0}).path
+    p = PathParams(frames=600, coverage=0.3, closeups=8, bursts=0, occlusions=8, roll_events=0)
     path = plan_path(colon, p, stream(5, 4), scene)
     trans, rot = relative_motion(path.poses)
     plain = np.array([not (path.labels[i] or path.labels[i + 1]) for i in range(len(rot))])
@@ -233,11 +231,10 @@ def test_event_ramps_keep_the_rate_limits():
     ramps keep their length in frames and close-ups turn several times faster."""
     colon = build_colon(ColonParams(length=0.4, polyps=0), stream(5, 1))
     scene = make_scene(colon)
-    events = {"path.frames": 600, "path.coverage": 0.3, "path.closeups": 6, "path.bursts": 4,
-              "path.occlusions": 6, "path.roll_events": 4}
+    events = {"frames": 600, "coverage": 0.3, "closeups": 6, "bursts": 4, "occlusions": 6, "roll_events": 4}
     rot_max = {}
-    for limits in ({}, {"path.max_turn_rate": None, "path.max_event_speed": None}):
-        p = apply_overrides(SimParams(), {**events, **limits}).path
+    for limits in ({}, {"max_turn_rate": None, "max_event_speed": None}):
+        p = PathParams(**events, **limits)
         path = plan_path(colon, p, stream(5, 4), scene)
         trans, rot = relative_motion(path.poses)
         label = [path.labels[i] or path.labels[i + 1] for i in range(len(rot))]
@@ -265,7 +262,7 @@ def test_read_event_labels(tiny, tmp_path):
 
 def test_events_look_like_what_they_claim(tmp_path):
     """Close-up and fold-occlusion frames see the wall much nearer than plain frames."""
-    p = apply_overrides(tiny_params(frames=90, size=48, seed=2), {
+    p = tiny_params(frames=90, size=48, seed=2, **{
         "colon.length": 0.35, "path.kind": "random", "path.closeups": 25, "path.occlusions": 25,
         "path.max_step": 0.003, "path.max_turn_rate": None, "path.max_event_speed": None})  # short ramps: 90 frames
     scene = build_scene(p)
@@ -286,7 +283,7 @@ def test_events_look_like_what_they_claim(tmp_path):
 def test_wet_highlights_trigger_the_specular_mask():
     frames = {}
     for wet in (0.9, 0.0):
-        p = apply_overrides(tiny_params(frames=4, size=96, seed=4), {"appearance.wetness": wet})
+        p = tiny_params(frames=4, size=96, seed=4, appearance__wetness=wet)
         scene = build_scene(p)
         rgb, _ = scene.renderer.render(scene.path.poses[2], stream(4, 4, 2))
         frames[wet] = specular_mask(rgb, dilation_px=1).mean()
@@ -305,12 +302,12 @@ def test_mucosa_is_pink_orange():
 
 
 def test_presets_follow_the_paper_table():
-    assert set(PRESETS) == {"default", *PAPER_TABLE}
+    assert set(PRESETS) == {"default", *PAPER_TABLE, "tiny"} == set(SIM_SETTINGS.presets)
     kinds = {name: get_preset(name).path.kind for name in PAPER_TABLE}
     assert kinds["seq1"] == "A" and kinds["seq3"] == "B" and kinds["seq2"] == "random"
     for name in PAPER_TABLE:
         p = get_preset(name)
-        p.validate()
+        assert p == SIM_SETTINGS.tree(name) and p.preset == name
         assert p.camera.fov == 110 and p.camera.width == 512 and p.path.frames == 4500
     assert get_preset("Seq. 5").appearance.grain == 3
     assert get_preset("seq5").appearance.value < get_preset("seq1").appearance.value
@@ -322,20 +319,24 @@ def test_presets_follow_the_paper_table():
     "args, option",
     [
         (["--set", "colon.radius=-0.01"], "colon.radius"),
-        (["--radius", "-0.02"], "colon.radius"),
-        (["--fov", "180"], "camera.fov"),
-        (["--frames", "0"], "path.frames"),
-        (["--preset", "seq42"], "preset"),
-        (["--size", "8"], "size"),
-        (["--path", "Z"], "path"),
+        (["--set", "camera.fov=180"], "camera.fov"),
+        (["--set", "path.frames=0"], "path.frames"),
+        (["--preset", "seq42"], "--preset"),
+        (["--set", "camera.width=8"], "camera.width"),
+        (["--set", "path.kind=Z"], "path.kind"),
         (["--set", "colon.nonsense=1"], "nonsense"),
-        (["--set", "appearance.wetness=wet"], "wetness"),
+        (["--set", "appearance.wetness=wet"], "appearance.wetness"),
+        (["--set", "appearance.light_offset=0.02"], "appearance.light_offset"),  # more than colon.radius / 2
         (["--layout", "nope"], "layout"),
+        (["--frames", "0"], "--set path.frames=N"),  # a removed flag names its replacement
     ],
 )
 def test_bad_parameters_fail_before_writing(tmp_path, capsys, args, option):
     out = tmp_path / "never"
-    code = cli_main(["generate", "--out", str(out), "--no-progress", *args])
+    try:
+        code = cli_main(["generate", "--out", str(out), "--no-progress", *args])
+    except SystemExit as exc:  # usage errors (argparse)
+        code = exc.code
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.startswith("error: ") and option in err and "\n" not in err, err
     assert not out.exists() and not list(tmp_path.iterdir())
@@ -344,7 +345,8 @@ def test_bad_parameters_fail_before_writing(tmp_path, capsys, args, option):
 def test_cli_exit_code_and_message_in_a_real_process(tmp_path):
     res = subprocess.run([sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", "nope",
                           "--out", str(tmp_path / "x")], cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert res.returncode == 2 and res.stderr.startswith("error: preset") and not (tmp_path / "x").exists()
+    assert res.returncode == 2 and res.stderr.startswith("error: argument --preset: invalid choice: 'nope'")
+    assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
 
 
 def test_existing_output_is_never_clobbered(tmp_path):
@@ -370,13 +372,17 @@ def test_interrupted_run_leaves_nothing(tmp_path):
 
 
 def test_params_round_trip_and_overrides():
-    p = apply_overrides(get_preset("seq4"), {"length": 0.5, "fov": 120, "size": "320x240", "fold_height": 0.4,
-                                            "appearance.grain": "2", "loop": "true"})
+    p = SIM_SETTINGS.resolve("seq4", sets=["colon.length=0.5", "camera.fov=120", "camera.width=320",
+                                           "camera.height=240", "colon.fold_height=0.4", "appearance.grain=2",
+                                           "path.loop=true", "path.kind=rp"])
     assert (p.colon.length, p.camera.fov, p.camera.width, p.camera.height) == (0.5, 120.0, 320, 240)
     assert p.colon.fold_height == 0.4 and p.appearance.grain == 2.0 and p.path.loop is True
+    assert p.path.kind == "random" and p.preset == "seq4" and p.seed == 4
     assert SimParams.from_dict(p.to_dict()) == p
-    with pytest.raises(InputError, match="ambiguous|unknown"):
-        apply_overrides(p, {"bogus": 1})
+    with pytest.raises(InputError, match="unknown setting 'bogus'"):
+        SimParams.from_dict({"bogus": 1})
+    with pytest.raises(InputError, match="unknown setting 'colon.bogus'"):
+        tree_from_mapping(p, {"colon": {"bogus": 1}})
 
 
 def test_contact_sheet_cli(tiny, tmp_path):
@@ -390,7 +396,8 @@ def test_contact_sheet_cli(tiny, tmp_path):
 
 def test_full_length_colon_is_closed_and_clear():
     """The default 1.25 m colon: closed mesh (camera centres inside), clearance kept."""
-    p = apply_overrides(SimParams(seed=11), {"frames": 40, "size": 32, "path": "random"})
+    p = tree_from_mapping(SimParams(seed=11), {"path": {"frames": 40, "kind": "random"},
+                                               "camera": {"width": 32, "height": 32}})
     scene = build_scene(p)
     centres = o3d.core.Tensor(scene.path.poses[:, :3, 3].astype(np.float32))
     assert (scene.raycaster.compute_occupancy(centres, nsamples=3).numpy() == 1).all()
@@ -405,8 +412,8 @@ def test_motion_blur_and_offset_light_change_only_the_image():
     base = tiny_params(frames=4, size=48, seed=6)
     ref = build_scene(base)
     ref_frames = list(render_frames(ref))
-    for over in ({"appearance.motion_blur": 1.0}, {"appearance.light_offset": 0.004, "appearance.shadows": True}):
-        scene = build_scene(apply_overrides(base, over))
+    for over in ({"motion_blur": 1.0}, {"light_offset": 0.004, "shadows": True}):
+        scene = build_scene(tree_from_mapping(base, {"appearance": over}))
         assert np.allclose(scene.path.poses, ref.path.poses)
         for (i, rgb, depth), (_, rgb0, depth0) in zip(render_frames(scene), ref_frames):
             assert (depth == depth0).all()

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from c3f_core.errors import InputError
+from c3f_core.settings import set_path, tree_from_mapping
 from c3f_slam.io import Sequence, SequenceWriter
 from datamodules.synthetic import make_tiny_sequence, tiny_params
 from datamodules.synthetic.__main__ import main as cli_main
@@ -24,7 +25,7 @@ from datamodules.synthetic.nuisances import (
     read_nuisances,
     tissue_mask,
 )
-from datamodules.synthetic.params import NuisanceParams, SimParams, apply_overrides
+from datamodules.synthetic.params import NuisanceParams, SimParams
 from datamodules.synthetic.scene import build_scene, render_frames
 
 SIZE, FRAMES, SEED = 64, 8, 2
@@ -48,12 +49,12 @@ def frames(clean) -> list[tuple[np.ndarray, np.ndarray]]:
 
 @pytest.fixture(scope="module")
 def noisy(clean, tmp_path_factory) -> Path:
-    """The same sequence with every nuisance, made through the command line (--set)."""
+    """The same sequence with every nuisance, made through the command line (--config, then --set)."""
     root = tmp_path_factory.mktemp("nuis")
     params = root / "params.json"
     params.write_text(json.dumps(tiny_params(frames=FRAMES, size=SIZE, seed=SEED).to_dict()))
     out = root / "noisy"
-    argv = ["generate", "--params", str(params), "--out", str(out), "--no-progress"]
+    argv = ["generate", "--config", str(params), "--out", str(out), "--no-progress"]
     for key, value in ALL_ON.items():
         argv += ["--set", f"nuisance.{key}={value}"]
     assert cli_main(argv) == 0
@@ -251,15 +252,16 @@ def test_repeated_frames_are_jpeg_copies_of_their_predecessor(frames):
 def test_options_are_validated_with_one_line_naming_them(tmp_path, capsys):
     for key, value in [("border", "hexagon"), ("motion_blur_share", 1.5), ("border_scale", 3.0),
                        ("repeat_quality", 0), ("overlay_text", "\u00e9cho")]:
-        p = apply_overrides(SimParams(), {f"nuisance.{key}": value})
         with pytest.raises(InputError, match=f"^nuisance.{key}:"):
-            p.validate()
-    p = apply_overrides(SimParams(), {"nuisance.border": "Cut-Corners", "nuisance.overlay": "true"})
+            set_path(SimParams(), f"nuisance.{key}", value)
+        with pytest.raises(InputError, match=f"^nuisance.{key}:"):
+            NuisanceParams(**{key: value})
+    p = tree_from_mapping(SimParams(), {"nuisance": {"border": "Cut-Corners", "overlay": "true"}})
     assert (p.nuisance.border, p.nuisance.overlay) == ("cut_corners", True) and p.nuisance.active()
     assert SimParams.from_dict(p.to_dict()) == p
     assert cli_main(["generate", "--out", str(tmp_path / "x"), "--set", "nuisance.border=round"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("error: nuisance.border:") and "\n" not in err and not (tmp_path / "x").exists()
+    assert err.startswith("error: --set: nuisance.border:") and "\n" not in err and not (tmp_path / "x").exists()
 
 
 def test_contact_sheet_shows_a_sequence_with_nuisances(noisy, tmp_path):

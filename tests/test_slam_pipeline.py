@@ -268,14 +268,12 @@ def test_readme_first_example_keeps_its_close_up_in_one_map(tmp_path, bounded):
     across the break keeps the frames before it in the map (94.7 % measured before guided
     matching; 54.3 % without re-joining: the frames before the close-up were a lone component)."""
     from datamodules.synthetic.generate import generate_sequence
-    from datamodules.synthetic.params import get_preset, set_param
+    from datamodules.synthetic.params import SIM_SETTINGS
 
-    p = get_preset("seq1")
-    p.seed, p.camera.width, p.camera.height, p.path.frames = 7, 128, 128, 300
-    set_param(p, "path.coverage", 0.15)
+    sets = ["seed=7", "camera.width=128", "camera.height=128", "path.frames=300", "path.coverage=0.15"]
     if not bounded:
-        set_param(p, "path.max_turn_rate", None)
-        set_param(p, "path.max_event_speed", None)
+        sets += ["path.max_turn_rate=none", "path.max_event_speed=none"]
+    p = SIM_SETTINGS.resolve("seq1", sets=sets)
     seq_dir = generate_sequence(p, tmp_path / "seq1", progress=False)
     shares = {}
     for rejoin in (True, False) if not bounded else (True,):

@@ -16,7 +16,7 @@ from c3f_slam.io import Sequence
 @dataclass(frozen=True)
 class SimSequence:
     """Settings of one simulator sequence: a preset with its seed, frame count and square frame
-    size (pixels), plus generator overrides (``KEY=VALUE`` for ``--set``, lengths in metres)."""
+    size (pixels), plus generator overrides (``part.field=value`` for ``--set``, lengths in metres)."""
 
     preset: str
     seed: int
@@ -26,9 +26,9 @@ class SimSequence:
 
     def command(self, out: Path, overwrite: bool = False) -> list[str]:
         """The generator's command line that writes this sequence to ``out``."""
-        cmd = [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", self.preset,
-               "--frames", str(self.frames), "--size", str(self.size), "--seed", str(self.seed)]
-        for kv in self.overrides:
+        cmd = [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", self.preset]
+        for kv in (f"seed={self.seed}", f"path.frames={self.frames}", f"camera.width={self.size}",
+                   f"camera.height={self.size}", *self.overrides):
             cmd += ["--set", kv]
         cmd += ["--out", str(out), "--no-progress"]
         return cmd + ["--overwrite"] if overwrite else cmd

@@ -20,9 +20,9 @@ COLON_LENGTH = 1.25  #: metres, the presets' centreline
 
 @dataclass(frozen=True)
 class SimSpec:
-    """One simulator sequence: ``python -m datamodules.synthetic generate --preset PRESET --seed
-    SEED --frames FRAMES --set path.coverage=COVERAGE`` (``coverage``: share of the colon the
-    path travels; ``step_mm`` gives the motion per frame)."""
+    """One simulator sequence: ``python -m datamodules.synthetic generate --preset PRESET --set
+    seed=SEED --set path.frames=FRAMES --set path.coverage=COVERAGE`` (``coverage``: share of the
+    colon the path travels; ``step_mm`` gives the motion per frame)."""
 
     preset: str
     seed: int

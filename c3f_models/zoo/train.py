@@ -90,9 +90,11 @@ def default_work(name: str) -> Path:
 
 # ---------------------------------------------------------------------------------------- simulate
 def generate_command(spec: SimSpec, size: int, out: Path) -> list[str]:
-    return [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", spec.preset, "--seed",
-            str(spec.seed), "--frames", str(spec.frames), "--size", str(size), "--set",
-            f"path.coverage={spec.coverage}", "--out", str(out), "--no-progress", "--overwrite"]
+    """The simulator's command line that writes ``spec`` with square frames of ``size`` pixels to ``out``."""
+    sets = (f"seed={spec.seed}", f"path.frames={spec.frames}", f"camera.width={size}", f"camera.height={size}",
+            f"path.coverage={spec.coverage}")
+    return [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", spec.preset,
+            *(arg for kv in sets for arg in ("--set", kv)), "--out", str(out), "--no-progress", "--overwrite"]
 
 
 def simulate(specs: tuple[SimSpec, ...], size: int, root: Path, jobs: int = 2) -> list[Path]:

@@ -6,7 +6,9 @@ fold occlusions) is planned inside it; frames are ray cast with Open3D (exact de
 shaded like white-light colonoscopy (co-located light, wet highlights, vessels, vignetting,
 bloom, grain). Same seed and parameters give byte-identical files.
 
-    python -m datamodules.synthetic generate --preset seq1 --frames 300 --size 256 --seed 7 --out DIR
+    python -m datamodules.synthetic generate --preset seq1 --set seed=7 --set path.frames=300 \\
+        --set camera.width=256 --set camera.height=256 --out DIR
+    python -m datamodules.synthetic generate --preset seq1 --print-config   # every parameter
     python -m datamodules.synthetic contact-sheet DIR --out sheet.png
 
     from datamodules.synthetic import make_tiny_sequence   # tiny sequences for tests
@@ -22,8 +24,8 @@ from typing import Any
 
 _EXPORTS = {
     "PRESETS": "params",
+    "SIM_SETTINGS": "params",
     "SimParams": "params",
-    "apply_overrides": "params",
     "get_preset": "params",
     "build_scene": "scene",
     "generate_sequence": "generate",

@@ -190,7 +190,7 @@ def plan_path(colon: Colon, p: PathParams, rng: np.random.Generator,
 
     s = _arc_length(sig.v, p, s_lo, s_hi)
     for window in occlusions:
-        s = add_occlusion(colon, p, sig, s, labels, window, s_hi, limits)
+        s = add_occlusion(colon, p, sig, s=s, labels=labels, window=window, s_hi=s_hi, limits=limits)
     s = np.clip(s, 0.5 * START_MARGIN, L - 0.5 * END_MARGIN)
 
     ctl = Controls(s=s, m=sig.m, phi=sig.phi, beta=sig.beta, psi=sig.psi, roll=sig.roll)

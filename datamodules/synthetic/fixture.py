@@ -1,41 +1,38 @@
-"""Tiny simulated sequences for tests (a few seconds on a laptop CPU)."""
+"""Tiny simulated sequences for tests (a few seconds on a laptop CPU): the ``tiny`` preset."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+from c3f_core.settings import tree_from_mapping
+from c3f_core.settings_cli import merge
 from datamodules.synthetic.generate import generate_sequence
-from datamodules.synthetic.params import SimParams, apply_overrides
+from datamodules.synthetic.params import SIM_SETTINGS, TINY, SimParams, parse_size
 
-#: What makes a sequence tiny: a 15 cm colon, a coarse mesh and texture, no events.
-TINY = {
-    "colon.length": 0.15,
-    "colon.ring_spacing": 0.001,
-    "colon.ring_vertices": 96,
-    "colon.polyps": 1,
-    "appearance.texel": 0.0004,
-    "path.kind": "A",
-    "path.max_step": 0.004,
-    "path.closeups": 0.0,
-    "path.bursts": 0.0,
-    "path.occlusions": 0.0,
-    "path.roll_events": 0.0,
-}
+__all__ = ["TINY", "make_tiny_sequence", "tiny_params"]
 
 
-def tiny_params(frames: int = 8, size: int = 64, seed: int = 0, **overrides: Any) -> SimParams:
-    """Parameters of a tiny sequence; ``overrides`` as in :func:`params.apply_overrides`
-    (write dotted names as ``colon__fold_height=...`` or pass ``{"colon.fold_height": ...}``
-    through ``**{...}``)."""
-    base = SimParams(seed=seed, preset="tiny")
-    merged = dict(TINY)
-    merged.update({"path.frames": frames, "size": size})
-    merged.update({k.replace("__", "."): v for k, v in overrides.items()})
-    return apply_overrides(base, merged)
+def _nest(path: str, value: Any) -> dict[str, Any]:
+    head, _, rest = path.partition(".")
+    return {head: _nest(rest, value) if rest else value}
 
 
-def make_tiny_sequence(out_dir: str | Path, frames: int = 8, size: int = 64, seed: int = 0, **overrides: Any) -> Path:
+def tiny_params(frames: int = 8, size: int | str | tuple[int, int] = 64, seed: int = 0,
+                **overrides: Any) -> SimParams:
+    """The ``tiny`` preset (:data:`~datamodules.synthetic.params.TINY`: a 15 cm colon, no events)
+    with ``frames``, ``size`` (pixels: N, ``"WxH"`` or (W, H)) and ``seed``; ``overrides`` set
+    further fields by dotted name (pass ``**{"colon.fold_height": 0.4}`` or write
+    ``colon__fold_height=0.4``), values as in ``--set``."""
+    width, height = parse_size(size)
+    changes: dict[str, Any] = {"seed": seed, "path": {"frames": frames}, "camera": {"width": width, "height": height}}
+    for key, value in overrides.items():
+        changes = merge(changes, _nest(key.replace("__", "."), value))
+    return tree_from_mapping(SIM_SETTINGS.tree("tiny"), changes)
+
+
+def make_tiny_sequence(out_dir: str | Path, frames: int = 8, size: int | str | tuple[int, int] = 64, seed: int = 0,
+                       **overrides: Any) -> Path:
     """Write a tiny sequence (project layout, depth, poses, mesh) into ``out_dir``; returns it.
 
     The camera inserts along a 15 cm colon at about 4 mm per frame, well inside the lumen,

@@ -8,7 +8,7 @@ Output (docs/datasets.md, Sequence layout; via :class:`c3f_slam.io.SequenceWrite
       camera.json         intrinsics (pinhole, no distortion)
       poses.txt           TUM, camera-to-world, metres, timestamps = index / fps
       mesh.ply            the ground-truth mesh the depth was ray cast against
-      params.json         seed and every parameter (SimParams.from_dict reads it back)
+      params.json         seed and every parameter (``generate --config params.json`` replays it)
       frames.csv          per frame: time, arc length, event label (the event's frames and
                           its ramps in and out), wall distance
       nuisances.json      only with nuisance.* on: frame index -> the nuisances of that frame
@@ -22,7 +22,8 @@ group while it holds the defaults).
 
 The sequence is written into a hidden sibling folder and renamed to OUT at the end, so an
 interrupted run never leaves a half sequence under OUT; an existing non-empty OUT is only
-replaced with ``overwrite=True``. Parameters are validated before anything is written.
+replaced with ``overwrite=True``. Parameters are checked when they are made (frozen
+:class:`~datamodules.synthetic.params.SimParams`), before anything is written.
 """
 
 from __future__ import annotations
@@ -99,7 +100,6 @@ def generate_sequence(
     ``layout``: ``c3f`` (the project's own, docs/datasets.md) or, additionally written from the
     same frames, ``uts`` / ``simcol3d`` / ``c3vd`` / ``colon10k`` (see :mod:`datamodules.synthetic.layouts`).
     """
-    params.validate()
     layout = check_layout(layout)
     out = check_output(out, overwrite).resolve()
     tmp = staging_dir(out)

@@ -282,7 +282,7 @@ def _approach(s: np.ndarray, a: int, b: int, ramp: int, goal: float) -> np.ndarr
     return out
 
 
-def add_occlusion(colon: Colon, p: PathParams, sig: PathSignals, s: np.ndarray, labels: list[str],
+def add_occlusion(colon: Colon, p: PathParams, sig: PathSignals, *, s: np.ndarray, labels: list[str],
                   window: tuple[int, int], s_hi: float, limits: EventLimits | None = None) -> np.ndarray:
     """Approach a fold during frames ``window`` so that it fills the view, stay, then carry on
     from there (the rest of the path shifts); returns the new (F,) arc lengths (m). Without

@@ -158,7 +158,7 @@ class Renderer:
         n, ndv = _facing_normals(attr[0:3], view)
         tex4, nb = self._texture(attr, n, dist, ndv)
         ldir, half, irradiance = self._light(hits, T_wc, view, dist, n, hit)
-        radiance, lum = self._reflect(tex4, n, nb, ldir, half, ndv, irradiance)
+        radiance, lum = self._reflect(tex4, n, nb, ldir=ldir, half=half, ndv=ndv, irradiance=irradiance)
         return np.ascontiguousarray(radiance.T).reshape(h, w, 3), lum.reshape(h, w)
 
     def _surface_attributes(self, hits: Hits, hit: np.ndarray) -> np.ndarray:
@@ -213,7 +213,7 @@ class Renderer:
         irradiance = np.where(hit, irradiance, 0.0).astype(np.float32)
         return ldir, half, irradiance
 
-    def _reflect(self, tex4: np.ndarray, n: np.ndarray, nb: np.ndarray, ldir: np.ndarray, half: np.ndarray,
+    def _reflect(self, tex4: np.ndarray, n: np.ndarray, nb: np.ndarray, *, ldir: np.ndarray, half: np.ndarray,
                  ndv: np.ndarray, irradiance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Wrapped-Lambert diffuse plus wet Blinn-Phong highlights: radiance (3, N) and the
         luminance (N,) of its diffuse part (what auto exposure meters)."""

@@ -26,7 +26,7 @@ from datamodules.synthetic.texture import TextureAtlas, build_atlas
 __all__ = ["SimScene", "build_scene", "make_camera", "render_frames"]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SimScene:
     """Everything needed to render the frames of one parameter set."""
 
@@ -46,8 +46,7 @@ def make_camera(params: SimParams) -> PinholeCamera:
 
 
 def build_scene(params: SimParams) -> SimScene:
-    """Validate ``params`` and build colon, texture and path (deterministic in the seed)."""
-    params.validate()
+    """Build colon, texture and path of ``params`` (checked when made; deterministic in the seed)."""
     seed = params.seed
     colon = build_colon(params.colon, noise.stream(seed, noise.GEOMETRY))
     raycaster = make_scene(colon)
@@ -55,7 +54,8 @@ def build_scene(params: SimParams) -> SimScene:
     atlas = build_atlas(colon, params.appearance, noise.stream(seed, noise.TEXTURE))
     camera = make_camera(params)
     renderer = Renderer(colon, atlas, camera, params.appearance, scene=raycaster)
-    return SimScene(params, colon, atlas, raycaster, path, camera, renderer)
+    return SimScene(params=params, colon=colon, atlas=atlas, raycaster=raycaster, path=path, camera=camera,
+                    renderer=renderer)
 
 
 def _blur_poses(scene: SimScene, i: int) -> list[np.ndarray]:
