@@ -10,7 +10,8 @@ A tree of settings dataclasses (a dataclass whose fields may be dataclasses) is 
 by dotted paths, the dialect of every ``--set part.field=value`` option of the project:
 
 - :func:`convert_value`: a command-line string (or a value read from YAML / JSON) as a field's
-  type (``int``, ``float``, ``bool``, ``str``, ``X | None``, ``tuple[X, ...]``, a nested group);
+  type (``int``, ``float``, ``bool``, ``str``, ``X | None``, ``tuple[X, ...]``, ``tuple[X, Y]``,
+  a nested group);
 - :func:`set_path`: a copy of a frozen tree with one dotted field replaced (the groups validate
   the result themselves);
 - :func:`tree_from_mapping` / :func:`tree_as_mapping`: a tree from nested mappings (a config
@@ -84,7 +85,7 @@ def type_name(tp: Any) -> str:
     if inner is not None:
         return f"{type_name(inner)} | None"
     if typing.get_origin(tp) is tuple:
-        return f"tuple[{type_name(typing.get_args(tp)[0])}, ...]"
+        return f"tuple[{', '.join('...' if a is Ellipsis else type_name(a) for a in typing.get_args(tp))}]"
     return getattr(tp, "__name__", str(tp))
 
 
@@ -109,11 +110,17 @@ def _convert_plain(value: Any, tp: Any, name: str) -> Any:
             raise TypeError(value)
         return tree_from_mapping(tp(), value, name)
     if typing.get_origin(tp) is tuple:
+        args = typing.get_args(tp)
         if isinstance(value, str):
-            value = [v for v in value.strip().strip("[]()").split(",") if v.strip()]
+            value = _split_tuple(value, typing.get_origin(args[0]) is tuple)
         if not isinstance(value, (list, tuple)):
             raise TypeError(value)
-        return tuple(convert_value(v, typing.get_args(tp)[0], name) for v in value)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(convert_value(v, args[0], name) for v in value)
+        if len(value) != len(args):  # fixed length, e.g. tuple[str, int]
+            raise ValueError(value)
+        return tuple(convert_value(v.strip() if isinstance(v, str) else v, a, name)
+                     for v, a in zip(value, args, strict=True))
     if isinstance(value, str) and tp is not str:
         value = value.strip()
     if tp is bool:
@@ -139,6 +146,24 @@ def _convert_plain(value: Any, tp: Any, name: str) -> Any:
             raise TypeError(value)
         return str(value)
     raise TypeError(f"{name}: unsupported field type {tp!r}")
+
+
+def _split_tuple(text: str, nested: bool) -> list[str]:
+    """A command-line tuple's items: ``"1,2,3"`` / ``"[1, 2]"``; ``nested``: its bracketed groups,
+    ``"[[a,1],[b,2]]"`` -> ``["a,1", "b,2"]``."""
+    text = text.strip()
+    if not nested:
+        return [v for v in text.strip("[]()").split(",") if v.strip()]
+    inner = text[1:-1] if text[:2] in ("[[", "[(", "((", "([") else text
+    groups, rest = _GROUP.findall(inner), _GROUP.sub("", inner).strip(" ,")
+    if rest and groups:
+        raise ValueError(text)
+    if not rest and not "".join(groups).strip():  # "", "[]"
+        return []
+    return groups or [inner]  # "a,1": one item
+
+
+_GROUP = re.compile(r"[\[(]([^\[\]()]*)[\])]")
 
 
 def _field_type(obj: Any, key: str, where: str) -> Any:

@@ -90,14 +90,15 @@ def match_evaluation(ctx: DemoContext) -> dict:
     depth = [seq.read_depth(i), seq.read_depth(j)]
     K, fcfg = seq.camera.K, FrontendConfig()
     kps = [Frontend(K, SiftDescriptors(), fcfg).keypoints(im) for im in rgb]
-    gt, proj = ground_truth_matches(kps[0].xy, kps[1].xy, depth[0], depth[1], K, seq.pose(i), seq.pose(j),
+    gt, proj = ground_truth_matches(kps[0].xy, kps[1].xy, depth[0], depth[1], K=K, T_wi=seq.pose(i), T_wj=seq.pose(j),
                                     pixel_radius=PIXEL_RADIUS, return_projection=True)
     feat = ContraFeatDescriptors(DescriptorModel(ctx.models / "contrafeat" / "contrafeat.onnx", threads=2),
                                  seq.camera)
     out, rows = {"pair": [i, j], "keypoints": [len(kps[0]), len(kps[1])], "ground_truth": len(gt)}, []
     for name, provider in (("sift", SiftDescriptors()), ("contrafeat", feat)):
         desc = [provider.describe(im, kp) for im, kp in zip(rgb, kps)]
-        ev = match_and_evaluate(desc[0], desc[1], kps[0].xy, kps[1].xy, depth[0], depth[1], K, gt, proj,
+        ev = match_and_evaluate(desc[0], desc[1], kps[0].xy, kps[1].xy, depth_i=depth[0], depth_j=depth[1], K=K,
+                                gt_matches=gt, projection=proj,
                                 metric=provider.metric, ratio=fcfg.ratio, pixel_radius=PIXEL_RADIUS)
         near, _ = near_misses(ev.matches, kps[1].xy, proj, ev.correct, pixel_radius=PIXEL_RADIUS)
         rows.append(draw_matches(rgb[0], rgb[1], kps[0].xy, kps[1].xy, ev.matches, correct=ev.correct, scale=2,

@@ -33,7 +33,8 @@ def make_figures(data: ReportData, root: Path) -> Figures:
     drawn = [depth.get("figure"), *chain(*meshes.values(), *coverage.values()), (tissue or {}).get("figure"),
              *(f["figure"] for f in frames.values())]
     images = {**data.images, **{f"figures/{n}": Image.read(root, f"figures/{n}") for n in drawn if n}}
-    return Figures(images, depth, meshes, coverage, tissue, frames, view_figures(data.view, root))
+    return Figures(images=images, depth=depth, meshes=meshes, coverage=coverage, tissue=tissue, frames=frames,
+                   view=view_figures(data.view, root))
 
 
 def write_png(path: Path, rgb: np.ndarray) -> None:

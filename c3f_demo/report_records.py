@@ -128,7 +128,7 @@ class ViewFigures:
     error: str | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Figures:
     """Every image of the report by its path (``images``) and what each figure shows: the depth
     samples' colour range and scales, mesh and coverage renders (file names in ``figures/``) per

@@ -1,5 +1,6 @@
 """Runs the demo's stages in order into one folder, skipping those already done with the same
-settings (:mod:`c3f_demo.state`), with a progress line per stage and a time table."""
+settings (:mod:`c3f_demo.state`), with a progress line per stage and a time table. The run's whole
+settings tree goes into ``DIR/demo_state.json`` (``config``; ``--config`` that file replays it)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from c3f_core.settings import tree_as_mapping
 from c3f_demo.config import DemoConfig
 from c3f_demo.context import DemoContext, StageFailed, check_out_dir
 from c3f_demo.evaluation import Evaluate
@@ -51,7 +53,7 @@ def run_demo(root: Path, cfg: DemoConfig, overwrite: bool = False, stream=None) 
     StageFailed (a command failed) or DemoInterrupted (Ctrl-C)."""
     stream = stream or sys.stdout
     check_out_dir(root)
-    state = DemoState(root, overwrite)
+    state = DemoState(root, overwrite, tree_as_mapping(cfg))  # the settings, replayable (--config)
     root.mkdir(parents=True, exist_ok=True)
     ctx = DemoContext(root, cfg)
     keys: dict[str, str] = {}
@@ -65,6 +67,7 @@ def run_demo(root: Path, cfg: DemoConfig, overwrite: bool = False, stream=None) 
                   file=stream, flush=True)
             continue
         state.forget(downstream(stage.name, cfg))
+        state.save()  # the settings of this run, from its first stage that runs
         stage.clean(ctx)
         done = {"notes": {n: state.notes(n) for n in state.stages}, "timings": list(timings)}
         start = time.monotonic()
@@ -77,6 +80,7 @@ def run_demo(root: Path, cfg: DemoConfig, overwrite: bool = False, stream=None) 
         seconds = time.monotonic() - start
         state.record(stage.name, key, seconds, notes)
         timings.append((stage.name, seconds, "ran"))
+    state.save()
     print(time_table(timings), file=stream, flush=True)
     print(f"report: {root / 'report.html'}", file=stream, flush=True)
     return timings

@@ -13,9 +13,11 @@ import json
 import shutil
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import yaml
 
+from c3f_core.settings_cli import merge
 from c3f_demo.config import DemoConfig
 from c3f_demo.context import CONFIGS, DemoContext, StageFailed, slam_runs
 from c3f_demo.progress import read_step_fraction
@@ -88,8 +90,9 @@ class Simulate(Stage):
         seqs = {f"train{k}": (preset, seed, s.train_frames, s.train_coverage, ctx.train_data / f"train{k}")
                 for k, (preset, seed) in enumerate(s.train)}
         seqs["heldout"] = (*s.test, s.test_frames, s.test_coverage, ctx.test_seq)
-        return {name: ["-m", "datamodules.synthetic", "generate", "--preset", preset, "--seed", str(seed),
-                       "--frames", str(frames), "--size", str(s.size), "--set", f"path.coverage={coverage}",
+        return {name: ["-m", "datamodules.synthetic", "generate", "--preset", preset, "--set", f"seed={seed}",
+                       "--set", f"path.frames={frames}", "--set", f"camera.width={s.size}",
+                       "--set", f"camera.height={s.size}", "--set", f"path.coverage={coverage}",
                        "--out", str(out), "--no-progress"]
                 for name, (preset, seed, frames, coverage, out) in seqs.items()}
 
@@ -100,19 +103,44 @@ class Simulate(Stage):
         return {"train": [f"train{k}" for k in range(len(ctx.cfg.simulate.train))], "test": "heldout"}
 
 
-def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: dict, data_args: dict,
-              data_dir: Path | None = None, callbacks_of: Path | None = None) -> Path:
-    """The demo's last config file of a ``fit``: trainer length, logging into DIR/runs/MODEL, data
-    (``data_dir``: default the training sequences). Its callbacks replace the earlier configs'
-    (a list is not merged): a last checkpoint and the demo's progress file, after the callbacks of
-    the config ``callbacks_of`` (e.g. ``ttt.yaml``'s test-time training guard) when given."""
+#: where the fields of a training group (``depth``, ``ttt``, ``features``) go in a ``fit`` config
+#: (dotted paths; a ``size`` is square: ``[size, size]``)
+FIT_KEYS = {"steps": "trainer.max_steps", "seed": "seed_everything", "lr": "model.init_args.optim.lr",
+            "lambda_gt_depth": "model.init_args.loss.lambda_gt_depth",
+            "pose_warmup_steps": "model.init_args.pose_warmup_steps",
+            "batch_size": "data.init_args.loader.batch_size", "size": "data.init_args.frames.size"}
+
+
+def fit_keys(group: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The fields of settings ``group`` as dotted ``fit`` config keys (:data:`FIT_KEYS`); a None
+    field is left to the model config, ``skip``: fields that pick config files instead. KeyError
+    for a field with no place (a new setting must be given one)."""
+    return {FIT_KEYS[k]: [v, v] if k == "size" else v for k, v in asdict(group).items()
+            if k not in skip and v is not None}
+
+
+def _nested(flat: dict[str, Any]) -> dict[str, Any]:
+    """``{"a.b": 1}`` -> ``{"a": {"b": 1}}``."""
+    out: dict[str, Any] = {}
+    for path, value in flat.items():
+        head, _, rest = path.partition(".")
+        out = merge(out, {head: _nested({rest: value}) if rest else value})
+    return out
+
+
+def _fit_yaml(ctx: DemoContext, model: str, settings: dict[str, Any], data_dir: Path | None = None,
+              callbacks_of: Path | None = None) -> Path:
+    """The demo's last config file of a ``fit``: ``settings`` (dotted keys, e.g. :func:`fit_keys`),
+    logging into DIR/runs/MODEL, data (``data_dir``: default the training sequences). Its callbacks
+    replace the earlier configs' (a list is not merged): a last checkpoint and the demo's progress
+    file, after the callbacks of the config ``callbacks_of`` (e.g. ``ttt.yaml``'s test-time
+    training guard) when given."""
     run = ctx.run_dir(model)
     kept = yaml.safe_load(callbacks_of.read_text())["trainer"]["callbacks"] if callbacks_of else [
         {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint", "init_args": {"save_last": True}}]
     cfg = {
-        "seed_everything": seed,
         "trainer": {
-            "max_steps": steps, "max_epochs": -1, "limit_train_batches": 1.0, "limit_val_batches": 0,
+            "max_epochs": -1, "limit_train_batches": 1.0, "limit_val_batches": 0,
             "log_every_n_steps": 5, "enable_progress_bar": False, "default_root_dir": str(run),
             "logger": {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
                        "init_args": {"save_dir": str(run), "name": "tb"}},
@@ -122,9 +150,9 @@ def _fit_yaml(ctx: DemoContext, model: str, steps: int, seed: int, model_args: d
                  "init_args": {"path": str(run / "progress.txt")}},
             ],
         },
-        "model": {"init_args": model_args},
-        "data": {"init_args": {"data_dir": str(data_dir or ctx.train_data), **data_args}},
+        "data": {"init_args": {"data_dir": str(data_dir or ctx.train_data), "loader": {"num_workers": 0}}},
     }
+    cfg = merge(cfg, _nested(settings))
     path = ctx.root / "configs" / f"{model}_demo.yaml"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(cfg, sort_keys=False))
@@ -204,13 +232,9 @@ class TrainDepth(_ZooOrTrain):
             from c3f_slam.models import zoo
             zoo.entry(ctx.cfg.zoo.depth, "demo").file_for("weights", "demo", kind="depth")  # checked now
             return _zoo_note("depth", ctx.cfg.zoo.depth)
-        d = ctx.cfg.depth
-        model_args = {"loss": {"lambda_gt_depth": d.lambda_gt_depth}}
-        if d.lr is not None:
-            model_args["optim"] = {"lr": d.lr}
-        data_args = {"split": _train_split(ctx), "frames": {"size": [d.size, d.size]},
-                     "loader": {"batch_size": d.batch_size, "num_workers": 0}}
-        configs = [*_depth_model_configs(ctx.cfg), _fit_yaml(ctx, "depthnet", d.steps, d.seed, model_args, data_args)]
+        mine = _fit_yaml(ctx, "depthnet", {**fit_keys(ctx.cfg.depth, skip=("paper_extras",)),
+                                           "data.init_args.split": _train_split(ctx)})
+        configs = [*_depth_model_configs(ctx.cfg), mine]
         ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
         return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, "depthnet"))}
 
@@ -243,12 +267,11 @@ class TestTimeTrain(_Training):
             return {"off": True}
         if ctx.cfg.from_zoo:
             return self._from_zoo(ctx)
-        model_args = {"init_weights": str(_last_ckpt(ctx, "depthnet")), "loss": {"lambda_gt_depth": 0.0},
-                      "optim": {"lr": t.lr}, "pose_warmup_steps": t.pose_warmup_steps}
-        data_args = {"frames": {"size": [d.size, d.size]}, "loader": {"batch_size": t.batch_size, "num_workers": 0}}
         ttt = CONFIGS / "depthnet" / "ttt.yaml"
-        mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq,
-                         callbacks_of=ttt)
+        mine = _fit_yaml(ctx, self.model, {**fit_keys(t), FIT_KEYS["size"]: [d.size, d.size],  # the pre-training's
+                                           "model.init_args.init_weights": str(_last_ckpt(ctx, "depthnet")),
+                                           "model.init_args.loss.lambda_gt_depth": 0.0},
+                         data_dir=ctx.test_seq, callbacks_of=ttt)
         configs = [*_depth_model_configs(ctx.cfg), ttt, mine]
         ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
         return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, self.model))}
@@ -259,11 +282,9 @@ class TestTimeTrain(_Training):
         and the zoo entry's model and frame settings."""
         from c3f_slam.models import zoo
         t, name = ctx.cfg.ttt, ctx.cfg.zoo.depth
-        model_args = {"init_weights": f"zoo:{name}", "optim": {"lr": t.lr}, "pose_warmup_steps": t.pose_warmup_steps}
-        data_args = {"loader": {"batch_size": t.batch_size, "num_workers": 0}}
         ttt = CONFIGS / "depthnet" / "ttt.yaml"
-        mine = _fit_yaml(ctx, self.model, t.steps, t.seed, model_args, data_args, data_dir=ctx.test_seq,
-                         callbacks_of=ttt)
+        mine = _fit_yaml(ctx, self.model, {**fit_keys(t), "model.init_args.init_weights": f"zoo:{name}"},
+                         data_dir=ctx.test_seq, callbacks_of=ttt)
         configs = [zoo.entry(name, "demo").folder / "config.yaml", ttt, CONFIGS / "depthnet" / "paper_objective.yaml",
                    mine]
         ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
@@ -287,10 +308,9 @@ class TrainFeatures(_ZooOrTrain):
             from c3f_slam.models import zoo
             zoo.entry(ctx.cfg.zoo.features, "demo").file_for("descriptors", "demo")  # checked now
             return _zoo_note("descriptors", ctx.cfg.zoo.features)
-        f = ctx.cfg.features
-        data_args = {"split": _train_split(ctx), "frames": {"crop": None, "size": [f.size, f.size], "specular": True},
-                     "loader": {"batch_size": f.batch_size, "num_workers": 0}}
-        mine = _fit_yaml(ctx, "contrafeat", f.steps, f.seed, {}, data_args)
+        mine = _fit_yaml(ctx, "contrafeat", {**fit_keys(ctx.cfg.features), "data.init_args.split": _train_split(ctx),
+                                             "data.init_args.frames.crop": None,
+                                             "data.init_args.frames.specular": True})
         configs = [CONFIGS / "trainer" / "cpu_smoke.yaml", CONFIGS / "contrafeat" / "small.yaml", mine]
         ctx.run(self.name, ["-m", "c3f_models", "fit", *_config_args(configs)])
         return {"configs": [str(c) for c in configs], "checkpoint": str(_last_ckpt(ctx, "contrafeat"))}

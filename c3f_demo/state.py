@@ -1,4 +1,6 @@
-"""Which stages of a demo folder are done, with which inputs: ``DIR/demo_state.json``.
+"""Which stages of a demo folder are done, with which inputs, and the settings of its last run:
+``DIR/demo_state.json`` (``config``: the whole :class:`~c3f_demo.config.DemoConfig` as a mapping,
+which ``python -m c3f_demo --config DIR/demo_state.json`` replays).
 
 A stage's key is the SHA-256 of its settings and the keys of the stages it reads from, so a
 changed setting invalidates that stage and every stage after it. A rerun skips a stage whose
@@ -28,19 +30,24 @@ def stage_key(settings: dict, upstream: list[str]) -> str:
 class DemoState:
     """The state file of one demo folder: per stage its key, seconds and result notes."""
 
-    def __init__(self, root: Path, overwrite: bool = False) -> None:
+    def __init__(self, root: Path, overwrite: bool = False, config: dict | None = None) -> None:
+        """``config``: the run's settings (a mapping), written with the stages (default: the file's)."""
         self.root, self.overwrite = Path(root), overwrite
         self.path = self.root / STATE_FILE
         self.stages: dict[str, dict] = {}
+        self.config, replay = config, ""
         if self.path.is_file():
             try:
                 data = json.loads(self.path.read_text())
             except (OSError, ValueError) as exc:
                 raise InputError(f"{self.path}: unreadable demo state ({exc}); use another --out") from None
             self.stages = dict(data.get("stages", {}))
+            replay = f" (--config {self.path} replays the last run's)" if data.get("config") else ""
+            self.config = config if config is not None else data.get("config")
         elif self.root.is_dir() and any(self.root.iterdir()):
             raise InputError(f"--out {self.root}: not empty and not a demo folder (no {STATE_FILE}); "
                              "choose another --out")
+        self._replay = replay
 
     def is_done(self, name: str, key: str) -> bool:
         """True when ``name`` finished with ``key``; InputError when it finished with another key
@@ -52,7 +59,7 @@ class DemoState:
             return True
         if not self.overwrite:
             raise InputError(f"--out {self.root}: stage {name} was made with other settings (e.g. with/without "
-                             "--quick); rerun with the same options, pass --overwrite to redo it, "
+                             f"--quick); rerun with the same options{self._replay}, pass --overwrite to redo it, "
                              "or choose another --out")
         return False
 
@@ -73,4 +80,6 @@ class DemoState:
 
     def save(self) -> None:
         self.root.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(self.path, json.dumps({"version": STATE_VERSION, "stages": self.stages}, indent=2) + "\n")
+        data = {"version": STATE_VERSION, **({"config": self.config} if self.config is not None else {}),
+                "stages": self.stages}
+        atomic_write_text(self.path, json.dumps(data, indent=2) + "\n")

@@ -61,7 +61,7 @@ def fake_report_inputs() -> tuple[ReportData, Figures]:
     data = ReportData("demo", demo_cfg.demo_config(quick=True).as_dict(), metrics, [("simulate", 3.0, "ran")],
                       {"python": "3.11", "seeds": "1, 2"}, unseen={"source": "ground_truth", "runs": [
                           {"name": "gt_sift", "run": "ground-truth depth + SIFT", "seen_share": 0.1}]})
-    figs = Figures(images, depth={"range_m": [0.01, 0.09]}, meshes={"gt_sift": ["mesh_gt_sift_side.png"]},
+    figs = Figures(images=images, depth={"range_m": [0.01, 0.09]}, meshes={"gt_sift": ["mesh_gt_sift_side.png"]},
                    coverage={"gt_sift": ["coverage_gt_sift_side.png"]})
     return data, figs
 
@@ -476,7 +476,8 @@ def test_progress_callback_of_the_fit_config_writes_what_the_eta_reads(tmp_path)
     from c3f_demo.stages import _fit_yaml
 
     ctx = DemoContext(tmp_path, demo_cfg.demo_config(quick=True))
-    callbacks = yaml.safe_load(_fit_yaml(ctx, "depthnet", 12, 0, {}, {}).read_text())["trainer"]["callbacks"]
+    written = _fit_yaml(ctx, "depthnet", {"trainer.max_steps": 12})
+    callbacks = yaml.safe_load(written.read_text())["trainer"]["callbacks"]
     (progress,) = [c for c in callbacks if c["class_path"].endswith("ProgressFile")]
     module, name = progress["class_path"].rsplit(".", 1)
     callback = getattr(importlib.import_module(module), name)(**progress["init_args"])

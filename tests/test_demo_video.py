@@ -165,7 +165,7 @@ def fake_video_inputs() -> tuple[ReportData, Figures]:
                                          "segments": [{"start_m": 0, "end_m": 0.05, "unseen_share": 0.3}]}]}
     data = ReportData("video", cfg.as_dict(), {"slam": {"paper": paper, "no_ttt": failed}}, [("ingest", 1.0, "ran")],
                       {"python": "3.11"}, ingest=ingested, unseen=unseen)
-    figs = Figures(images, meshes={"paper": ["mesh_paper_side.png"]},
+    figs = Figures(images=images, meshes={"paper": ["mesh_paper_side.png"]},
                    tissue={"frame": 15, "figure": "tissue_mask.png"},
                    frames={"paper": {"kind": "counts", "figure": "frames_paper.png"}})
     return data, figs
