@@ -117,18 +117,21 @@ class SettingsSpec(Generic[Tree]):
     def resolve(self, preset_name: str | None = None, config: ConfigFile | None = None,
                 sets: Iterable[str] = ()) -> Tree:
         """The settings tree: the preset, the config file's values, then the ``--set`` items in
-        order (see the module notes). A ``preset`` key (in the file or a ``--set``) picks the preset
-        when the tree has such a field. InputError for a preset that contradicts the file's, an
+        order (see the module notes). With several presets, a ``preset`` key (in the file or a
+        ``--set``) picks the preset (the tree records it in a field of that name); with one, a field
+        ``preset`` is an ordinary setting. InputError for a preset that contradicts the file's, an
         unknown setting or a bad value (naming the file where it came from)."""
         settings = dict(config.settings) if config else {}
-        file_preset = settings.get("preset")
+        chooses = len(self.presets) > 1  # else a field ``preset`` is an ordinary setting
+        file_preset = settings.get("preset") if chooses else None
         if preset_name and file_preset and preset_name != file_preset:
             raise InputError(f"--preset {preset_name} contradicts preset: {file_preset} in {config.path} "
                              f"(drop one; change single settings with --set)")
         changes: dict[str, Any] = {}
         for item in sets:
             changes = merge(changes, _nest(*parse_set(item)))
-        base = self.tree(str(changes.get("preset") or preset_name or file_preset or self.default))
+        base = self.tree(str((changes.get("preset") if chooses else None) or preset_name or file_preset
+                             or self.default))
         if config:
             try:
                 base = tree_from_mapping(base, settings)

@@ -241,11 +241,12 @@ def test_ttt_benchmark_end_to_end(tmp_path, monkeypatch):
 def test_report_rewrites_only_its_generated_section(tmp_path):
     """benchmarks.common.report: the command line as typed from the repository root, the date,
     and a generated section that a rerun replaces while findings written by hand stay."""
-    report = Report(str(ROOT / "benchmarks" / "protocols" / "slam_ate.py"), "Title", ["--presets", "seq1", "--set",
-                                                                                       "a b"])
-    assert report.command == "python -m benchmarks.protocols.slam_ate --presets seq1 --set 'a b'"
+    report = Report(str(ROOT / "benchmarks" / "protocols" / "slam_ate.py"), "Title", ["--set", "presets=seq1",
+                                                                                       "--report", "a b"])
+    assert report.command == "python -m benchmarks.protocols.slam_ate --set presets=seq1 --report 'a b'"
     first = report.render(["| table | 1 |"])
-    assert first.startswith("# Title\n\nCommand: `python -m benchmarks.protocols.slam_ate --presets seq1 --set 'a b'`"
+    assert first.startswith("# Title\n\nCommand: `python -m benchmarks.protocols.slam_ate --set presets=seq1 "
+                            "--report 'a b'`"
                             "\n\nDate: ")
     out = tmp_path / "r.md"
     report.write(out, first)
@@ -443,7 +444,7 @@ def test_zoo_ablation_from_a_self_supervised_start(tmp_path, monkeypatch):
 
 
 def test_zoo_slam_settings_reach_every_run_and_the_cache(tmp_path, monkeypatch):
-    """``--set`` goes to every SLAM run of the slam and coverage sections, is kept with the
+    """The setting ``slam_set`` goes to every SLAM run of the slam and coverage sections, is kept with the
     section, shown in its Markdown, and a section kept with other settings is computed again."""
     from benchmarks.protocols import zoo
 

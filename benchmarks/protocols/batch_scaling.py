@@ -5,31 +5,47 @@ The cases are those of ``coverage_accuracy`` (simulator colon, seq1 seed 7, 300 
 128 px; generated under ``--work`` unless there), listed in one list file. Each worker count
 runs the whole batch into its own folder (``--overwrite``: every run made again, none skipped),
 with ground-truth depth and SIFT at default settings (mesh and coverage on), the workers
-sharing the machine's cores equally (the batch's default thread budget). ``--repeats`` runs of
+sharing the machine's cores equally (the batch's default thread budget). ``repeats`` runs of
 each, alternating so that machine noise hits all alike; the median wall time is reported, with
 its ratio to 1 worker, and each batch's registered share and mean ATE (parallel runs must give
 the runs of a single worker).
 
-    python -m benchmarks.protocols.batch_scaling --workers 1 2
+    python -m benchmarks.protocols.batch_scaling --set workers=1,2
 
-Writes benchmarks/results/batch_scaling.md and its .json.
+Writes benchmarks/results/batch_scaling.md and its .json. Settings (``--print-config``: each with
+its default and meaning): :class:`Settings`.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import ensure_sequence
 from benchmarks.protocols.coverage_accuracy import CASES, case_sequence
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What batch_scaling measures."""
+
+    workers: tuple[int, ...] = (1, 2)  #: worker counts compared (the first: the base of the ratios)
+    repeats: int = 1  #: batches of each worker count (median reported)
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "workers")
+
+
+CLI = ProtocolCli("batch_scaling", Settings, __doc__, example="workers=1,2")
 
 
 def make_list(work: Path) -> Path:
@@ -80,28 +96,26 @@ def table(rows: list[dict]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CLI.parser()
     ap.add_argument("--work", type=Path, default=WORK / "batch_scaling", help="folder for sequences and batches")
-    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts compared (first: the base)")
-    ap.add_argument("--repeats", type=int, default=1, help="batches of each worker count (median reported)")
-    ap.add_argument("--report", type=Path, default=RESULTS / "batch_scaling.md")
-    a = ap.parse_args(argv)
+    ap.add_argument("--report", type=Path, default=RESULTS / "batch_scaling.md", help=REPORT_HELP)
+    a, settings = CLI.parse(ap, argv)
     listing = make_list(a.work)
-    runs: dict[int, list[dict]] = {w: [] for w in a.workers}
-    for _ in range(a.repeats):
-        for w in a.workers:
+    runs: dict[int, list[dict]] = {w: [] for w in settings.workers}
+    for _ in range(settings.repeats):
+        for w in settings.workers:
             runs[w].append(run_batch(listing, a.work / f"out_{w}", w))
             print(f"{w} worker(s): {runs[w][-1]['wall_s']:.1f} s", flush=True)
-    base = statistics.median(r["wall_s"] for r in runs[a.workers[0]])
-    rows = [row(w, runs[w], base) for w in a.workers]
+    base = statistics.median(r["wall_s"] for r in runs[settings.workers[0]])
+    rows = [row(w, runs[w], base) for w in settings.workers]
     lines = table(rows)
     print("\n".join(lines))
     body = [f"- {len(CASES)} coverage cases (seq1 seed 7, 300 frames, 128 px), true depth and SIFT, mesh and coverage "
-            f"on; machine: {os.cpu_count()} cores; {a.repeats} batch(es) per worker count, alternating.",
+            f"on; machine: {os.cpu_count()} cores; {settings.repeats} batch(es) per worker count, alternating.",
             "- wall: the whole `python -m c3f_slam batch` command (start, runs, evaluations, summary); sum of run "
             "times: the runs' own wall times (summary.json), which grow when runs share cores.", "", *lines]
     Report(__file__, "Batch reconstruction: wall time with 1 and more workers").publish(
-        a.report, body, a, data={"rows": rows})
+        a.report, body, settings, data={"rows": rows}, options=a)
     print(f"wrote {a.report}")
 
 

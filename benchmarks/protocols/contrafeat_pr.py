@@ -6,12 +6,14 @@ Outside CI. It (1) renders simulator sequences (``python -m datamodules.syntheti
 number of steps or a wall-clock budget, whichever comes first, (3) evaluates on held-out
 sequences (other presets and seeds) and (4) writes ``benchmarks/results/contrafeat_pr.md`` (and ``.json``).
 
-    python -m benchmarks.protocols.contrafeat_pr                       # the default run (about 25 min, 2 cores)
-    python -m benchmarks.protocols.contrafeat_pr --data DIR --size 48  # on existing sequences DIR/{train,test}/*
+    python -m benchmarks.protocols.contrafeat_pr                           # the default run (about 25 min, 2 cores)
+    python -m benchmarks.protocols.contrafeat_pr --data DIR --set size=48  # on existing sequences DIR/{train,test}/*
 
 Inputs: the sequences are rendered from presets and seeds under ``--work`` (default
 ``runs/bench/contrafeat_pr``, which also gets the logs and the trained ``contrafeat_small.ckpt``);
 the model is trained here, from scratch unless ``--pretrained`` / ``--init-weights`` name a start.
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`; ``--data``,
+``--pretrained`` and ``--init-weights`` (paths) stay plain options.
 
 Precision = correct / found, recall = recovered ground-truth matches / ground-truth matches, both
 summed over all evaluated pairs of a sequence (micro-average); a found match is correct when it
@@ -41,6 +43,7 @@ from benchmarks.common.contrafeat import (
     recall_precision_table,
     wrong_match_table,
 )
+from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_models.contrafeat.module import METHODS, ContraFeat
@@ -74,48 +77,60 @@ class LossTrace(Callback):
         self.losses.append(float(loss))
 
 
-def parse_args() -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+@dataclass(frozen=True)
+class Settings:
+    """What contrafeat_pr measures."""
+
+    #: presets of the training sequences (rendered with seeds 100 + 17 k + seed, never a test seed)
+    train_presets: tuple[str, ...] = tuple(f"seq{k}" for k in range(1, 9))
+    #: presets of the held-out sequences (rendered with the preset's own seed 1, 2, 3, ... + seed)
+    test_presets: tuple[str, ...] = ("seq1", "seq2", "seq3")
+    frames: int = 60  #: frames per training sequence
+    test_frames: int = 40  #: frames per held-out sequence
+    size: int = 128  #: frame size (square), pixels
+    #: share of the colon a training sequence travels (simulator path.coverage; test sequences travel the same
+    #: distance per frame). 1.0 crosses the whole colon at the 5 mm/frame cap; 0.03 with 60 frames is ~0.6 mm/frame
+    coverage: float = 1.0
+    steps: int = 2000  #: maximum training steps
+    train_minutes: float = 18.0  #: training wall-clock budget, minutes
+    batch_size: int = 2  #: frame pairs per step
+    gaps: tuple[int, ...] = (1, 2, 4, 8)  #: training frame gaps
+    eval_gaps: tuple[int, ...] = (1, 2, 4)  #: evaluation frame gaps
+    eval_stride: int = 3  #: evaluate every n-th pair of each gap
+    eval_batches: int | None = None  #: cap on evaluation batches per sequence (none: no cap)
+    lr: float = SMALL_MODEL["optim"]["lr"]  #: AdamW learning rate
+    #: dense ground-truth correspondences per training pair added to the InfoNCE (model.dense_points, as in
+    #: small.yaml; 0 = keypoint matches only, the paper's loss)
+    dense_points: int = SMALL_MODEL["loss"]["dense_points"]
+    dense_spacing: int = SMALL_MODEL["loss"]["dense_spacing"]  #: grid cell of the dense samples, pixels
+    threads: int = 1  #: torch CPU threads (1 is fastest on a shared 2-core machine)
+    seed: int = 0  #: seed_everything, and added to the sequences' seeds
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "train_presets", "test_presets", "gaps", "eval_gaps")
+
+
+CLI = ProtocolCli("contrafeat_pr", Settings, __doc__, example="steps=200")
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The plain options, each setting as an attribute too (``args.frames``; tuples as lists), and
+    ``args.settings`` (the tree)."""
+    ap = CLI.parser()
     ap.add_argument("--work", type=Path, default=WORK / "contrafeat_pr", help="sequences, logs and the checkpoint")
     ap.add_argument("--data", type=Path, default=None, help="existing DIR/{train,test}/<seq> (skips rendering)")
-    ap.add_argument("--train-presets", nargs="+", default=[f"seq{k}" for k in range(1, 9)],
-                    help="presets of the training sequences (rendered with seeds 100 + 17 k, never a test seed)")
-    ap.add_argument("--test-presets", nargs="+", default=["seq1", "seq2", "seq3"],
-                    help="presets of the held-out sequences (rendered with the preset's own seed 1, 2, 3, ...)")
-    ap.add_argument("--frames", type=int, default=60, help="frames per training sequence")
-    ap.add_argument("--test-frames", type=int, default=40, help="frames per held-out sequence")
-    ap.add_argument("--size", type=int, default=128, help="frame size (square), pixels")
-    ap.add_argument("--coverage", type=float, default=1.0,
-                    help="share of the colon a training sequence travels (simulator path.coverage; test sequences "
-                         "travel the same distance per frame). 1.0 crosses the whole colon at the 5 mm/frame cap; "
-                         "0.03 with 60 frames is ~0.6 mm/frame")
-    ap.add_argument("--steps", type=int, default=2000, help="maximum training steps")
-    ap.add_argument("--train-minutes", type=float, default=18.0, help="training wall-clock budget")
-    ap.add_argument("--batch-size", type=int, default=2, help="frame pairs per step")
-    ap.add_argument("--gaps", type=int, nargs="+", default=[1, 2, 4, 8], help="training frame gaps")
-    ap.add_argument("--eval-gaps", type=int, nargs="+", default=[1, 2, 4], help="evaluation frame gaps")
-    ap.add_argument("--eval-stride", type=int, default=3, help="evaluate every n-th pair of each gap")
-    ap.add_argument("--eval-batches", type=int, default=None, help="cap on evaluation batches per sequence")
-    ap.add_argument("--lr", type=float, default=SMALL_MODEL["optim"]["lr"], help="AdamW learning rate")
-    ap.add_argument("--dense-points", type=int, default=SMALL_MODEL["loss"]["dense_points"],
-                    help="dense ground-truth correspondences per training pair added to the InfoNCE "
-                         "(model.dense_points, as in small.yaml; 0 = keypoint matches only, the paper's loss)")
-    ap.add_argument("--dense-spacing", type=int, default=SMALL_MODEL["loss"]["dense_spacing"],
-                    help="grid cell of the dense samples, pixels")
     ap.add_argument("--pretrained", type=Path, default=None,
                     help="model.pretrained_path: a torchvision ResNet18 state dict or a DepthNet checkpoint "
                          "(ResNet18, no DCN) whose depth encoder starts the backbone")
     ap.add_argument("--init-weights", type=Path, default=None,
                     help="continue from a checkpoint this script saved (contrafeat_small.ckpt: all weights; "
                          "a fresh optimiser); the untrained control then evaluates these weights")
-    ap.add_argument("--threads", type=int, default=1,
-                    help="torch CPU threads (1 is fastest on a shared 2-core machine)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=RESULTS / "contrafeat_pr.md")
-    return ap.parse_args()
+    ap.add_argument("--report", "--out", type=Path, default=RESULTS / "contrafeat_pr.md",
+                    help=REPORT_HELP + " (--out: its former name)")
+    return CLI.flat(*CLI.parse(ap, argv))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Run:
     """What one benchmark run measured, for the report (times in seconds)."""
 
@@ -199,8 +214,9 @@ def run(args: argparse.Namespace) -> Run:
     t0 = time.time()
     trained = metrics_per_sequence(model, data / "test", test_seqs, pairs)
     t_eval += time.time() - t0
-    return Run(train_seqs, test_seqs, motion, init_steps, steps, losses, untrained, trained, t_data, t_train,
-               t_eval, time.time() - t_start)
+    return Run(train_seqs=train_seqs, test_seqs=test_seqs, motion=motion, init_steps=init_steps, steps=steps,
+               losses=losses, untrained=untrained, trained=trained, t_data=t_data, t_train=t_train,
+               t_eval=t_eval, total=time.time() - t_start)
 
 
 def setup_lines(args: argparse.Namespace, res: Run) -> list[str]:
@@ -290,13 +306,15 @@ def result_lines(args: argparse.Namespace, res: Run) -> list[str]:
     ]
 
 
-def main() -> None:
-    args = parse_args()
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
     torch.set_num_threads(args.threads)
     L.seed_everything(args.seed, workers=True)
     res = run(args)
-    report = Report(__file__, "ContraFeat keypoint matching: recall / precision (paper table 2)")
-    print(report.publish(args.out, ["## Setup", "", *setup_lines(args, res), "", *result_lines(args, res)], args))
+    report = Report(__file__, "ContraFeat keypoint matching: recall / precision (paper table 2)", argv)
+    options = {k: getattr(args, k) for k in ("work", "data", "pretrained", "init_weights", "report")}
+    print(report.publish(args.report, ["## Setup", "", *setup_lines(args, res), "", *result_lines(args, res)],
+                         args.settings, options=options))
 
 
 if __name__ == "__main__":

@@ -6,9 +6,12 @@ depth and SIFT at default settings (coverage on, 5 cm segments), then ``python -
 evaluate --gt``: the estimate (from the run's trajectory and fused mesh only) against the
 truth (the true mesh seen from the true poses of every frame, folds occluding), overall and
 per segment. Goal: overall within +-2 percentage points, per segment within +-5.
-``--depth-model`` runs the same on predicted depth instead.
+``--set depth_model=MODEL`` runs the same on predicted depth instead.
 
-    python -m benchmarks.protocols.coverage_accuracy --jobs 2
+    python -m benchmarks.protocols.coverage_accuracy --set jobs=2
+    python -m benchmarks.protocols.coverage_accuracy --set cases=insertion,loop --report /tmp/coverage.md
+
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, WORK_HELP, ProtocolCli, check_choices, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 
@@ -55,7 +59,29 @@ def case_sequence(case: Case, preset: str = PRESET, seed: int = SEED, frames: in
     return SimSequence(preset, seed, frames, size, case.overrides)
 
 
-def slam_command(seq: Path, out: Path, depth_model: Path | None = None, options: tuple[str, ...] = ()) -> list[str]:
+@dataclass(frozen=True)
+class Settings:
+    """What coverage_accuracy measures."""
+
+    #: the cases run: insertion, withdrawal, tall-folds, low-folds, fast, close-ups, loop
+    cases: tuple[str, ...] = tuple(c.name for c in CASES)
+    preset: str = PRESET  #: simulator preset of every case
+    seed: int = SEED  #: simulator seed of every case
+    frames: int = FRAMES  #: frames per sequence
+    size: int = SIZE  #: square frame size, pixels
+    jobs: int = 2  #: cases run at once
+    depth_model: str | None = None  #: DepthNet ONNX export or zoo:NAME: predicted depth instead of the true depth
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "cases")
+        check_choices("cases", self.cases, (c.name for c in CASES))
+
+
+CLI = ProtocolCli("coverage_accuracy", Settings, __doc__, example="cases=insertion,loop")
+
+
+def slam_command(seq: Path, out: Path, depth_model: Path | str | None = None,
+                 options: tuple[str, ...] = ()) -> list[str]:
     """The SLAM run of a case on ``seq`` into ``out`` (replaced): ground-truth depth (or
     ``depth_model``'s), SIFT, default settings (plus ``options``, e.g. ``--set K=V``), mesh and
     coverage on."""
@@ -64,10 +90,11 @@ def slam_command(seq: Path, out: Path, depth_model: Path | None = None, options:
             "--overwrite", "--out", str(out), *options]
 
 
-def run_case(case: Case, a: argparse.Namespace) -> dict:
-    """Generate, run, evaluate one case; returns evaluation.json's ``unseen`` plus the run's registered share."""
-    seq = ensure_sequence(case_sequence(case, a.preset, a.seed, a.frames, a.size), a.work / case.name)
-    out = a.work / "runs" / case.name
+def run_case(case: Case, a: Settings | argparse.Namespace, work: Path) -> dict:
+    """Generate (into ``work``), run, evaluate one case with the simulator and depth settings of ``a``
+    (plus its ``slam_options``, if any); returns evaluation.json's ``unseen`` plus the run's registered share."""
+    seq = ensure_sequence(case_sequence(case, a.preset, a.seed, a.frames, a.size), work / case.name)
+    out = work / "runs" / case.name
     run = subprocess.run(slam_command(seq, out, a.depth_model, tuple(getattr(a, "slam_options", ()))), cwd=ROOT,
                          capture_output=True, text=True)
     if run.returncode != 0:
@@ -111,21 +138,14 @@ def summary_lines(results: list[tuple[Case, dict]]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--work", type=Path, default=WORK / "coverage_accuracy", help="folder for sequences and runs")
-    ap.add_argument("--cases", nargs="+", choices=[c.name for c in CASES], default=[c.name for c in CASES])
-    ap.add_argument("--preset", default=PRESET)
-    ap.add_argument("--seed", type=int, default=SEED)
-    ap.add_argument("--frames", type=int, default=FRAMES)
-    ap.add_argument("--size", type=int, default=SIZE)
-    ap.add_argument("--jobs", type=int, default=2, help="cases run at once")
-    ap.add_argument("--depth-model", type=Path, help="DepthNet ONNX: predicted depth instead of the true depth")
-    ap.add_argument("--report", type=Path, default=RESULTS / "coverage_accuracy.md")
-    a = ap.parse_args(argv)
-    cases = [c for c in CASES if c.name in a.cases]
-    with ThreadPoolExecutor(max(1, a.jobs)) as pool:
-        results = list(zip(cases, pool.map(lambda c: run_case(c, a), cases), strict=True))
-    depth = f"predicted depth ({a.depth_model.name})" if a.depth_model else "ground-truth depth"
+    ap = CLI.parser()
+    ap.add_argument("--work", type=Path, default=WORK / "coverage_accuracy", help=WORK_HELP)
+    ap.add_argument("--report", type=Path, default=RESULTS / "coverage_accuracy.md", help=REPORT_HELP)
+    a, settings = CLI.parse(ap, argv)
+    cases = [c for c in CASES if c.name in settings.cases]
+    with ThreadPoolExecutor(max(1, settings.jobs)) as pool:
+        results = list(zip(cases, pool.map(lambda c: run_case(c, settings, a.work), cases), strict=True))
+    depth = f"predicted depth ({Path(settings.depth_model).name})" if settings.depth_model else "ground-truth depth"
     lines = ["| case | sequence | registered % | truth unseen % | estimate % | error pp | max segment error pp "
              "| segments | truth, registered frames % | error vs it pp |", "|---|---|---|---|---|---|---|---|---|---|"]
     lines += [case_row(c, u) for c, u in results]
@@ -135,15 +155,15 @@ def main(argv: list[str] | None = None) -> None:
     for line in lines:
         print(line)
     rep = Report(__file__, f"Unseen-surface estimate vs truth ({depth})")
-    body = [f"- preset {a.preset}, seed {a.seed}, {a.frames} frames, {a.size} px; SLAM with {depth} and SIFT at "
-            "default settings; 5 cm segments along the centreline of the camera path.",
+    body = [f"- preset {settings.preset}, seed {settings.seed}, {settings.frames} frames, {settings.size} px; "
+            f"SLAM with {depth} and SIFT at default settings; 5 cm segments along the centreline of the camera path.",
             "- truth: the true mesh seen from the true poses of every frame (registered or not), occluded by the "
             "true surface, same cells and settings; estimate: the run's own trajectory and fused mesh only.",
             "- error = estimate - truth, percentage points; 'truth, registered frames': the truth seen from the "
             "frames the run registered only (the estimate cannot know frames it did not register: the difference "
             "between the two truths is what tracking losses cost).", "", *summary_lines(results), "", *lines, "",
             "Per segment:", "", *seg]
-    rep.publish(a.report, body, a)
+    rep.publish(a.report, body, settings, options=a)
     print(f"wrote {a.report}")
 
 

@@ -2,11 +2,12 @@
 
 All runs use the same simulator sequences, seed, steps, batch size and network (the small
 CPU variant, configs/depthnet/small.yaml); only the loss switches differ: the Monodepth2
-baseline (small.yaml + monodepth2.yaml), the full objective (small.yaml) and, with --variants, the
+baseline (small.yaml + monodepth2.yaml), the full objective (small.yaml) and, with the setting ``variants``, the
 full objective with one switch off (full-no-dc, full-no-extra, full-no-outlier,
 full-no-specular), the baseline plus outlier removal, or the full objective with the weight of
 L_dc ramped up from 0 (full-dc-warmup, ``model.loss.lambda_dc_warmup_steps``; not in the paper).
-``--model KEY=VALUE`` overrides a model argument of every variant (e.g. ``loss.lambda_dc=0.01``).
+``--set model_overrides=KEY=VALUE`` overrides a model argument of every variant (e.g.
+``loss.lambda_dc=0.01``).
 ``--init CKPT`` starts every variant from the weights of a checkpoint (``model.init_weights``;
 e.g. a baseline run, to test the extra losses on a network that already predicts structure).
 Each is then tested on held-out sequences with the project's metric function (per-image median
@@ -14,19 +15,21 @@ scaling), next to the score of a constant depth. Sq Rel and RMSE are printed in 
 the paper's table is.
 Training throughput is images/s over the whole fit (data loading included).
 
-    python -m benchmarks.protocols.depthnet_ablation --steps 500
-    python -m benchmarks.protocols.depthnet_ablation --steps 150 \
-        --variants full-no-dc,full-no-outlier --out runs/switches.md
-    python -m benchmarks.protocols.depthnet_ablation --steps 400 \
-        --init runs/bench/depthnet_ablation/baseline/tb/version_0/checkpoints/last.ckpt --out runs/warm.md
+    python -m benchmarks.protocols.depthnet_ablation --set steps=500
+    python -m benchmarks.protocols.depthnet_ablation --set steps=150 \
+        --set variants=full-no-dc,full-no-outlier --report runs/switches.md
+    python -m benchmarks.protocols.depthnet_ablation --set steps=400 \
+        --init runs/bench/depthnet_ablation/baseline/tb/version_0/checkpoints/last.ckpt --report runs/warm.md
 
 Inputs: sequences missing from --data (default ``runs/bench/depthnet_ablation/data``) are
-generated from presets and seeds (--frames, --coverage: keep the per-frame motion near the
-paper's; the table's set-up line reports it); each variant's run goes beside that folder
+generated from presets and seeds (settings ``frames``, ``coverage``: keep the per-frame motion near
+the paper's; the table's set-up line reports it); each variant's run goes beside that folder
 (``runs/bench/depthnet_ablation/VARIANT``). Every network is trained here, from scratch unless
 ``--init`` names the checkpoint of an earlier run.
 
-Writes benchmarks/results/depthnet_ablation.md (numbers + the command line) and its .json.
+Writes benchmarks/results/depthnet_ablation.md (numbers + the command line) and its .json
+(``--report``; ``--out`` its former name). Settings (``--print-config``: each with its default and
+meaning): :class:`Settings`; ``--data`` and ``--init`` (paths) stay plain options.
 """
 
 from __future__ import annotations
@@ -34,12 +37,15 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from benchmarks.common import RESULTS, WORK
 from benchmarks.common.depth_metrics import HEADER, METRICS, logged_test_metrics, metric_cells
+from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli, check_choices, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from c3f_core.errors import InputError
 
 
 def generate(data: Path, names: list[str], frames: int, size: int, coverage: float) -> None:
@@ -84,7 +90,7 @@ VARIANTS = {
 LABELS = {"baseline": "Monodepth2 baseline", "full": "C3Fusion (full)"}
 
 
-def run(configs: list[str], overrides: dict, data: Path, train: list[str], test: list[str], steps: int, batch: int,
+def run(configs: list[str], overrides: dict, data: Path, *, train: list[str], test: list[str], steps: int, batch: int,
         size: int, root: Path, seed: int = 7) -> dict:
     from c3f_models.cli import main
 
@@ -136,55 +142,66 @@ def constant_depth_metrics(data: Path, test: list[str], size: int) -> dict:
     return {name: v / max(n, 1) for name, v in sums.items()}
 
 
-def parse_args() -> tuple[argparse.Namespace, list[str], dict[str, str]]:
-    """The options, the variants to run and the ``--model`` overrides (checked before any work)."""
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+@dataclass(frozen=True)
+class Settings:
+    """What depthnet_ablation measures."""
+
+    train_seqs: int = 4  #: training sequences
+    test_seqs: int = 2  #: held-out test sequences
+    frames: int = 300  #: frames per sequence
+    #: share of the colon each sequence travels (simulator path.coverage); with 300 frames, 0.15 moves ~0.6 mm
+    #: and ~0.5 deg per frame. The generator's default (1.0) crosses the whole 1.25 m colon, at its 5 mm/frame
+    #: cap for short sequences (the paper: ~0.3 mm/frame).
+    coverage: float = 0.15
+    size: int = 128  #: square frame size, pixels
+    steps: int = 400  #: training steps of every variant
+    batch: int = 4  #: batch size
+    seed: int = 7  #: seed_everything of every run (the tables so far: 7)
+    threads: int = 1  #: torch intra-op threads (1 is fastest on a shared 2-core machine)
+    #: variants run: baseline, full, full-no-dc, full-no-extra, full-no-outlier, full-no-specular,
+    #: baseline+outlier, full-dc-warmup (full-no-X: the full objective with one switch off)
+    variants: tuple[str, ...] = ("baseline", "full")
+    #: full-dc-warmup: steps over which the weight of L_dc ramps from 0 (none: half of steps)
+    dc_warmup_steps: int | None = None
+    #: model arguments KEY=VALUE for every variant, e.g. loss.lambda_dc=0.01
+    model_overrides: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "variants")
+        check_choices("variants", self.variants, VARIANTS)
+        for kv in self.model_overrides:
+            key, sep, _ = kv.partition("=")
+            if not sep or not key.strip():
+                raise InputError(f"model_overrides: expected KEY=VALUE, got {kv!r}")
+
+
+CLI = ProtocolCli("depthnet_ablation", Settings, __doc__, example="steps=150")
+
+
+def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, Settings, list[str], dict[str, str]]:
+    """The plain options, the settings, the variants to run and the model overrides (checked before any work)."""
+    ap = CLI.parser()
     ap.add_argument("--data", type=Path, default=WORK / "depthnet_ablation" / "data",
                     help="folder of the sequences (made when missing); the runs go beside it")
-    ap.add_argument("--train-seqs", type=int, default=4)
-    ap.add_argument("--test-seqs", type=int, default=2)
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--coverage", type=float, default=0.15,
-                    help="share of the colon each sequence travels (simulator path.coverage); with 300 frames, "
-                         "0.15 moves ~0.6 mm and ~0.5 deg per frame. The generator's default (1.0) crosses the "
-                         "whole 1.25 m colon, at its 5 mm/frame cap for short sequences (the paper: ~0.3 mm/frame).")
-    ap.add_argument("--size", type=int, default=128)
-    ap.add_argument("--steps", type=int, default=400)
-    ap.add_argument("--batch", type=int, default=4)
-    ap.add_argument("--seed", type=int, default=7, help="seed_everything of every run (the tables so far: 7)")
-    ap.add_argument("--threads", type=int, default=1,
-                    help="torch intra-op threads (1 is fastest on a shared 2-core machine)")
-    ap.add_argument("--variants", default="baseline,full",
-                    help=f"comma-separated, from: {', '.join(VARIANTS)} "
-                         "(full-no-X: the full objective with one switch off)")
-    ap.add_argument("--dc-warmup-steps", type=int, default=None,
-                    help="full-dc-warmup: steps over which the weight of L_dc ramps from 0 (default: half of --steps)")
-    ap.add_argument("--model", dest="model_overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="model argument for every variant (repeatable), e.g. loss.lambda_dc=0.01")
     ap.add_argument("--init", type=Path, default=None,
                     help="checkpoint whose weights start every variant (model.init_weights; optimiser not resumed)")
-    ap.add_argument("--out", type=Path, default=RESULTS / "depthnet_ablation.md")
-    a = ap.parse_args()
-    variants = [v.strip() for v in a.variants.split(",") if v.strip()]
-    unknown = [v for v in variants if v not in VARIANTS]
-    if unknown:
-        ap.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
+    ap.add_argument("--report", "--out", type=Path, default=RESULTS / "depthnet_ablation.md",
+                    help=REPORT_HELP + " (--out: its former name)")
+    a, settings = CLI.parse(ap, argv)
     if a.init is not None and not a.init.is_file():
         ap.error(f"--init: no such checkpoint: {a.init}")
     extra = {}
-    for kv in a.model_overrides:
-        key, sep, value = kv.partition("=")
-        if not sep or not key:
-            ap.error(f"--model: expected KEY=VALUE, got {kv!r}")
+    for kv in settings.model_overrides:
+        key, _, value = kv.partition("=")
         extra[key.strip()] = value.strip()
-    return a, variants, extra
+    return a, settings, list(settings.variants), extra
 
 
-def run_variants(a: argparse.Namespace, variants: list[str], extra: dict[str, str], train: list[str],
-                 test: list[str], warmup: int) -> tuple[dict[str, dict], dict[str, str]]:
+def run_variants(a: argparse.Namespace, settings: Settings, variants: list[str], *, extra: dict[str, str],
+                 train: list[str], test: list[str], warmup: int) -> tuple[dict[str, dict], dict[str, str]]:
     """Train and test each variant; returns the metrics by table label and each variant's label."""
     tag = ("".join(f"-{k}={v}" for k, v in extra.items()) + ("-init" if a.init is not None else "")
-           + (f"-seed{a.seed}" if a.seed != 7 else ""))
+           + (f"-seed{settings.seed}" if settings.seed != 7 else ""))
     results: dict[str, dict] = {}
     keys: dict[str, str] = {}
     for v in variants:
@@ -195,13 +212,15 @@ def run_variants(a: argparse.Namespace, variants: list[str], extra: dict[str, st
         if a.init is not None:
             overrides["init_weights"] = str(a.init.resolve())
         root = a.data.parent / (v.replace("+", "_plus_") + tag)
-        keys[v] = LABELS.get(v, v) + (f" ({', '.join(a.model_overrides)})" if extra else "")
-        results[keys[v]] = run(cfg, overrides, a.data, train, test, a.steps, a.batch, a.size, root, a.seed)
+        keys[v] = LABELS.get(v, v) + (f" ({', '.join(settings.model_overrides)})" if extra else "")
+        results[keys[v]] = run(cfg, overrides, a.data, train=train, test=test, steps=settings.steps,
+                               batch=settings.batch, size=settings.size,
+                               root=root, seed=settings.seed)
     return results, keys
 
 
-def report_body(a: argparse.Namespace, variants: list[str], extra: dict[str, str], motion: dict[str, float],
-                results: dict[str, dict], keys: dict[str, str], warmup: int) -> list[str]:
+def report_body(a: argparse.Namespace, settings: Settings, variants: list[str], *, extra: dict[str, str],
+                motion: dict[str, float], results: dict[str, dict], keys: dict[str, str], warmup: int) -> list[str]:
     """The set-up paragraph, the table (one row per result) and the Sq Rel ratio of full / baseline."""
     head = (f"| method | {HEADER} | depth CV | train img/s |\n"
             "|---|---|---|---|---|---|---|---|---|---|\n")
@@ -215,16 +234,17 @@ def report_body(a: argparse.Namespace, variants: list[str], extra: dict[str, str
         base, full = results[keys["baseline"]], results[keys["full"]]
         ratio = f"Sq Rel full / baseline = {full['sq_rel'] / base['sq_rel']:.3f} (paper: 0.049 / 0.058 = 0.845)\n"
     text = (
-        f"Setup: ResNet18 without DCN (the small CPU variant), {a.size}x{a.size}, batch {a.batch}, "
-        f"{a.steps} steps each, seed {a.seed}, CPU ({a.threads} torch thread)"
+        f"Setup: ResNet18 without DCN (the small CPU variant), {settings.size}x{settings.size}, batch "
+        f"{settings.batch}, {settings.steps} steps each, seed {settings.seed}, CPU ({settings.threads} torch thread)"
         + (f", every variant starting from the weights of {a.init} (optimiser not resumed)" if a.init else "")
-        + (f", model overrides for every variant: {', '.join(a.model_overrides)}" if extra else "")
+        + (f", model overrides for every variant: {', '.join(settings.model_overrides)}" if extra else "")
         + (f", full-dc-warmup: weight of L_dc ramped from 0 over {warmup} steps"
            if "full-dc-warmup" in variants else "")
-        + f". Data: simulator, {a.train_seqs} training sequences and {a.test_seqs} held-out test sequences of "
-        f"{a.frames} frames (presets seq1.., seeds 100+k, path.coverage {a.coverage}; ground-truth motion between "
-        f"consecutive frames, median of the sequences' medians: rotation {motion['rot_p50']:.2f} deg, "
-        f"translation {motion['t_mm_p50']:.2f} mm, {100 * motion['t_rel_p50']:.1f} % of the median depth). "
+        + f". Data: simulator, {settings.train_seqs} training sequences and {settings.test_seqs} held-out test "
+        f"sequences of {settings.frames} frames (presets seq1.., seeds 100+k, path.coverage {settings.coverage}; "
+        f"ground-truth motion between consecutive frames, median of the sequences' medians: rotation "
+        f"{motion['rot_p50']:.2f} deg, translation {motion['t_mm_p50']:.2f} mm, {100 * motion['t_rel_p50']:.1f} % "
+        "of the median depth). "
         "Metrics on the test sequences only, per-image median scaling. "
         "Depth CV: spatial coefficient of variation of the predicted depth (std/mean over each image, averaged); "
         "the ground truth's is given in the reference row, and a CV near 0 means the network predicts a flat depth. "
@@ -235,23 +255,24 @@ def report_body(a: argparse.Namespace, variants: list[str], extra: dict[str, str
     return [text]
 
 
-def main() -> None:
-    a, variants, extra = parse_args()
+def main(argv: list[str] | None = None) -> None:
+    a, settings, variants, extra = parse_args(argv)
     import torch
 
-    torch.set_num_threads(a.threads)
+    torch.set_num_threads(settings.threads)
 
-    train = [f"train{k}" for k in range(a.train_seqs)]
-    test = [f"test{k}" for k in range(a.test_seqs)]
-    generate(a.data, train + test, a.frames, a.size, a.coverage)
+    train = [f"train{k}" for k in range(settings.train_seqs)]
+    test = [f"test{k}" for k in range(settings.test_seqs)]
+    generate(a.data, train + test, settings.frames, settings.size, settings.coverage)
     motion = motion_per_frame(a.data, train + test)
-    results = {"constant depth (reference)": constant_depth_metrics(a.data, test, a.size)}
-    warmup = a.dc_warmup_steps if a.dc_warmup_steps is not None else a.steps // 2
-    measured, keys = run_variants(a, variants, extra, train, test, warmup)
+    results = {"constant depth (reference)": constant_depth_metrics(a.data, test, settings.size)}
+    warmup = settings.dc_warmup_steps if settings.dc_warmup_steps is not None else settings.steps // 2
+    measured, keys = run_variants(a, settings, variants, extra=extra, train=train, test=test, warmup=warmup)
     results.update(measured)
-    report = Report(__file__, "DepthNet ablation: full objective vs Monodepth2 baseline")
-    print(report.publish(a.out, report_body(a, variants, extra, motion, results, keys, warmup), a,
-                         data={"motion": motion, "results": results}))
+    report = Report(__file__, "DepthNet ablation: full objective vs Monodepth2 baseline", argv)
+    print(report.publish(a.report, report_body(a, settings, variants, extra=extra, motion=motion, results=results,
+                                               keys=keys, warmup=warmup), settings,
+                         data={"motion": motion, "results": results}, options=a))
 
 
 if __name__ == "__main__":

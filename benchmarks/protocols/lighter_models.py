@@ -19,9 +19,11 @@ sequences (other seeds, seq5's appearance unseen in training):
   1 and 2 threads, the precisions alternating, medians.
 
     python -m benchmarks.protocols.lighter_models
+    python -m benchmarks.protocols.lighter_models --set repeats=10 --set slam_repeats=1 --report /tmp/lighter.md
 
 Inputs: sequences generated under ``--work`` (default ``runs/bench/lighter_models``); the zoo's
-weights. Writes benchmarks/results/lighter_models.md and its .json.
+weights. Writes benchmarks/results/lighter_models.md and its .json. Settings (``--print-config``:
+each with its default and meaning): :class:`Settings`.
 """
 
 from __future__ import annotations
@@ -34,12 +36,14 @@ import statistics
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, WORK_HELP, ProtocolCli
 from benchmarks.common.report import Report
 from benchmarks.common.slam_run import run_and_score
 from c3f_models.zoo.recipes import HELD_OUT, TRAIN
@@ -144,53 +148,64 @@ def slam(depth: Path, feat: Path, seq: Path, out: Path) -> dict:
             "descriptor_file": s.get("models", {}).get("descriptors", {}).get("file")}
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--heldout", type=int, default=6, help="held-out sequences of the zoo's six (depth, matches)")
-    ap.add_argument("--match-sequences", type=int, default=3,
-                    help="of those, how many the match evaluation uses (every other: one per preset)")
-    ap.add_argument("--repeats", type=int, default=30, help="timed calls per file and thread count")
-    ap.add_argument("--slam-repeats", type=int, default=3, help="SLAM runs per precision (alternating)")
-    ap.add_argument("--work", type=Path, default=WORK / "lighter_models")
-    ap.add_argument("--report", type=Path, default=RESULTS / "lighter_models.md")
-    return ap.parse_args(argv)
+@dataclass(frozen=True)
+class Settings:
+    """What lighter_models measures."""
+
+    heldout: int = 6  #: held-out sequences of the zoo's six (depth, matches)
+    match_sequences: int = 3  #: of those, how many the match evaluation uses (every other: one per preset)
+    repeats: int = 30  #: timed calls per file and thread count
+    slam_repeats: int = 3  #: SLAM runs per precision (alternating)
+
+
+CLI = ProtocolCli("lighter_models", Settings, __doc__, example="repeats=10")
+
+
+def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, Settings]:
+    """The plain options (work folder, report) and the settings of ``argv``."""
+    ap = CLI.parser()
+    ap.add_argument("--work", type=Path, default=WORK / "lighter_models", help=WORK_HELP)
+    ap.add_argument("--report", type=Path, default=RESULTS / "lighter_models.md", help=REPORT_HELP)
+    return CLI.parse(ap, argv)
 
 
 def main(argv: list[str] | None = None) -> None:
     from c3f_models.zoo.evaluate import depth_heldout
 
-    args = parse_args(argv)
-    cal, heldout = sequences(args.work, args.heldout)
+    args, settings = parse_args(argv)
+    cal, heldout = sequences(args.work, settings.heldout)
     data: dict[str, dict] = {}
     for p in PRECISIONS:
         d = {name: export(name, p, cal, heldout[0], args.work / "exports" / p / name) for name in (DEPTH, FEATURES)}
         folder = args.work / "exports" / p
         d["depth_metrics"] = depth_heldout(folder / DEPTH / "depthnet.onnx", heldout)
-        d["match_metrics"] = match_metrics(folder / FEATURES / "contrafeat.onnx", heldout[::2][:args.match_sequences])
+        d["match_metrics"] = match_metrics(folder / FEATURES / "contrafeat.onnx",
+                                           heldout[::2][:settings.match_sequences])
         data[p] = d
         print(f"{p}: exported and evaluated", flush=True)
-    for p, runs in slam_runs(args, heldout[0]).items():  # the precisions alternate: noise hits all alike
+    for p, runs in slam_runs(settings, args.work, heldout[0]).items():  # the precisions alternate: noise hits all alike
         data[p]["slam"] = {**runs[0], "fps": statistics.median(r["fps"] for r in runs),
                            "fps_runs": [r["fps"] for r in runs], "ate_cm_runs": [r["ate_cm"] for r in runs]}
     files = {f"{p}/{f}": args.work / "exports" / p / name / f
              for p in PRECISIONS for name in FILES for f in FILES[name]}
-    lat = latencies(files, _frame(heldout[0]), args.repeats)
+    lat = latencies(files, _frame(heldout[0]), settings.repeats)
     for key, v in lat.items():
         p, f = key.split("/")
         data[p].setdefault("latency_ms", {})[f] = v
         data[p].setdefault("bytes", {})[f] = files[key].stat().st_size
     Report(__file__, "Lighter models: float32, float16 and int8 exports of the zoo").publish(
-        args.report, body(args, data), args, data)
+        args.report, body(settings, data), settings, data, options=args)
 
 
-def slam_runs(args: argparse.Namespace, seq: Path) -> dict[str, list[dict]]:
-    """``args.slam_repeats`` runs per precision on ``seq``, the precisions alternating."""
+def slam_runs(settings: Settings, work: Path, seq: Path) -> dict[str, list[dict]]:
+    """``settings.slam_repeats`` runs per precision on ``seq`` (exports and runs in ``work``), the precisions
+    alternating."""
     runs: dict[str, list[dict]] = {p: [] for p in PRECISIONS}
-    for _ in range(args.slam_repeats):
+    for _ in range(settings.slam_repeats):
         for p in PRECISIONS:
-            folder = args.work / "exports" / p
+            folder = work / "exports" / p
             runs[p].append(slam(folder / DEPTH / "depthnet.onnx", folder / FEATURES / "contrafeat.onnx", seq,
-                                args.work / "runs" / p))
+                                work / "runs" / p))
     return runs
 
 
@@ -200,7 +215,7 @@ def _frame(seq: Path) -> np.ndarray:
     from c3f_slam.io import Sequence
 
     s = Sequence(seq)
-    rgb, _, _ = prepare_network_input(s.read_rgb(len(s) // 2), s.camera, None, (128, 128), True)
+    rgb, _, _ = prepare_network_input(s.read_rgb(len(s) // 2), s.camera, crop=None, size=(128, 128), specular=True)
     return (np.ascontiguousarray(rgb).transpose(2, 0, 1)[None] / 255.0).astype(np.float32)
 
 
@@ -230,15 +245,16 @@ def tables(data: dict) -> list[str]:
     return rows
 
 
-def body(args: argparse.Namespace, data: dict) -> list[str]:
+def body(settings: Settings, data: dict) -> list[str]:
     return [
         f"- Machine: {os.cpu_count()} CPU cores ({platform.machine()}, "
         f"{'AVX512-VNNI' if _has_vnni() else 'no VNNI'}), no GPU, shared with other jobs.",
         f"- Models: the zoo's {DEPTH} and {FEATURES} (128 px), exported here from their weights; int8 "
         f"calibrated on {', '.join(CALIBRATION)} (training sequences, 64 frames).",
-        f"- Held out: {', '.join(p.name for p in HELD_OUT[:args.heldout])} (depth); matches on every other one, "
-        f"{args.match_sequences} sequences; SLAM on {HELD_OUT[0].name}, {args.slam_repeats} runs per precision, "
-        "the precisions alternating (ATE and registered share of the first run; every run's ATE in the JSON).",
+        f"- Held out: {', '.join(p.name for p in HELD_OUT[:settings.heldout])} (depth); matches on every other "
+        f"one, {settings.match_sequences} sequences; SLAM on {HELD_OUT[0].name}, {settings.slam_repeats} runs per "
+        "precision, the precisions alternating (ATE and registered share of the first run; every run's ATE in the "
+        "JSON).",
         "",
         *tables(data),
     ]

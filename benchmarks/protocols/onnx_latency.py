@@ -7,20 +7,22 @@ for both (torch.set_num_threads / intra_op_num_threads). Runs alternate between 
 back-ends, so machine noise hits both alike; the table gives medians and the ratio
 eager / onnxruntime (> 1 means onnxruntime is faster).
 
-    python -m benchmarks.protocols.onnx_latency --threads 2 --repeats 20
+    python -m benchmarks.protocols.onnx_latency --set threads=2 --set repeats=20
 
 Inputs: none (random weights, the configs' networks).
 
-Writes benchmarks/results/onnx_latency.md (numbers + the command line) and its .json.
+Writes benchmarks/results/onnx_latency.md (numbers + the command line) and its .json (``--report``;
+``--out`` its former name). Settings (``--print-config``: each with its default and meaning):
+:class:`Settings`.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import statistics
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +30,7 @@ import onnxruntime as ort
 import torch
 
 from benchmarks.common import RESULTS
+from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli
 from benchmarks.common.report import Report
 from c3f_models.contrafeat.config import ContraFeatNetworkConfig
 from c3f_models.contrafeat.graphs import DescriptorGraph
@@ -73,28 +76,38 @@ def time_pair(module, session, inputs, names, repeats: int, warmup: int) -> tupl
     return eager, onnx_rt
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--repeats", type=int, default=20)
-    ap.add_argument("--warmup", type=int, default=3)
-    ap.add_argument("--size", type=int, default=224, help="input height = width (the configs' default: 224)")
-    ap.add_argument("--small", action="store_true", help="the CPU variants (ResNet18 depth without DCN, small FPN)")
-    ap.add_argument("--out", type=Path, default=RESULTS / "onnx_latency.md")
-    a = ap.parse_args()
+@dataclass(frozen=True)
+class Settings:
+    """What onnx_latency measures."""
+
+    threads: int = 2  #: threads of both back-ends (torch.set_num_threads, intra_op_num_threads)
+    repeats: int = 20  #: timed runs of each back-end (alternating; median reported)
+    warmup: int = 3  #: untimed runs before them
+    size: int = 224  #: input height = width, pixels (the configs' default: 224)
+    small: bool = False  #: the CPU variants (ResNet18 depth without DCN, small FPN)
+
+
+CLI = ProtocolCli("onnx_latency", Settings, __doc__, example="repeats=5")
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = CLI.parser()
+    ap.add_argument("--report", "--out", type=Path, default=RESULTS / "onnx_latency.md",
+                    help=REPORT_HELP + " (--out: its former name)")
+    a, settings = CLI.parse(ap, argv)
     torch.manual_seed(0)
-    torch.set_num_threads(a.threads)
+    torch.set_num_threads(settings.threads)
     opts = ort.SessionOptions()
-    opts.intra_op_num_threads = a.threads
+    opts.intra_op_num_threads = settings.threads
     opts.inter_op_num_threads = 1
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
 
     rows = []
-    for label, module, names, out_name, opset, inputs in graphs(a.size, a.small):
+    for label, module, names, out_name, opset, inputs in graphs(settings.size, settings.small):
         module.eval()
         proto = to_onnx(module, inputs, names, out_name, opset)
         session = ort.InferenceSession(proto.SerializeToString(), opts, providers=["CPUExecutionProvider"])
-        eager, rt = time_pair(module, session, inputs, names, a.repeats, a.warmup)
+        eager, rt = time_pair(module, session, inputs, names, settings.repeats, settings.warmup)
         with torch.inference_mode():
             onnx_out = session.run(None, {n: t.numpy() for n, t in zip(names, inputs)})[0]
             diff = float(np.abs(onnx_out - module(*inputs).numpy()).max())
@@ -103,15 +116,15 @@ def main() -> None:
         print(f"{label}: eager {e:.1f} ms, onnxruntime {r:.1f} ms, ratio {e / r:.2f}, max|diff| {diff:.2g}", flush=True)
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    report = Report(__file__, "Per-frame latency: PyTorch eager vs onnxruntime (CPU)")
-    text = report.publish(a.out, [
-        f"Setup: batch 1, {a.size}x{a.size}, {a.threads} threads for both back-ends, random weights, "
-        f"median of {a.repeats} alternating runs after {a.warmup} warm-up runs. torch {torch.__version__}, "
-        f"onnxruntime {ort.__version__}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"load average at the end {load:.2f}.\n\n"
+    report = Report(__file__, "Per-frame latency: PyTorch eager vs onnxruntime (CPU)", argv)
+    text = report.publish(a.report, [
+        f"Setup: batch 1, {settings.size}x{settings.size}, {settings.threads} threads for both back-ends, random "
+        f"weights, median of {settings.repeats} alternating runs after {settings.warmup} warm-up runs. torch "
+        f"{torch.__version__}, onnxruntime {ort.__version__}, {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} cores, load average at the end {load:.2f}.\n\n"
         "| net | eager ms | onnxruntime ms | eager / onnxruntime | max abs diff |\n|---|---|---|---|---|\n"
         + "".join(f"| {label} | {e:.1f} | {r:.1f} | {ratio:.2f} | {d:.1e} |\n" for label, e, r, ratio, d in rows)
-    ], a)
+    ], settings, options=a)
     print(text)
 
 

@@ -22,13 +22,17 @@ frames/s (one run each, 2 cores: compare within a case only).
 
     python -m benchmarks.protocols.real_video --phantom ../shared/data/c3vd_phantom_preview \\
         --baseline /tmp/before --report benchmarks/results/real_video.md
+    python -m benchmarks.protocols.real_video --set frames=100 --set size=128 --report /tmp/real_video.md
+
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`; ``--phantom``
+and ``--baseline`` name inputs (paths) and stay plain options.
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -37,6 +41,7 @@ import open3d as o3d
 
 from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.phantom import phantom_video
+from benchmarks.common.protocol_cli import REPORT_HELP, WORK_HELP, ProtocolCli
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.common.slam_run import run_kept
@@ -141,23 +146,32 @@ def _fmt(v, pct: bool = False, digits: int = 2) -> str:
     return f"{100 * v:.1f} %" if pct else f"{v:.{digits}f}"
 
 
+@dataclass(frozen=True)
+class Settings:
+    """What real_video measures."""
+
+    frames: int = 200  #: frames of each simulator sequence
+    size: int = 256  #: simulator frame size (square), pixels
+
+
+CLI = ProtocolCli("real_video", Settings, __doc__, example="frames=100")
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.protocols.real_video", description=__doc__.split("\n")[0])
+    ap = CLI.parser()
     ap.add_argument("--phantom", type=Path,
                     help="the phantom clip's folder (with split.py); without it: simulator only")
     ap.add_argument("--baseline", type=Path, help="checkout of the code before (run from its folder, its defaults)")
-    ap.add_argument("--frames", type=int, default=200, help="frames of each simulator sequence (default 200)")
-    ap.add_argument("--size", type=int, default=256, help="simulator frame size, pixels (default 256)")
-    ap.add_argument("--work", type=Path, default=WORK / "real_video", help="sequences and runs")
-    ap.add_argument("--report", type=Path, default=RESULTS / "real_video.md")
-    args = ap.parse_args(argv)
+    ap.add_argument("--work", type=Path, default=WORK / "real_video", help=WORK_HELP)
+    ap.add_argument("--report", type=Path, default=RESULTS / "real_video.md", help=REPORT_HELP)
+    args, settings = CLI.parse(ap, argv)
     variants = {"baseline": args.baseline} if args.baseline else {}
     variants["after"] = ROOT
     cases: list[tuple[str, Path, Path | None]] = []
     if args.phantom:
         cases.append(("phantom", phantom_video(args.phantom.resolve(), args.work), None))
     for name, preset, seed in SIM_CASES:
-        seq = ensure_sequence(SimSequence(preset, seed, args.frames, args.size, NUISANCES), args.work / name)
+        seq = ensure_sequence(SimSequence(preset, seed, settings.frames, settings.size, NUISANCES), args.work / name)
         cases.append((name, seq, seq))
     rows, costs, data = [], [], {}
     for name, source, truth in cases:
@@ -206,7 +220,8 @@ def main(argv: list[str] | None = None) -> int:
         "|---|---|---|---|---|---|",
         *costs,
     ]
-    Report(__file__, "Real recordings: the runtime on a scope's own video", argv).publish(args.report, body, args, data)
+    report = Report(__file__, "Real recordings: the runtime on a scope's own video", argv)
+    report.publish(args.report, body, settings, data, options=args)
     print("\n".join(body))
     return 0
 

@@ -28,11 +28,13 @@ last table gives, per check and error, Spearman's rank correlation over the runs
 with its error when the sign is the expected one.
 
     python -m benchmarks.protocols.self_checks --report benchmarks/results/self_checks.md
+    python -m benchmarks.protocols.self_checks --set frames=120 --report /tmp/self_checks.md
+
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import sys
@@ -46,6 +48,7 @@ import open3d as o3d
 from scipy.stats import spearmanr
 
 from benchmarks.common import RESULTS, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, WORK_HELP, ProtocolCli
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.common.slam_run import run_kept
@@ -257,23 +260,32 @@ def nuisance_table(nuis: dict[str, dict]) -> list[str]:
     return lines
 
 
+@dataclass(frozen=True)
+class Settings:
+    """What self_checks measures."""
+
+    frames: int = 240  #: frames per sequence
+    size: int = 128  #: square frame size, pixels
+    pace: float = 2.0  #: motion per frame, times the paper's (0.28 mm per frame)
+
+
+CLI = ProtocolCli("self_checks", Settings, __doc__, example="frames=120")
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.protocols.self_checks", description=__doc__.split("\n")[0])
-    ap.add_argument("--frames", type=int, default=240, help="frames per sequence (default 240)")
-    ap.add_argument("--size", type=int, default=128, help="square frame size, pixels (default 128)")
-    ap.add_argument("--pace", type=float, default=2.0, help="motion per frame, times the paper's (default 2)")
-    ap.add_argument("--work", type=Path, default=WORK / "self_checks", help="sequences and runs")
-    ap.add_argument("--report", type=Path, default=RESULTS / "self_checks.md")
-    args = ap.parse_args(argv)
+    ap = CLI.parser()
+    ap.add_argument("--work", type=Path, default=WORK / "self_checks", help=WORK_HELP)
+    ap.add_argument("--report", type=Path, default=RESULTS / "self_checks.md", help=REPORT_HELP)
+    args, settings = CLI.parse(ap, argv)
     rows, nuis, names = {}, {}, []
     for preset, seed in SEQUENCES:
-        spec = at_pace(preset, seed, args.frames, args.pace)
+        spec = at_pace(preset, seed, settings.frames, settings.pace)
         cov = (f"path.coverage={spec.coverage}",)
         name = spec.name
         names.append(name)
         work = args.work / name
-        clean = ensure_sequence(SimSequence(preset, seed, args.frames, args.size, cov), work / "clean")
-        bordered = ensure_sequence(SimSequence(preset, seed, args.frames, args.size, cov + NUISANCES),
+        clean = ensure_sequence(SimSequence(preset, seed, settings.frames, settings.size, cov), work / "clean")
+        bordered = ensure_sequence(SimSequence(preset, seed, settings.frames, settings.size, cov + NUISANCES),
                                    work / "bordered")
         truth = Sequence(clean)
         for v in VARIANTS:
@@ -286,9 +298,9 @@ def main(argv: list[str] | None = None) -> int:
                 nuis[name] = nuisance_truth(out, bordered)
     corr, corr_data = correlation_table(rows, names)
     body = [
-        f"Simulator sequences {', '.join(names)} ({args.frames} frames at {args.pace:g} times the paper's pace, "
-        f"{args.size} px; no other benchmark uses these seeds; seq5's appearance is in no training data). Every "
-        "run with ContraFeat descriptors; 'zoo' runs with the zoo's depth network. Checks (no ground truth, "
+        f"Simulator sequences {', '.join(names)} ({settings.frames} frames at {settings.pace:g} times the paper's "
+        f"pace, {settings.size} px; no other benchmark uses these seeds; seq5's appearance is in no training data). "
+        "Every run with ContraFeat descriptors; 'zoo' runs with the zoo's depth network. Checks (no ground truth, "
         "summary.json `checks`): jitter = path length over its 1-s moving average; photometric = agreement "
         "(ZNCC) of frames with the map rendered at their poses; map coverage = share of the tissue area the "
         "map covers there; map depth = median relative difference of a frame's depth and the map's; keyframe "
@@ -317,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
         *nuisance_table(nuis),
     ]
     Report(__file__, "Checks without ground truth against the errors they stand for", argv).publish(
-        args.report, body, args, {"runs": rows, "correlations": corr_data, "nuisances": nuis})
+        args.report, body, settings, {"runs": rows, "correlations": corr_data, "nuisances": nuis}, options=args)
     print("\n".join(body))
     return 0
 

@@ -1,6 +1,6 @@
 """Frames per second of the colonoscopy simulator, generation including writing.
 
-    python -m benchmarks.protocols.simulator_fps [--preset seq1] [--frames 300] [--size 256] [--seed 7]
+    python -m benchmarks.protocols.simulator_fps [--set preset=seq1] [--set frames=300] [--set size=256] [--set seed=7]
 
 Runs the real pipeline (``generate_sequence``: colon + path + texture, ray casting, shading,
 PNG encoding of RGB and depth, mesh.ply, params.json, poses.txt) into a temporary folder and
@@ -8,6 +8,7 @@ reports: the set-up time, the steady rate (frames 10..N, writing included), the 
 and a per-stage breakdown measured on extra frames (median per frame). Writes the numbers
 and the exact command line to ``benchmarks/results/simulator_fps.md`` (and ``.json``) and prints them.
 This is a measurement, not a test: the machine's load is recorded next to the numbers.
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS
+from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli
 from benchmarks.common.report import Report
 
 
@@ -77,14 +79,25 @@ class _Rates:
     overall: float  # frames/s including set-up and mesh.ply
 
 
+@dataclass(frozen=True)
+class Settings:
+    """What simulator_fps measures."""
+
+    preset: str = "seq1"  #: the simulator's preset (default, seq1..seq8, tiny)
+    frames: int = 300  #: frames generated
+    size: int = 256  #: frame size (square), pixels
+    seed: int = 7  #: simulator seed
+
+
+CLI = ProtocolCli("simulator_fps", Settings, __doc__, example="frames=100")
+
+
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--preset", default="seq1")
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--seed", type=int, default=7)
-    ap.add_argument("--out", default=str(RESULTS / "simulator_fps.md"))
-    return ap.parse_args(argv)
+    """The plain options, each setting as an attribute too (``args.frames``), and ``args.settings`` (the tree)."""
+    ap = CLI.parser()
+    ap.add_argument("--report", "--out", type=Path, default=RESULTS / "simulator_fps.md",
+                    help=REPORT_HELP + " (--out: its former name)")
+    return CLI.flat(*CLI.parse(ap, argv))
 
 
 def _timed_generation(params) -> _Run:
@@ -155,9 +168,11 @@ def _report_lines(args: argparse.Namespace, params, run: _Run, rates: _Rates, st
 def main(argv: list[str] | None = None) -> int:
     args = _arguments(argv)
 
-    from datamodules.synthetic.params import apply_overrides, get_preset
+    from c3f_core.settings import tree_from_mapping
+    from datamodules.synthetic.params import SIM_SETTINGS
 
-    params = apply_overrides(get_preset(args.preset), {"frames": args.frames, "size": args.size, "seed": args.seed})
+    params = tree_from_mapping(SIM_SETTINGS.tree(args.preset), {
+        "seed": args.seed, "path": {"frames": args.frames}, "camera": {"width": args.size, "height": args.size}})
     load_before = os.getloadavg()
     run = _timed_generation(params)
     load_after = os.getloadavg()
@@ -167,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = _report_lines(args, params, run, rates, stages, (load_before[0], load_after[0]))
     data = {**asdict(rates), "total_s": run.total, "size_mb": run.size_mb, "stage_ms": stages,
             "load_before_after": [load_before[0], load_after[0]]}  # the table's numbers without their units
-    print(report.publish(Path(args.out), lines, args, data=data))
+    print(report.publish(args.report, lines, args.settings, data=data, options={"report": args.report}))
     return 0
 
 

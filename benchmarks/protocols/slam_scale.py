@@ -3,17 +3,19 @@
 A long sequence is made without rendering thousands of frames: a short simulator sequence
 is played forward and backward repeatedly through symbolic links (ping-pong), so the camera
 keeps revisiting the same colon stretch (every new keyframe has real matches among the
-earlier ones, the worst case for the all-keyframe matching). Every ``--every`` frames the
+earlier ones, the worst case for the all-keyframe matching). Every ``every`` frames the
 script records the resident memory (VmRSS), the time per frame of the last interval (total
 and per stage), the number of keyframes, the keyframe pairs matched per new keyframe and the
-global optimisations; the table goes to benchmarks/results/slam_scale.md (and .json). ``--paper-rules``
-restores the literal rules (match all keyframes, optimise the whole component after every
+global optimisations; the table goes to benchmarks/results/slam_scale.md (and .json).
+``--set paper_rules=true`` restores the literal rules (match all keyframes, optimise the whole component after every
 loop) for comparison on short runs.
 
-    python -m benchmarks.protocols.slam_scale --frames 20000 --base-frames 120 --size 64 --every 1000
+    python -m benchmarks.protocols.slam_scale --set frames=20000 --set base_frames=120 --set size=64 \\
+        --set every=1000
 
 Inputs: the base sequence is the simulator's seeded fixture, made under ``--work`` (default
-``runs/bench/slam_scale``); no model.
+``runs/bench/slam_scale``); no model. Settings (``--print-config``: each with its default and
+meaning): :class:`Settings`.
 """
 
 from __future__ import annotations
@@ -21,13 +23,14 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 
 from benchmarks.common import RESULTS, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli
 from benchmarks.common.report import Report
 from c3f_slam.config import preset as slam_preset
 from c3f_slam.io import Sequence, write_tum
@@ -128,43 +131,52 @@ def probe_class(every: int) -> type[Probe]:
     return type("Probe", (Probe,), {"every": every, "samples": [], "final": {}})
 
 
-def parse_args() -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--frames", type=int, default=20000)
-    ap.add_argument("--base-frames", type=int, default=120)
-    ap.add_argument("--size", type=int, default=64)
-    ap.add_argument("--every", type=int, default=500)
-    ap.add_argument("--min-correspondences", type=int, default=None,
-                    help="fragment threshold; default: the preset's, derived from the frame size")
-    ap.add_argument("--mesh", action="store_true", help="fuse too (the fused volume grows with the surface)")
-    ap.add_argument("--paper-rules", action="store_true",
-                    help="match all keyframes, keep all their loop edges and optimise whole components after "
-                         "every loop (the literal rules)")
-    ap.add_argument("--keyframes-in-ram", action="store_true",
-                    help="keep the stored keyframes' features in RAM (SlamConfig.keyframes.cache=False) instead of "
-                         "the run's keyframe cache file")
-    ap.add_argument("--reuse-keyframes", action=argparse.BooleanOptionalAction, default=None,
-                    help="SlamConfig.keyframes.reuse (revisits hang off mapped keyframes); default: the config's")
+@dataclass(frozen=True)
+class Settings:
+    """What slam_scale measures."""
+
+    frames: int = 20000  #: frames of the long stream
+    base_frames: int = 120  #: frames of the simulator sequence played forward and backward
+    size: int = 64  #: square frame size, pixels
+    every: int = 500  #: frames between two samples of the table
+    min_correspondences: int | None = None  #: fragment threshold (none: the preset's, derived from the frame size)
+    mesh: bool = False  #: fuse too (the fused volume grows with the surface)
+    #: match all keyframes, keep all their loop edges and optimise whole components after every loop (the
+    #: literal rules)
+    paper_rules: bool = False
+    #: keep the stored keyframes' features in RAM (SlamConfig.keyframes.cache=False) instead of the run's
+    #: keyframe cache file
+    keyframes_in_ram: bool = False
+    #: SlamConfig.keyframes.reuse (revisits hang off mapped keyframes); none: the config's
+    reuse_keyframes: bool | None = None
+
+
+CLI = ProtocolCli("slam_scale", Settings, __doc__, example="frames=2000")
+
+
+def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, Settings]:
+    """The plain options (work folder, report) and the settings of ``argv``."""
+    ap = CLI.parser()
     ap.add_argument("--work", "--out", type=Path, default=WORK / "slam_scale",
                     help="folder for the sequences and the run (--out: its former name)")
-    ap.add_argument("--report", type=Path, default=RESULTS / "slam_scale.md")
-    return ap.parse_args()
+    ap.add_argument("--report", type=Path, default=RESULTS / "slam_scale.md", help=REPORT_HELP)
+    return CLI.parse(ap, argv)
 
 
-def slam_config(args: argparse.Namespace) -> SlamConfig:
+def slam_config(settings: Settings) -> SlamConfig:
     """The colon preset with the run's options."""
-    over: dict = {part: dict(fields) for part, fields in PAPER_RULES.items()} if args.paper_rules else {}
+    over: dict = {part: dict(fields) for part, fields in PAPER_RULES.items()} if settings.paper_rules else {}
     over.setdefault("keyframes", {})
-    if args.keyframes_in_ram:
+    if settings.keyframes_in_ram:
         over["keyframes"]["cache"] = False
-    if args.reuse_keyframes is not None:
-        over["keyframes"]["reuse"] = args.reuse_keyframes
-    if args.min_correspondences is not None:
-        over["fragments"] = {**over.get("fragments", {}), "min_correspondences": args.min_correspondences}
-    return slam_preset("colon", fusion={"enabled": args.mesh}, **over)
+    if settings.reuse_keyframes is not None:
+        over["keyframes"]["reuse"] = settings.reuse_keyframes
+    if settings.min_correspondences is not None:
+        over["fragments"] = {**over.get("fragments", {}), "min_correspondences": settings.min_correspondences}
+    return slam_preset("colon", fusion={"enabled": settings.mesh}, **over)
 
 
-def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], wall: float, s: dict, ev: dict,
+def report_body(settings: Settings, cfg: SlamConfig, probe: type[Probe], *, wall: float, s: dict, ev: dict,
                 error: str) -> list[str]:
     """Stream, settings and totals, then one table row per sample (times in ms, memory in MB)."""
     final = probe.final
@@ -176,13 +188,14 @@ def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], w
         for r in probe.samples]
 
     return [
-        (f"- Stream: a {args.base_frames}-frame simulator sequence ({args.size} px, 15 cm colon) played forward "
-         f"and backward (ping-pong, symbolic links) to {args.frames} frames; ground-truth depth, SIFT; "
+        (f"- Stream: a {settings.base_frames}-frame simulator sequence ({settings.size} px, 15 cm colon) played "
+         f"forward and backward (ping-pong, symbolic links) to {settings.frames} frames; ground-truth depth, SIFT; "
          "2 CPU cores shared with other jobs."),
         "- Settings: " + "; ".join(f"{part}: {asdict(getattr(cfg, part))}"
                                    for part in ("candidates", "keyframes", "optimization"))
-        + f", fragments.min_correspondences={cfg.for_frame_size(args.size, args.size).fragments.min_correspondences}"
-        + (" (given)" if args.min_correspondences is not None else " (derived from the frame size)") + ".",
+        + ", fragments.min_correspondences="
+        + f"{cfg.for_frame_size(settings.size, settings.size).fragments.min_correspondences}"
+        + (" (given)" if settings.min_correspondences is not None else " (derived from the frame size)") + ".",
         f"- Wall time {wall:.0f} s (final optimisation {final.get('seconds', float('nan')):.1f} s, "
         f"{final.get('optimizations', 0)} runs); registered share {s.get('registered_share', float('nan')):.3f}; "
         f"ATE (SE(3), registered frames) {100 * ev.get('ate_se3', {}).get('rmse_m', float('nan')):.2f} cm, "
@@ -196,7 +209,7 @@ def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], w
         f"keyframe cache on disk {s.get('keyframe_disk_bytes', 0) / 2**20:.1f} MB at the end (removed after the run); "
         f"accepted keyframe matches by source {s.get('keyframe_matches_by_source')} "
         f"(of them discarded by the loop-edge cap: {s.get('keyframe_matches_capped')}); "
-        f"mesh {'on' if args.mesh else 'off'}." + (f" Error: {error}" if error else ""),
+        f"mesh {'on' if settings.mesh else 'off'}." + (f" Error: {error}" if error else ""),
         ("- Per interval of the last frames: wall-clock ms per frame (total, then the process's CPU time, "
          "which other jobs on the shared cores disturb less, then the wall-clock keypoint, matching and "
          "pose-graph stages), resident memory of the process, keyframes so far, "
@@ -214,14 +227,14 @@ def report_body(args: argparse.Namespace, cfg: SlamConfig, probe: type[Probe], w
     ]
 
 
-def main() -> None:
-    args = parse_args()
-    base = args.work / f"base_{args.base_frames}_{args.size}"
+def main(argv: list[str] | None = None) -> None:
+    args, settings = parse_args(argv)
+    base = args.work / f"base_{settings.base_frames}_{settings.size}"
     if not (base / "camera.json").is_file():
-        make_tiny_sequence(base, frames=args.base_frames, size=args.size, seed=5)
-    long_seq = ping_pong(base, args.work / f"long_{args.frames}_{args.size}", args.frames)
-    cfg = slam_config(args)
-    probe = probe_class(args.every)
+        make_tiny_sequence(base, frames=settings.base_frames, size=settings.size, seed=5)
+    long_seq = ping_pong(base, args.work / f"long_{settings.frames}_{settings.size}", settings.frames)
+    cfg = slam_config(settings)
+    probe = probe_class(settings.every)
     t = time.perf_counter()
     error = ""
     try:
@@ -235,8 +248,9 @@ def main() -> None:
             ev = evaluate_run(args.work / "run", long_seq)
         except Exception as exc:  # noqa: BLE001 -- report, do not lose the table
             ev = {"error": str(exc)}
-    report = Report(__file__, "SLAM scaling over a long RGB-D stream")
-    print(report.publish(args.report, report_body(args, cfg, probe, wall, s, ev, error), args))
+    report = Report(__file__, "SLAM scaling over a long RGB-D stream", argv)
+    print(report.publish(args.report, report_body(settings, cfg, probe, wall=wall, s=s, ev=ev, error=error), settings,
+                         options=args))
 
 
 if __name__ == "__main__":

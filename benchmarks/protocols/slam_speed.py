@@ -13,18 +13,20 @@ Variants, run with the CLI one after another (runs alternate so machine noise hi
 - ``after``: the defaults (both, ContraFeat's keypoint graph where the export has one, and two
   perception threads: two frames' networks and SIFT at once, beside the back-end).
 
-Cases (``--cases``): ``rgbd-128`` (simulator colon, 128 px, true depth, SIFT), ``rgbd-640x480``
+Cases (setting ``cases``): ``rgbd-128`` (simulator colon, 128 px, true depth, SIFT), ``rgbd-640x480``
 (the synthetic room at 640x480 with Kinect-like noise, room preset, true depth, SIFT),
 ``model-128`` (simulator colon at 128 px, the zoo's DepthNet and ContraFeat) and ``model-224``
 (simulator colon at 224 px, the paper-size networks: DepthNet ResNet50 + DCN and ContraFeat
 ResNet18-FPN, 128-d, random weights: speed does not depend on the weight values).
 
     python -m benchmarks.protocols.slam_speed --baseline /tmp/before
+    python -m benchmarks.protocols.slam_speed --set cases=rgbd-128 --set frames=300 --report /tmp/slam_speed.md
 
 Inputs: every sequence is generated from its seed under ``--work`` (default
 ``runs/bench/slam_speed``); the zoo's models by name; the paper-size exports made from random
 weights with the project's exporter. Memory over a long stream: ``slam_scale.md``.
-Writes benchmarks/results/slam_speed.md and its .json.
+Writes benchmarks/results/slam_speed.md and its .json. Settings (``--print-config``: each with its
+default and meaning): :class:`Settings`; ``--baseline`` (a checkout) stays a plain option.
 """
 
 from __future__ import annotations
@@ -39,9 +41,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, WORK_HELP, ProtocolCli, check_choices, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.common.slam_run import run_and_score
+from c3f_core.errors import InputError
 
 NO_EVENTS = ("path.closeups=0", "path.bursts=0", "path.occlusions=0", "path.roll_events=0")
 BASELINE = "baseline"  #: the variant run from ``--baseline CHECKOUT`` with its defaults
@@ -145,7 +149,7 @@ def dense_only(feat: str | Path, work: Path) -> str | Path:
     return alone
 
 
-def run_once(case: Case, variant: str, seq: Path, work: Path, threads: int | None, baseline: Path | None,
+def run_once(case: Case, variant: str, seq: Path, *, work: Path, threads: int | None, baseline: Path | None,
              providers: str | None = None, models: tuple[Path, Path] | None = None) -> dict:
     """One run of ``variant`` on ``case`` with the CLI (``baseline``: that checkout, its defaults;
     else this one with the variant's settings): its summary with the ATE (Sim(3), cm)."""
@@ -190,60 +194,79 @@ def row(case: Case, variant: str, runs: list[dict], base_fps: float) -> tuple[st
     return text, data
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--cases", nargs="+", choices=tuple(CASES), default=list(CASES))
-    ap.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=list(VARIANTS),
-                    help="this checkout's variants (after --baseline's run, when given)")
+@dataclass(frozen=True)
+class Settings:
+    """What slam_speed measures."""
+
+    cases: tuple[str, ...] = tuple(CASES)  #: cases run: rgbd-128, rgbd-640x480, model-128, model-224
+    #: this checkout's variants (after --baseline's run, when given): serial, prefetch, bounded, one-worker, after
+    variants: tuple[str, ...] = tuple(VARIANTS)
+    frames: int = 600  #: frames per sequence (model-224: half)
+    repeats: int = 1  #: runs of each variant (alternating)
+    threads: int | None = None  #: onnxruntime threads per model (none: each checkout's own default)
+    #: the runs' --providers (model cases, this checkout), e.g. CUDAExecutionProvider,CPUExecutionProvider on
+    #: a GPU (none: CPU)
+    providers: str | None = None
+    #: two ONNX files, DEPTH,DESCRIPTORS, this checkout's variants of the model cases run instead of the case's
+    #: (e.g. int8 exports, benchmarks/protocols/lighter_models.py); the baseline keeps the case's (none: empty)
+    models: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "cases", "variants")
+        check_choices("cases", self.cases, CASES)
+        check_choices("variants", self.variants, VARIANTS)
+        if self.models and len(self.models) != 2:
+            raise InputError(f"models: give two ONNX files, DEPTH,DESCRIPTORS (got {len(self.models)})")
+
+
+CLI = ProtocolCli("slam_speed", Settings, __doc__, example="cases=rgbd-128")
+
+
+def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, Settings]:
+    """The plain options (baseline, work folder, report) and the settings of ``argv``."""
+    ap = CLI.parser()
     ap.add_argument("--baseline", type=Path, help="checkout of the code before (run from its folder, its defaults)")
-    ap.add_argument("--frames", type=int, default=600, help="frames per sequence (model-224: half)")
-    ap.add_argument("--repeats", type=int, default=1, help="runs of each variant (alternating)")
-    ap.add_argument("--threads", type=int, default=None,
-                    help="onnxruntime threads per model; default: each checkout's own default")
-    ap.add_argument("--providers", help="the runs' --providers (model cases, this checkout), e.g. "
-                                        "CUDAExecutionProvider,CPUExecutionProvider on a GPU; default CPU")
-    ap.add_argument("--models", nargs=2, type=Path, metavar=("DEPTH", "DESCRIPTORS"),
-                    help="ONNX files this checkout's variants of the model cases run instead of the case's (e.g. "
-                         "int8 exports, benchmarks/protocols/lighter_models.py); the baseline keeps the case's")
-    ap.add_argument("--work", type=Path, default=WORK / "slam_speed")
-    ap.add_argument("--report", type=Path, default=RESULTS / "slam_speed.md")
-    return ap.parse_args(argv)
+    ap.add_argument("--work", type=Path, default=WORK / "slam_speed", help=WORK_HELP)
+    ap.add_argument("--report", type=Path, default=RESULTS / "slam_speed.md", help=REPORT_HELP)
+    return CLI.parse(ap, argv)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(argv)
+    args, settings = parse_args(argv)
     rows, data = [], {}
-    for name in args.cases:
+    for name in settings.cases:
         case = CASES[name]
-        seq = sequence(case, args.frames // 2 if name == "model-224" else args.frames, args.work)
-        variants = ([BASELINE] if args.baseline else []) + list(args.variants)
+        seq = sequence(case, settings.frames // 2 if name == "model-224" else settings.frames, args.work)
+        variants = ([BASELINE] if args.baseline else []) + list(settings.variants)
         runs: dict[str, list[dict]] = {v: [] for v in variants}
-        for _ in range(args.repeats):
+        for _ in range(settings.repeats):
             for v in variants:
-                runs[v].append(run_once(case, v, seq, args.work, args.threads, args.baseline, args.providers,
-                                        tuple(args.models) if args.models else None))
+                runs[v].append(run_once(case, v, seq, work=args.work, threads=settings.threads,
+                                        baseline=args.baseline, providers=settings.providers,
+                                        models=tuple(Path(m) for m in settings.models) if settings.models else None))
                 print(f"{name} {v}: {runs[v][-1]['fps']:.2f} frames/s", flush=True)
         base = statistics.median(r["fps"] for r in runs[variants[0]])
         data[name] = {}
         for v in variants:
             text, data[name][v] = row(case, v, runs[v], base)
             rows.append(text)
-    Report(__file__, "SLAM runtime speed: before vs after").publish(args.report, body(args, rows), args, data)
+    Report(__file__, "SLAM runtime speed: before vs after", argv).publish(
+        args.report, body(settings, args.baseline, rows), settings, data, options=args)
 
 
-def body(args: argparse.Namespace, rows: list[str]) -> list[str]:
+def body(settings: Settings, baseline: Path | None, rows: list[str]) -> list[str]:
     return [
         f"- Machine: {os.cpu_count()} CPU cores ({platform.machine()}), no GPU, shared with other jobs; "
-        f"onnxruntime {args.threads or 'the default number of'} threads per model (the baseline's default: 2; "
-        f"this checkout's: the cores less one); medians of {args.repeats} run(s) per variant, the "
+        f"onnxruntime {settings.threads or 'the default number of'} threads per model (the baseline's default: 2; "
+        f"this checkout's: the cores less one); medians of {settings.repeats} run(s) per variant, the "
         "variants alternating.",
-        "- Cases: " + "; ".join(f"{c}: {CASES[c].what}" for c in args.cases)
-        + f"; {args.frames} frames (model-224: {args.frames // 2}).",
-        "- Variants: " + (f"baseline: {args.baseline} with its defaults; " if args.baseline else "")
-        + "; ".join(f"{v}: {' '.join(VARIANTS[v]) or 'the defaults'}" for v in args.variants)
+        "- Cases: " + "; ".join(f"{c}: {CASES[c].what}" for c in settings.cases)
+        + f"; {settings.frames} frames (model-224: {settings.frames // 2}).",
+        "- Variants: " + (f"baseline: {baseline} with its defaults; " if baseline else "")
+        + "; ".join(f"{v}: {' '.join(VARIANTS[v]) or 'the defaults'}" for v in settings.variants)
         + " (the baseline, serial, prefetch and bounded are given ContraFeat's dense graph alone); coverage off."
-        + (f" This checkout's variants run {args.models[0]} and {args.models[1]} in place of the case's models."
-           if args.models else ""),
+        + (f" This checkout's variants run {settings.models[0]} and {settings.models[1]} in place of the case's models."
+           if settings.models else ""),
         "- Columns: frames/s over the whole command's wall-clock time (summary.json's wall_seconds: opening "
         "the models, the frames, the final optimisation, fusion and the outputs) and "
         "its ratio to the first variant; ms per frame; ms per frame per stage (with perception ahead of the "

@@ -7,22 +7,24 @@ frames in the main map, ATE Sim(3) (cm and % of the ground-truth path length), f
 tracking breaks and how many were re-joined. ``--baseline CHECKOUT`` runs the same with the
 code of another checkout (e.g. a git worktree of the commit before the change; one whose
 ``run`` takes ``--set``), at its defaults (and with ``--set fragments.min_correspondences=15``,
-what README used to pass, with ``--baseline-tuned``), side by side.
+what README used to pass, with ``--set baseline_tuned=true``), side by side.
 
 Pace: the paper's sequences cross the 1.25 m colon in 4,500 frames (~0.28 mm per frame);
 pace p travels ``p x frames / 4500`` of it (``path.coverage``). Events are placed per 1000
 frames; their ramps keep the simulator's rate limits (``path.max_turn_rate`` 120 deg/s,
-``path.max_event_speed`` 6 cm/s at 30 fps; ``--events unbounded`` also runs the former
-timing, ramps fixed in frames, close-ups turning up to ~38 deg per frame).
-``--depth-model`` adds a run on predicted depth.
+``path.max_event_speed`` 6 cm/s at 30 fps; ``--set events=bounded,unbounded`` also runs the
+former timing, ramps fixed in frames, close-ups turning up to ~38 deg per frame).
+``--set depth_model=MODEL.onnx`` adds a run on predicted depth.
 
-    python -m benchmarks.protocols.slam_tracking --presets seq1 seq3 seq2 --seeds 1 2 --paces 1 3 \\
-        --frames 1500 --sizes 128 --baseline /tmp/before
+    python -m benchmarks.protocols.slam_tracking --set presets=seq1,seq3,seq2 --set seeds=1,2 \\
+        --set paces=1,3 --set frames=1500 --set sizes=128 --baseline /tmp/before
+
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`; ``--baseline``
+(a checkout) stays a plain option.
 """
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
 import os
@@ -34,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, WORK_HELP, ProtocolCli, check_choices, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_slam.evaluation.trajectory import evaluate_trajectory
@@ -41,7 +44,7 @@ from c3f_slam.io import Sequence, read_tum
 from datamodules.synthetic.generate import read_event_labels
 
 PAPER_FRAMES = 4500  #: frames of the paper's sequences over the whole colon
-#: simulator overrides per event timing (``--events``)
+#: simulator overrides per event timing (setting ``events``)
 EVENT_TIMINGS = {"bounded": (), "unbounded": ("path.max_turn_rate=none", "path.max_event_speed=none")}
 PRESETS, SEEDS, PACES = ("seq1", "seq3", "seq2"), (1, 2), (1.0, 3.0)  #: the default sequences
 
@@ -53,6 +56,30 @@ class Variant:
     name: str
     checkout: Path
     options: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What slam_tracking measures."""
+
+    presets: tuple[str, ...] = PRESETS  #: simulator presets
+    seeds: tuple[int, ...] = SEEDS  #: simulator seeds of each preset
+    paces: tuple[float, ...] = PACES  #: motion per frame, multiples of the paper's pace (0.28 mm per frame)
+    frames: int = 1500  #: frames per sequence
+    sizes: tuple[int, ...] = (128,)  #: square frame sizes, pixels
+    #: event timings: bounded (the simulator's event ramps within path.max_turn_rate / max_event_speed,
+    #: its defaults), unbounded (ramps fixed in frames: the simulator before the bounds)
+    events: tuple[str, ...] = ("bounded",)
+    #: also run the baseline (--baseline) with --set fragments.min_correspondences=15 (README's former advice)
+    baseline_tuned: bool = False
+    depth_model: str | None = None  #: DepthNet ONNX export: also run with predicted depth from it
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "presets", "seeds", "paces", "sizes", "events")
+        check_choices("events", self.events, sorted(EVENT_TIMINGS))
+
+
+CLI = ProtocolCli("slam_tracking", Settings, __doc__, example="frames=600")
 
 
 def tracking_sequence(preset: str, seed: int, pace: float, frames: int, size: int,
@@ -108,35 +135,25 @@ def row(seq_name: str, v: Variant, s: dict, events: float) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--presets", nargs="+", default=list(PRESETS))
-    ap.add_argument("--seeds", nargs="+", type=int, default=list(SEEDS))
-    ap.add_argument("--paces", nargs="+", type=float, default=list(PACES), help="multiples of the paper's pace")
-    ap.add_argument("--frames", type=int, default=1500)
-    ap.add_argument("--sizes", nargs="+", type=int, default=[128])
-    ap.add_argument("--work", type=Path, default=WORK / "slam_tracking", help="folder for sequences and runs")
+    ap = CLI.parser()
+    ap.add_argument("--work", type=Path, default=WORK / "slam_tracking", help=WORK_HELP)
     ap.add_argument("--baseline", type=Path, help="checkout of the code to compare with (run from its folder)")
-    ap.add_argument("--baseline-tuned", action="store_true",
-                    help="also run the baseline with --set fragments.min_correspondences=15 (README's former "
-                         "advice)")
-    ap.add_argument("--events", nargs="+", choices=sorted(EVENT_TIMINGS), default=["bounded"],
-                    help="bounded: the simulator's event ramps within path.max_turn_rate / max_event_speed (its "
-                         "defaults); unbounded: ramps fixed in frames (the simulator before the bounds)")
-    ap.add_argument("--depth-model", type=Path, help="also run with predicted depth from this DepthNet ONNX")
-    ap.add_argument("--report", type=Path, default=RESULTS / "slam_tracking.md")
-    a = ap.parse_args(argv)
+    ap.add_argument("--report", type=Path, default=RESULTS / "slam_tracking.md", help=REPORT_HELP)
+    a, settings = CLI.parse(ap, argv)
     variants = [Variant("this code, defaults", ROOT)]
-    if a.depth_model:
-        variants.append(Variant("this code, predicted depth", ROOT, ("--depth-model", str(a.depth_model.resolve()))))
+    if settings.depth_model:
+        variants.append(Variant("this code, predicted depth", ROOT,
+                                ("--depth-model", str(Path(settings.depth_model).resolve()))))
     if a.baseline:
         variants.append(Variant("before, defaults", a.baseline))
-        if a.baseline_tuned:
+        if settings.baseline_tuned:
             variants.append(Variant("before, min_correspondences 15", a.baseline,
                                     ("--set", "fragments.min_correspondences=15")))
     lines = ["| sequence | events % | code | min corr. | registered % of usable | ATE Sim(3) cm | ATE % of path "
              "| path cm | breaks / re-joined | frames/s |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for timing, size, pace, preset, seed in itertools.product(a.events, a.sizes, a.paces, a.presets, a.seeds):
-        name, spec = tracking_sequence(preset, seed, pace, a.frames, size, timing)
+    for timing, size, pace, preset, seed in itertools.product(settings.events, settings.sizes, settings.paces,
+                                                              settings.presets, settings.seeds):
+        name, spec = tracking_sequence(preset, seed, pace, settings.frames, size, timing)
         seq = ensure_sequence(spec, a.work / name, echo=True)
         events = read_event_labels(seq)
         ev_share = sum(1 for e in events if e) / max(len(events), 1)
@@ -145,12 +162,12 @@ def main(argv: list[str] | None = None) -> None:
             lines.append(row(name, v, s, ev_share))
             print(lines[-1], flush=True)
     rep = Report(__file__, "Tracking at default settings on sequences with events")
-    body = [f"- {a.frames} frames per sequence; pace 1 = the paper's (1.25 m in {PAPER_FRAMES} frames); "
+    body = [f"- {settings.frames} frames per sequence; pace 1 = the paper's (1.25 m in {PAPER_FRAMES} frames); "
             "ground-truth depth, SIFT, no mesh; events on (the presets' rates).",
             "- registered % of usable: frames in the main map over frames not skipped as black/saturated/"
             "featureless; breaks / re-joined: consecutive-frame tracking breaks and those bridged "
             "(this code only).", "", *lines]
-    rep.publish(a.report, body, a)
+    rep.publish(a.report, body, settings, options=a)
     print(f"wrote {a.report}")
 
 

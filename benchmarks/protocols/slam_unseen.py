@@ -12,18 +12,22 @@ the motion per frame in units of the paper's (1.25 m of colon over 4,500 frames:
 frame at 30 frames/s); the zoo was trained at 1.6 times it.
 
     python -m benchmarks.protocols.slam_unseen --report benchmarks/results/slam_unseen.md
+    python -m benchmarks.protocols.slam_unseen --set frames=150 --set paces=1 --report /tmp/slam_unseen.md
+
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from benchmarks.common import RESULTS, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, WORK_HELP, ProtocolCli, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.common.slam_run import run_kept
@@ -35,6 +39,22 @@ MODELS = ["--depth-model", "zoo:c3f-depth-r18w32", "--feature-model", "zoo:c3f-f
 PRESETS = ("seq1", "seq2", "seq3", "seq4", "seq5")
 FIRST_SEED = 7601  #: seeds FIRST_SEED, FIRST_SEED + 1, ... in the order of the cases
 IN_ONE_MAP, ATE_PCT = 0.95, 2.0  #: what a run must reach
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What slam_unseen measures."""
+
+    paces: tuple[float, ...] = (1.0, 3.0)  #: motion per frame, times the paper's (0.28 mm per frame)
+    seeds: int = 2  #: sequences per preset and pace
+    frames: int = 300  #: frames per sequence
+    size: int = 128  #: square frame size, pixels
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "paces")
+
+
+CLI = ProtocolCli("slam_unseen", Settings, __doc__, example="frames=150")
 
 
 def run_case(seq: Path, out: Path) -> dict:
@@ -60,23 +80,18 @@ def _f(v, digits: int = 2) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.protocols.slam_unseen", description=__doc__.split("\n")[0])
-    ap.add_argument("--paces", type=float, nargs="+", default=[1.0, 3.0],
-                    help="motion per frame, times the paper's (default 1 3)")
-    ap.add_argument("--seeds", type=int, default=2, help="sequences per preset and pace (default 2)")
-    ap.add_argument("--frames", type=int, default=300, help="frames per sequence (default 300)")
-    ap.add_argument("--size", type=int, default=128, help="square frame size, pixels (default 128)")
-    ap.add_argument("--work", type=Path, default=WORK / "slam_unseen", help="sequences and runs")
-    ap.add_argument("--report", type=Path, default=RESULTS / "slam_unseen.md")
-    args = ap.parse_args(argv)
+    ap = CLI.parser()
+    ap.add_argument("--work", type=Path, default=WORK / "slam_unseen", help=WORK_HELP)
+    ap.add_argument("--report", type=Path, default=RESULTS / "slam_unseen.md", help=REPORT_HELP)
+    args, settings = CLI.parse(ap, argv)
     rows, data, seed = [], {}, FIRST_SEED
-    for pace in args.paces:
+    for pace in settings.paces:
         for preset in PRESETS:
-            for _ in range(args.seeds):
-                spec = at_pace(preset, seed, args.frames, pace)
+            for _ in range(settings.seeds):
+                spec = at_pace(preset, seed, settings.frames, pace)
                 seed += 1
                 name = f"{spec.name}_x{pace:g}"
-                seq = ensure_sequence(SimSequence(preset, spec.seed, args.frames, args.size,
+                seq = ensure_sequence(SimSequence(preset, spec.seed, settings.frames, settings.size,
                                                   (f"path.coverage={spec.coverage}",)), args.work / name)
                 r = run_case(seq, args.work / "runs" / name)
                 data[name] = {"pace": pace, "step_mm": spec.step_mm, **r}
@@ -86,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
                             f"{r['skipped']} | {_f(r.get('ate_pct'))} | {_f(r.get('scale'), 3)} | {_f(r['jitter'])} | "
                             f"{_f(r['truth_jitter'])} | {'yes' if r['meets'] else 'no'} | {_f(r['frames_per_s'], 1)} |")
     summary = []
-    for pace in args.paces:
+    for pace in settings.paces:
         runs = [r for r in data.values() if r["pace"] == pace]
         ratio = [r["jitter"] / r["truth_jitter"] for r in runs if np.isfinite(r["jitter"])]
         summary.append(f"| {pace:g} | {sum(r['meets'] for r in runs)} of {len(runs)} | "
@@ -94,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
                        f"{_f(max(r.get('ate_pct', np.inf) for r in runs))} | "
                        f"{_f(min(ratio))}-{_f(max(ratio))} |")
     body = [
-        f"Simulator sequences of seeds {FIRST_SEED}-{seed - 1} ({args.frames} frames, {args.size} px, the five "
+        f"Simulator sequences of seeds {FIRST_SEED}-{seed - 1} ({settings.frames} frames, {settings.size} px, the five "
         "presets; seq5's appearance is in no training data), each run once with the zoo models at default "
         "settings. Pace: motion per frame in units of the paper's (mm per frame in brackets; the zoo trained "
         f"at 1.6). A run meets the target when >= {100 * IN_ONE_MAP:.0f} % of its frames are in the main map "
@@ -110,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
         "|---|---|---|---|---|---|---|---|---|---|",
         *rows,
     ]
-    Report(__file__, "The zoo models on sequences no benchmark has used", argv).publish(args.report, body, args, data)
+    report = Report(__file__, "The zoo models on sequences no benchmark has used", argv)
+    report.publish(args.report, body, settings, data, options=args)
     print("\n".join(body))
     return 0
 

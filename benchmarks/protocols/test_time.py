@@ -3,26 +3,30 @@
 The protocol clones the repository's committed state (``HEAD``) into the work folder, sets it up
 as README says (``make setup``: a virtual environment and ``pip install -e ".[dev]"``, timed on
 its own), then runs ``make test`` (``ruff check .`` and the test suite without the tests marked
-``long``) twice in that clone: once alone, once while ``--load`` other processes keep CPU cores
+``long``) twice in that clone: once alone, once while ``load`` other processes keep CPU cores
 busy (a pure-Python loop each: the machine shared with another job). Per run: the wall time, the
 test count and pytest's own summary line. ``make test-e2e`` (the ``long`` tests) is timed once,
-alone, with ``--e2e``. Nothing of the clone is kept after a run unless ``--keep``.
+alone, with ``--set e2e=true``. Nothing of the clone is kept after a run unless ``--keep``.
 
     python -m benchmarks.protocols.test_time --report benchmarks/results/test_time.md
+    python -m benchmarks.protocols.test_time --set load=2 --set e2e=true --report /tmp/test_time.md
+
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`.
 """
 
 from __future__ import annotations
 
-import argparse
 import multiprocessing as mp
 import re
 import shutil
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli
 from benchmarks.common.report import Report
 
 SUMMARY = re.compile(r"=+ (.*(?:passed|failed).*) in ([\d.]+)s")
@@ -65,14 +69,23 @@ def _minutes(s: float | None) -> str:
     return "-" if s is None else f"{int(s // 60)}:{int(round(s % 60)):02d}"
 
 
+@dataclass(frozen=True)
+class Settings:
+    """What test_time measures."""
+
+    load: int = 1  #: busy processes beside the loaded run of make test
+    e2e: bool = False  #: also time make test-e2e once, alone
+
+
+CLI = ProtocolCli("test_time", Settings, __doc__, example="load=2")
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.protocols.test_time", description=__doc__.split("\n")[0])
-    ap.add_argument("--load", type=int, default=1, help="busy processes beside the loaded run (default 1)")
-    ap.add_argument("--e2e", action="store_true", help="also time make test-e2e once, alone")
+    ap = CLI.parser()
     ap.add_argument("--keep", action="store_true", help="keep the clone in the work folder")
     ap.add_argument("--work", type=Path, default=WORK / "test_time", help="where the clone is made")
-    ap.add_argument("--report", type=Path, default=RESULTS / "test_time.md")
-    args = ap.parse_args(argv)
+    ap.add_argument("--report", type=Path, default=RESULTS / "test_time.md", help=REPORT_HELP)
+    args, settings = CLI.parse(ap, argv)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                             text=True, check=True).stdout.strip()
     clone = args.work / "clone"
@@ -81,9 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
     runs = {"setup (make setup)": timed(["make", "setup"], clone, args.work / "setup.log"),
             "make test, alone": timed(["make", "test"], clone, args.work / "test_alone.log"),
-            f"make test, {args.load} busy process(es) beside it": run_loaded(
-                ["make", "test"], clone, args.work / "test_loaded.log", args.load)}
-    if args.e2e:
+            f"make test, {settings.load} busy process(es) beside it": run_loaded(
+                ["make", "test"], clone, args.work / "test_loaded.log", settings.load)}
+    if settings.e2e:
         runs["make test-e2e, alone"] = timed(["make", "test-e2e"], clone, args.work / "test_e2e.log")
     if not args.keep:
         shutil.rmtree(clone, ignore_errors=True)
@@ -95,8 +108,8 @@ def main(argv: list[str] | None = None) -> int:
             "package registries) is timed apart. The loaded run has that many pure-Python busy loops beside it.",
             "", "| run | exit | wall (min:s) | pytest's summary | pytest's time (min:s) |", "|---|---|---|---|---|",
             *rows]
-    Report(__file__, "make test on a fresh clone", argv).publish(args.report, body, args,
-                                                                 {"commit": commit, "runs": runs})
+    Report(__file__, "make test on a fresh clone", argv).publish(args.report, body, settings,
+                                                                 {"commit": commit, "runs": runs}, options=args)
     print("\n".join(body))
     return 0 if all(r["rc"] == 0 for r in runs.values()) else 1
 

@@ -8,26 +8,28 @@ and compare the two ``trajectory.txt`` byte for byte (SHA-256 of each); where th
 mesh (the coverage cases), ``mesh.ply``'s triangles too, in a canonical order
 (:func:`mesh_fingerprint`: Open3D writes the same mesh in another order on every run).
 
-Sets (``--set``, several allowed):
+Sets (setting ``sets``, several allowed):
 
 - ``coverage``: the 7 cases of ``coverage_accuracy.md`` (300 frames, 128 px, mesh and coverage on);
 - ``tracking128`` / ``tracking256``: the 12 bounded-event sequences of ``slam_tracking.md`` per
   frame size (3 presets x 2 seeds x 2 paces, 600 frames, no mesh);
 - ``smoke``: the first coverage case only (a quick check of the set-up).
 
-``--names`` keeps only the named sequences of the chosen sets. A run is reused when its folder
+``--set names=A,B`` keeps only the named sequences of the chosen sets. A run is reused when its folder
 holds a finished run of the same runtime code: the git tree of ``c3f_slam/`` in a tree without
 uncommitted changes there (a tree with such changes always runs again); ``--after`` the same as
 ``--before`` thus runs the reference once, for later comparisons. Exit status 1 when a
 trajectory differs or a run failed.
 
     python -m benchmarks.protocols.trajectory_identity --before /tmp/before --after . --work /tmp/identity \\
-        --set coverage tracking128 --jobs 1
+        --set sets=coverage,tracking128 --set jobs=1
+
+Settings (``--print-config``: each with its default and meaning): :class:`Settings`; ``--before``
+and ``--after`` (source trees) stay plain options.
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -42,12 +44,30 @@ import numpy as np
 import open3d as o3d
 
 from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.protocol_cli import WORK_HELP, ProtocolCli, check_choices, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.protocols import coverage_accuracy, slam_tracking
 
 TRACKING_FRAMES = 600  #: frames per sequence of the runs recorded in slam_tracking.md
 SIDES = ("before", "after")
+SETS = ("smoke", "coverage", "tracking128", "tracking256")  #: the sets of sequences
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What trajectory_identity compares."""
+
+    sets: tuple[str, ...] = ("coverage", "tracking128")  #: sets of sequences: smoke, coverage, tracking128, tracking256
+    names: tuple[str, ...] = ()  #: only these sequences of the sets (none: all)
+    jobs: int = 1  #: sequences at once
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "sets")
+        check_choices("sets", self.sets, SETS)
+
+
+CLI = ProtocolCli("trajectory_identity", Settings, __doc__, example="sets=smoke")
 
 
 @dataclass(frozen=True)
@@ -197,36 +217,33 @@ def table(results: list[dict]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CLI.parser()
     ap.add_argument("--before", type=Path, required=True, help="source tree of the reference code")
     ap.add_argument("--after", type=Path, default=ROOT, help="source tree of the changed code (default: this one)")
-    ap.add_argument("--work", type=Path, default=WORK / "trajectory_identity", help="folder for sequences and runs")
-    ap.add_argument("--set", nargs="+", dest="sets", default=["coverage", "tracking128"],
-                    choices=["smoke", "coverage", "tracking128", "tracking256"])
-    ap.add_argument("--names", nargs="+", help="only these sequences of the sets")
-    ap.add_argument("--jobs", type=int, default=1, help="sequences at once")
+    ap.add_argument("--work", type=Path, default=WORK / "trajectory_identity", help=WORK_HELP)
     ap.add_argument("--report", type=Path, default=RESULTS / "trajectory_identity.md",
                     help="Markdown report; the JSON goes beside it (.json)")
-    a = ap.parse_args(argv)
-    chosen = [t for t in targets(a.sets) if not a.names or t.name in a.names]
+    a, settings = CLI.parse(ap, argv)
+    chosen = [t for t in targets(settings.sets) if not settings.names or t.name in settings.names]
     trees = {"before": a.before.resolve(), "after": a.after.resolve()}
     keys = {side: code_key(tree) for side, tree in trees.items()}
     t0 = time.perf_counter()
-    with ThreadPoolExecutor(max(1, a.jobs)) as pool:
+    with ThreadPoolExecutor(max(1, settings.jobs)) as pool:
         results = list(pool.map(lambda t: compare(t, trees, keys, a.work), chosen))
     wall = time.perf_counter() - t0
     same = sum(r["identical"] for r in results)
     commits = {side: describe(tree) for side, tree in trees.items()}
     rep = Report(__file__, "Trajectories before and after, bit for bit")
-    body = [f"- before: `{commits['before']}`, after: `{commits['after']}`; sets: {', '.join(a.sets)}; each run as "
-            "its benchmark runs it (ground-truth depth, SIFT, default settings).",
+    body = [f"- before: `{commits['before']}`, after: `{commits['after']}`; sets: {', '.join(settings.sets)}; "
+            "each run as its benchmark runs it (ground-truth depth, SIFT, default settings).",
             f"- **{same} of {len(results)} trajectories identical** (SHA-256 of trajectory.txt; the first 16 hex "
-            f"digits shown, all 64 in the JSON); wall time {wall / 60:.1f} min, {a.jobs} at once; mesh identical: "
-            "the same triangles (positions and colours, bit for bit, in a canonical order) where the benchmark "
-            "writes a mesh (-: no mesh).", "",
+            f"digits shown, all 64 in the JSON); wall time {wall / 60:.1f} min, {settings.jobs} at once; mesh "
+            "identical: the same triangles (positions and colours, bit for bit, in a canonical order) where the "
+            "benchmark writes a mesh (-: no mesh).", "",
             *table(results)]
-    rep.publish(a.report, body, a, data={"before": commits["before"], "after": commits["after"], "sets": a.sets,
-                                         "wall_seconds": wall, "identical": same, "sequences": results})
+    rep.publish(a.report, body, settings, options=a,
+                data={"before": commits["before"], "after": commits["after"], "sets": settings.sets,
+                      "wall_seconds": wall, "identical": same, "sequences": results})
     print(f"{same} of {len(results)} identical; wrote {a.report}")
     return 0 if same == len(results) else 1
 

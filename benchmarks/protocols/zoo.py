@@ -1,7 +1,7 @@
 """The zoo models on held-out simulator sequences: depth, matches, SLAM, the unseen wall,
 test-time training. Writes ``benchmarks/results/zoo.md`` and ``zoo.json``.
 
-Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and reused unless
+Sections (setting ``only``; each one's numbers are kept in ``WORK/SECTION.json`` and reused unless
 ``--redo``):
 
 - ``depth``: the depth entry's ONNX file on the held-out sequences (:data:`HELD_OUT`: seq1, seq3,
@@ -15,9 +15,9 @@ Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and r
   after a Sim(3) alignment (cm and % of the path) and the alignment's scale.
 - ``coverage``: the seven cases of ``benchmarks.protocols.coverage_accuracy`` on zoo depth (SIFT): the
   run's unseen-wall estimate against the truth.
-- ``--set KEY=VALUE`` (repeatable) is given to every SLAM run of ``slam`` and ``coverage`` (a
-  variant of the defaults; recorded with the numbers, and a section kept in WORK with other
-  settings is computed again).
+- the setting ``slam_set`` (``--set slam_set=KEY=VALUE``, several comma-separated) is given as
+  ``--set KEY=VALUE`` to every SLAM run of ``slam`` and ``coverage`` (a variant of the defaults;
+  recorded with the numbers, and a section kept in WORK with other settings is computed again).
 - ``ttt``: test-time training from the zoo weights (the paper's objective,
   ``configs/depthnet/ttt.yaml``, no ground truth) on two held-out sequences of a trained
   appearance and two of the unseen appearance: Abs Rel before and after.
@@ -25,15 +25,18 @@ Sections (``--only``; each one's numbers are kept in ``WORK/SECTION.json`` and r
   self-supervised steps on four of the zoo's training sequences with the paper's objective and
   with the Monodepth2 baseline (no supervised term, no augmentation in either), for each seed;
   the held-out Sq Rel of each (mean over the seeds).
-- ``ablation_selfsup``: the same from a self-supervised start instead (``--start-steps`` steps of the
+- ``ablation_selfsup``: the same from a self-supervised start instead (``start_steps`` steps of the
   Monodepth2 objective from random weights), the counterpart of the paper's ImageNet start: the
   zoo weights were trained with a supervised term, so any self-supervised step leads away from them.
 
     python -m benchmarks.protocols.zoo
+    python -m benchmarks.protocols.zoo --set only=slam,coverage --set slam_set=match_filter.reprojection_refit=true
 
-Inputs: the models by name from the zoo (``--depth``, ``--features``; trained by ``python -m
+Inputs: the models by name from the zoo (settings ``depth``, ``features``; trained by ``python -m
 c3f_models.zoo``, not here); the held-out and training sequences generated from the recipes'
-presets and seeds; sequences and runs under ``--work`` (default ``runs/bench/zoo``).
+presets and seeds; sequences and runs under ``--work`` (default ``runs/bench/zoo``). Settings
+(``--print-config``: each with its default and meaning): :class:`Settings`; ``--heldout`` (a
+folder) and ``--redo`` stay plain options.
 """
 
 from __future__ import annotations
@@ -44,11 +47,13 @@ import shutil
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli, check_choices, check_not_empty
 from benchmarks.common.report import Report, json_beside
 from c3f_models.zoo.recipes import HELD_OUT, QUICK_HELD_OUT, TRAIN, shortened
 from c3f_models.zoo.train import REPO, simulate
@@ -139,9 +144,9 @@ def slam_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
 def coverage_section(a: argparse.Namespace) -> dict:
     from benchmarks.protocols.coverage_accuracy import CASES, run_case
 
-    ns = argparse.Namespace(preset="seq1", seed=7, frames=300, size=128, depth_model=a.depth, work=a.work / "coverage",
+    ns = argparse.Namespace(preset="seq1", seed=7, frames=300, size=128, depth_model=a.depth,
                             slam_options=_set_options(a.slam_set))
-    return {c.name: run_case(c, ns) for c in CASES}
+    return {c.name: run_case(c, ns, a.work / "coverage") for c in CASES}
 
 
 def tune_and_export(model: str, config: Path, seq: Path, run: Path, steps: int, extra: tuple[str, ...] = ()) -> Path:
@@ -200,7 +205,7 @@ def _ablation_train(a: argparse.Namespace) -> list[Path]:
     return simulate(shortened(TRAIN[:2], 24) if a.quick else TRAIN[:4], 128, a.work / "train")
 
 
-def _ablation_pairs(a: argparse.Namespace, seqs: list[Path], train: list[Path], entry, init: str, folder: str,
+def _ablation_pairs(a: argparse.Namespace, seqs: list[Path], train: list[Path], *, entry, init: str, folder: str,
                     init_sha256: str | None = None) -> dict:
     """Both objectives (:data:`ABLATION`) for every seed, ``a.ablation_steps`` steps from ``init``
     (its hash ``init_sha256``), under ``WORK/folder``: ``{objective: {seed: held-out mean metrics}}``."""
@@ -220,7 +225,7 @@ def ablation_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     entry = zoo.entry(a.depth, "--depth")
     train = _ablation_train(a)
     return {"steps": a.ablation_steps, "seeds": list(a.ablation_seeds), "train": [p.name for p in train],
-            **_ablation_pairs(a, seqs, train, entry, a.depth, "ablation")}
+            **_ablation_pairs(a, seqs, train, entry=entry, init=a.depth, folder="ablation")}
 
 
 def ablation_selfsup_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
@@ -238,7 +243,8 @@ def ablation_selfsup_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
     ckpt = run / "tb" / "version_0" / "checkpoints" / "last.ckpt"
     return {"steps": a.ablation_steps, "seeds": list(a.ablation_seeds), "train": [p.name for p in train],
             "start_steps": a.start_steps, "start": start,
-            **_ablation_pairs(a, seqs, train, entry, str(ckpt), "ablation_selfsup", zoo.sha256_of(ckpt))}
+            **_ablation_pairs(a, seqs, train, entry=entry, init=str(ckpt), folder="ablation_selfsup",
+                              init_sha256=zoo.sha256_of(ckpt))}
 
 
 def _ablation_run(run: Path, last: dict, configs: list, seqs: list[Path], what: str,
@@ -457,27 +463,41 @@ TITLES = {"depth": "Depth (held-out)", "matches": "Matches (held-out pairs)", "s
           "ablation_selfsup": "The same from a self-supervised start"}
 
 
+@dataclass(frozen=True)
+class Settings:
+    """What zoo measures."""
+
+    depth: str = "zoo:c3f-depth-r18w32"  #: depth model (zoo:NAME)
+    features: str = "zoo:c3f-features-r18w32"  #: descriptor model (zoo:NAME)
+    #: sections run: depth, matches, slam, coverage, ttt, ablation, ablation_selfsup
+    only: tuple[str, ...] = SECTIONS
+    #: settings KEY=VALUE of every SLAM run of the slam and coverage sections (c3f_slam run --set KEY=VALUE)
+    slam_set: tuple[str, ...] = ()
+    ttt_steps: int = 60  #: test-time training steps, as the demo (ZOO_TTT_STEPS)
+    ablation_steps: int = 300  #: self-supervised steps of each ablation fit
+    ablation_seeds: tuple[int, ...] = (1, 2, 3)  #: seeds of the ablation fits
+    #: ablation_selfsup: steps of the Monodepth2 objective from random weights that make the start
+    start_steps: int = 400
+    #: a check of the script: 16-frame held-out sequences, tiny training data (numbers mean nothing)
+    quick: bool = False
+
+    def __post_init__(self) -> None:
+        check_not_empty(self, "only", "ablation_seeds")
+        check_choices("only", self.only, SECTIONS)
+
+
+CLI = ProtocolCli("zoo", Settings, __doc__, example="only=depth,slam")
+
+
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = CLI.parser()
     ap.add_argument("--work", type=Path, default=WORK / "zoo", help="folder for sequences, runs and section results")
-    ap.add_argument("--depth", default="zoo:c3f-depth-r18w32", help="depth model (zoo:NAME)")
-    ap.add_argument("--features", default="zoo:c3f-features-r18w32", help="descriptor model (zoo:NAME)")
-    ap.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS))
-    ap.add_argument("--set", dest="slam_set", action="append", default=[], metavar="KEY=VALUE",
-                    help="a setting of every SLAM run of the slam and coverage sections (c3f_slam run --set)")
     ap.add_argument("--redo", action="store_true", help="recompute sections whose JSON is in --work")
-    ap.add_argument("--ttt-steps", type=int, default=60, help="as the demo (ZOO_TTT_STEPS)")
-    ap.add_argument("--ablation-steps", type=int, default=300)
-    ap.add_argument("--ablation-seeds", type=int, nargs="+", default=[1, 2, 3])
-    ap.add_argument("--start-steps", type=int, default=400,
-                    help="ablation_selfsup: steps of the Monodepth2 objective from random weights that make the start")
-    ap.add_argument("--report", type=Path, default=RESULTS / "zoo.md")
+    ap.add_argument("--report", type=Path, default=RESULTS / "zoo.md", help=REPORT_HELP)
     ap.add_argument("--heldout", type=Path, default=REPO / "runs" / "zoo" / "heldout",
                     help="folder of the held-out sequences (made when missing; the recipes' evaluation uses the same)")
-    ap.add_argument("--quick", action="store_true",
-                    help="a check of the script: 16-frame held-out sequences, tiny training data (numbers mean "
-                         "nothing)")
-    a = ap.parse_args(argv)
+    options, settings = CLI.parse(ap, argv)
+    a = CLI.flat(options, settings)  # the sections read their settings from one namespace (a.depth, a.work, ...)
     a.work.mkdir(parents=True, exist_ok=True)
     heldout = QUICK_HELD_OUT if a.quick else HELD_OUT
     seqs = simulate(heldout, 128, a.work / "heldout" if a.quick else a.heldout)
@@ -499,9 +519,10 @@ def main(argv: list[str] | None = None) -> None:
             title = "SLAM" if name == "slam" and merged[name].get("settings") else TITLES[name]
             body += [f"## {title}", "", *RENDER[name](merged[name], merged),
                      "", f"({merged[name].get('wall_s', 'n/a')} s)", ""]
-    rep = Report(__file__, "The zoo models on held-out simulator sequences")
-    rep.publish(a.report, body, a, data={"depth_model": a.depth, "features_model": a.features,
-                                         "heldout": [s.name for s in heldout], "sections": merged})
+    rep = Report(__file__, "The zoo models on held-out simulator sequences", argv)
+    rep.publish(a.report, body, settings, options=options,
+                data={"depth_model": settings.depth, "features_model": settings.features,
+                      "heldout": [s.name for s in heldout], "sections": merged})
     print(f"wrote {a.report} and {json_path}")
 
 

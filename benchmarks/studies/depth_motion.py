@@ -57,7 +57,7 @@ def carry(z_t: np.ndarray, z_s: np.ndarray, K: np.ndarray, T_wt: np.ndarray, T_w
     H, W = z_t.shape
     rows, cols = np.mgrid[0:H:STRIDE, 0:W:STRIDE]
     uv_t = np.stack([cols.ravel(), rows.ravel()], 1).astype(np.float64)
-    proj = project_keypoints(uv_t, z_t, z_s, K, T_wt, T_ws, depth_tolerance=VISIBLE_TOL)
+    proj = project_keypoints(uv_t, z_t, z_s, K, T_wi=T_wt, T_wj=T_ws, depth_tolerance=VISIBLE_TOL)
     v = proj.visible
     return uv_t[v], proj.uv[v], proj.depth[v]
 

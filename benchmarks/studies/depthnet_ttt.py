@@ -56,7 +56,7 @@ def test_metrics(base_config: Path, ckpt: Path, sequence: Path, size: list[int],
     return logged_test_metrics(cli.trainer.callback_metrics)
 
 
-def tune(base_config: Path, ckpt: Path, sequence: Path, epochs: int, root: Path, seed: int,
+def tune(base_config: Path, ckpt: Path, sequence: Path, *, epochs: int, root: Path, seed: int,
          overrides: list[str]) -> tuple[Path, float]:
     from c3f_models.cli import main
 
@@ -201,7 +201,8 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     size = [a.size, a.size]
     before = test_metrics(a.base_config, a.base_ckpt, a.sequence, size, a.work / "test_base")
-    tuned, fit_s = tune(a.base_config, a.base_ckpt, a.sequence, a.epochs, a.work / "ttt", a.seed, a.overrides)
+    tuned, fit_s = tune(a.base_config, a.base_ckpt, a.sequence, epochs=a.epochs, root=a.work / "ttt", seed=a.seed,
+                        overrides=a.overrides)
     after = test_metrics(a.base_config, tuned, a.sequence, size, a.work / "test_ttt")
     runs = {}
     for name, ckpt in (("base", a.base_ckpt), ("ttt", tuned)):

@@ -103,7 +103,7 @@ def objective_at_truth(seq: Path, triplets: int = 48) -> dict:
                      "true depth, true poses": (true, true_poses),
                      "predicted depth (median-scaled), true poses": (scaled, true_poses)}
             for name, (depths, poses) in cases.items():
-                terms = model.objective(images, specular, depths, lambda d: d, poses, K, None)
+                terms = model.objective(images, specular, depths, lambda d: d, poses, K)
                 sums.setdefault(name, []).append(b * float(terms.ph))
                 sums.setdefault(name + " (loss)", []).append(b * float(terms.loss))
             seen += b
