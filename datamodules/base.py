@@ -125,7 +125,8 @@ class FrameTupleDataset(Dataset):
                ) -> tuple[np.ndarray, np.ndarray, PinholeCamera, np.ndarray | None]:
         """Frame ``i``: network input, the mask of pixels left out of the losses, intrinsics, depth."""
         crop, size = self.frames.crop, self.frames.size
-        rgb, mask, cam = prepare_network_input(seq.read_rgb(i), seq.camera, crop, size, self.frames.specular,
+        rgb, mask, cam = prepare_network_input(seq.read_rgb(i), seq.camera, crop=crop, size=size,
+                                               specular=self.frames.specular,
                                                tissue=tissue)
         if tissue is not None:
             box = seq.camera.center_crop_box(*crop) if crop is not None else (0, 0, seq.camera.width,
@@ -323,8 +324,8 @@ class SequenceDataModule(L.LightningDataModule):
         if split == "train":
             trainer = getattr(self, "trainer", None)  # with DDP: this process's share of each epoch
             replicas, rank = (trainer.world_size, trainer.global_rank) if trainer is not None else (1, 0)
-            sampler = ResumableSampler(len(dataset), seed, shuffle, self.keyed_samples,
-                                       lambda: self._train_progress()[0], replicas, rank)
+            sampler = ResumableSampler(len(dataset), seed, shuffle, keyed=self.keyed_samples,
+                                       epoch_of=lambda: self._train_progress()[0], replicas=replicas, rank=rank)
             return ResumableLoader(dataset, sampler, self._train_progress, **options)
         return DataLoader(dataset, shuffle=False, generator=torch.Generator().manual_seed(seed), **options)
 

@@ -190,7 +190,8 @@ def export_model(
     staged: list[tuple[GraphSpec, onnx.ModelProto, ModelMetadata]] = []
     for spec, proto, parity in _checked_graphs(specs, every, images, dynamic_size, encoding):
         depth = _depth_entry(spec, datamodule, pre, metric_scale) if spec.kind == "depth" else None
-        staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth, parity, provenance, precision)))
+        staged.append((spec, proto, _graph_metadata(spec, pre, dynamic_size, depth=depth, parity=parity,
+                                                    provenance=provenance, precision=precision)))
     return _write_export(staged, Path(output_dir), provenance)
 
 
@@ -321,7 +322,7 @@ def _depth_entry(spec: GraphSpec, datamodule, pre: Preprocessing, given_scale: f
     return depth
 
 
-def _graph_metadata(spec: GraphSpec, pre: Preprocessing, dynamic_size: bool, depth: dict | None, parity: dict,
+def _graph_metadata(spec: GraphSpec, pre: Preprocessing, dynamic_size: bool, *, depth: dict | None, parity: dict,
                     provenance: _Provenance, precision: str = "float32") -> ModelMetadata:
     """The metadata written into the graph's ONNX file."""
     inputs, outputs = _io_entries(spec, dynamic_size)

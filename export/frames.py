@@ -28,8 +28,9 @@ def frames_from_source(source, pre: Preprocessing, count: int = 4) -> torch.Tens
     picks = evenly_spaced(n, count)
     out = []
     for i in picks:
-        rgb, _, _ = prepare_network_input(source.read_rgb(int(i)), source.camera, pre.crop, pre.size,
-                                          pre.specular_inpaint, pre.specular_threshold, pre.specular_dilation_px)
+        rgb, _, _ = prepare_network_input(source.read_rgb(int(i)), source.camera, crop=pre.crop, size=pre.size,
+                                          specular=pre.specular_inpaint, specular_threshold=pre.specular_threshold,
+                                          specular_dilation_px=pre.specular_dilation_px)
         out.append(torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float() / 255.0)
     frames = torch.stack(out)
     if frames.shape[0] == 1:  # pose graphs need a pair

@@ -45,7 +45,7 @@ def _metadata(path: Path) -> ModelMetadata:
 def _frame(seq_dir: Path, i: int, size: int = SIZE) -> torch.Tensor:
     """(1, 3, size, size) frame pre-processed as in training."""
     seq = Sequence(seq_dir)
-    rgb, _, _ = prepare_network_input(seq.read_rgb(i), seq.camera, None, (size, size), True)
+    rgb, _, _ = prepare_network_input(seq.read_rgb(i), seq.camera, crop=None, size=(size, size), specular=True)
     return torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1)[None].float() / 255.0
 
 

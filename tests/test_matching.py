@@ -99,7 +99,7 @@ def test_gt_identity_with_itself():
     img, depth = _render(T)
     kp = detect_sift(img, 200, contrast_threshold=0.01).xy
     assert len(kp) > 20
-    gt = ground_truth_matches(kp, kp, depth, depth, K, T, T, pixel_radius=RADIUS)
+    gt = ground_truth_matches(kp, kp, depth, depth, K=K, T_wi=T, T_wj=T, pixel_radius=RADIUS)
     assert np.array_equal(gt, np.stack([np.arange(len(kp))] * 2, axis=1))
 
 
@@ -111,7 +111,7 @@ def test_gt_known_motion_agrees_with_analytic_projection():
     _, d_j = _render(T_wj)
     kp_i = rng.uniform([2, 2], [93, 77], size=(120, 2))
     uv = _analytic_projection(kp_i, T_wi, T_wj)
-    proj = project_keypoints(kp_i, d_i, d_j, K, T_wi, T_wj)
+    proj = project_keypoints(kp_i, d_i, d_j, K, T_wi=T_wi, T_wj=T_wj)
     inside = (uv[:, 0] > 0.5) & (uv[:, 0] < 94.5) & (uv[:, 1] > 0.5) & (uv[:, 1] < 78.5)
     assert inside.sum() > 40 and (~inside).sum() > 5
     np.testing.assert_allclose(proj.uv[inside], uv[inside], atol=2e-3)
@@ -121,7 +121,7 @@ def test_gt_known_motion_agrees_with_analytic_projection():
     perm = rng.permutation(len(idx))
     kp_j = uv[idx][perm] + rng.normal(0, 0.3 / np.sqrt(2), (len(idx), 2))
     kp_j = np.vstack([kp_j, [[1.0, 1.0], [94.0, 1.0]]])
-    gt = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, pixel_radius=2.0)
+    gt = ground_truth_matches(kp_i, kp_j, d_i, d_j, K=K, T_wi=T_wi, T_wj=T_wj, pixel_radius=2.0)
     expected = {(int(idx[p]), k) for k, p in enumerate(perm)}
     corners = np.array([[1.0, 1.0], [94.0, 1.0]])
     near_corner = {(a, b) for a, b in expected if np.linalg.norm(uv[a] - corners, axis=1).min() < 3}
@@ -136,18 +136,20 @@ def test_gt_occluded_point_has_no_match():
     _, d_j = _render(T_wj)
     kp_i = np.array([[30.0, 40.0], [60.0, 30.0], [50.0, 60.0]])
     uv = _analytic_projection(kp_i, T_wi, T_wj)
-    gt = ground_truth_matches(kp_i, uv, d_i, d_j, K, T_wi, T_wj, pixel_radius=RADIUS)
+    gt = ground_truth_matches(kp_i, uv, d_i, d_j, K=K, T_wi=T_wi, T_wj=T_wj, pixel_radius=RADIUS)
     assert gt.tolist() == [[0, 0], [1, 1], [2, 2]]
     occluded = d_j.copy()
     u, v = np.round(uv[1]).astype(int)
     occluded[v - 3 : v + 4, u - 3 : u + 4] = 0.02  # a nearer surface (fold) in front of point 1
-    gt, proj = ground_truth_matches(kp_i, uv, d_i, occluded, K, T_wi, T_wj, pixel_radius=RADIUS, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, uv, d_i, occluded, K=K, T_wi=T_wi, T_wj=T_wj, pixel_radius=RADIUS,
+                                    return_projection=True)
     assert gt.tolist() == [[0, 0], [2, 2]]
     assert proj.visible.tolist() == [True, False, True]
     # no depth in i: no match either
     d_hole = d_i.copy()
     d_hole[35:46, 25:36] = 0
-    assert ground_truth_matches(kp_i, uv, d_hole, d_j, K, T_wi, T_wj, pixel_radius=RADIUS).tolist() == [[1, 1], [2, 2]]
+    assert ground_truth_matches(kp_i, uv, d_hole, d_j, K=K, T_wi=T_wi, T_wj=T_wj,
+                                pixel_radius=RADIUS).tolist() == [[1, 1], [2, 2]]
 
 
 def test_gt_nearest_within_radius_one_to_one():
@@ -155,9 +157,9 @@ def test_gt_nearest_within_radius_one_to_one():
     _, d = _render(T)
     kp_i = np.array([[40.0, 40.0], [41.0, 40.0], [70.0, 20.0]])
     kp_j = np.array([[40.2, 40.0], [70.0, 23.5]])  # i1 loses 40.2 to i0; i2 is 3.5 px away
-    assert ground_truth_matches(kp_i, kp_j, d, d, K, T, T, pixel_radius=2.0).tolist() == [[0, 0]]
-    assert ground_truth_matches(kp_i, kp_j, d, d, K, T, T, pixel_radius=4.0).tolist() == [[0, 0], [2, 1]]
-    assert ground_truth_matches(kp_i, np.zeros((0, 2)), d, d, K, T, T, pixel_radius=RADIUS).shape == (0, 2)
+    assert ground_truth_matches(kp_i, kp_j, d, d, K=K, T_wi=T, T_wj=T, pixel_radius=2.0).tolist() == [[0, 0]]
+    assert ground_truth_matches(kp_i, kp_j, d, d, K=K, T_wi=T, T_wj=T, pixel_radius=4.0).tolist() == [[0, 0], [2, 1]]
+    assert ground_truth_matches(kp_i, np.zeros((0, 2)), d, d, K=K, T_wi=T, T_wj=T, pixel_radius=RADIUS).shape == (0, 2)
 
 
 # ---------------------------------------------------------------- descriptors
@@ -386,7 +388,8 @@ def test_precision_recall_counts():
     rng = np.random.default_rng(7)
     kp_i = rng.uniform([20, 20], [70, 60], (30, 2))
     kp_j = _analytic_projection(kp_i, T_wi, T_wj)
-    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, pixel_radius=RADIUS, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K=K, T_wi=T_wi, T_wj=T_wj, pixel_radius=RADIUS,
+                                    return_projection=True)
     assert len(gt) == 30
     found = np.array([[0, 0], [1, 1], [2, 3], [3, 2]])
     c, correct = evaluate_matches(found, kp_j, gt, proj, pixel_radius=RADIUS)
@@ -398,7 +401,8 @@ def test_precision_recall_counts():
     assert np.isnan(MatchCounts().precision) and MatchCounts.from_array(total.to_array()) == total
     # perfect descriptors: everything found and correct, and the kpf keeps it
     desc = rng.normal(size=(30, 8))
-    ev = match_and_evaluate(desc, desc, kp_i, kp_j, d_i, d_j, K, gt, proj, pixel_radius=RADIUS, metric="l2")
+    ev = match_and_evaluate(desc, desc, kp_i, kp_j, depth_i=d_i, depth_j=d_j, K=K, gt_matches=gt, projection=proj,
+                            pixel_radius=RADIUS, metric="l2")
     assert ev.counts.precision == 1 and ev.counts.recall == 1
     assert ev.filter.accepted and ev.kpf_counts.recall == 1 and ev.kpf_counts.precision == 1
 
@@ -424,7 +428,8 @@ def test_near_misses_split_wrong_matches():
     # j: 0 re-detected exactly; 1 only 3 px away (no counterpart within 2 px); 2 exactly,
     # plus a keypoint 4 px from it; 3 far from everything
     kp_j = np.array([proj_j[0], proj_j[1] + [3.0, 0.0], proj_j[2], proj_j[2] + [0.0, 4.0], [5.0, 5.0]])
-    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K, T_wi, T_wj, pixel_radius=RADIUS, return_projection=True)
+    gt, proj = ground_truth_matches(kp_i, kp_j, d_i, d_j, K=K, T_wi=T_wi, T_wj=T_wj, pixel_radius=RADIUS,
+                                    return_projection=True)
     assert sorted(gt[:, 0].tolist()) == [0, 2]
     found = np.array([[0, 0], [1, 1], [2, 3], [3, 4]])
     c, correct = evaluate_matches(found, kp_j, gt, proj, pixel_radius=RADIUS)

@@ -158,7 +158,7 @@ def test_describe_samples_bilinearly_in_network_pixels(tmp_path):
     rng = np.random.default_rng(3)
     rgb = rng.integers(0, 200, (72, 80, 3), dtype=np.uint8)
     # NumPy reference: the network input, the 1x1 conv, L2 normalisation, bilinear sampling
-    net, _, _ = prepare_network_input(rgb, CAM, CROP, SIZE, specular=False)
+    net, _, _ = prepare_network_input(rgb, CAM, crop=CROP, size=SIZE, specular=False)
     w, b = fx.descriptor_weights(8)
     dmap = np.einsum("kc,hwc->khw", w, net.astype(np.float64) / 255.0) + b[:, None, None]
     dmap /= np.linalg.norm(dmap, axis=0, keepdims=True)

@@ -137,8 +137,9 @@ def test_the_network_sees_no_black_border_and_the_tissue_unchanged():
     assert np.array_equal(filled[truth], frames[0][truth])
     luma = cv2.cvtColor(filled, cv2.COLOR_RGB2GRAY)
     assert luma[~truth].min() > 40  # the plane's texture is bright; the border took its colours
-    net, _, net_cam = prepare_network_input(frames[0], cam, (128, 128), (64, 64), specular=False, tissue=truth)
-    plain, _, _ = prepare_network_input(frames[0], cam, (128, 128), (64, 64), specular=False)
+    net, _, net_cam = prepare_network_input(frames[0], cam, crop=(128, 128), size=(64, 64), specular=False,
+                                            tissue=truth)
+    plain, _, _ = prepare_network_input(frames[0], cam, crop=(128, 128), size=(64, 64), specular=False)
     grid = on_grid(truth, ((W - 128) // 2, 0, 128, 128), (64, 64))
     assert (net_cam.width, net_cam.height) == (64, 64) and np.array_equal(net[grid], plain[grid])
     assert cv2.cvtColor(net, cv2.COLOR_RGB2GRAY)[~grid].min() > 40

@@ -126,7 +126,7 @@ def dense_correspondences(
     if len(xy) > settings.points:
         xy = xy[rng.choice(len(xy), settings.points, replace=False)]
     xy = xy.astype(np.float64)
-    proj = project_keypoints(xy, fi.depth, fj.depth, fi.K, fi.pose, fj.pose,
+    proj = project_keypoints(xy, fi.depth, fj.depth, fi.K, T_wi=fi.pose, T_wj=fj.pose,
                              depth_tolerance=gt_settings.depth_tolerance)
     uv = proj.uv
     keep = proj.visible.copy()
@@ -181,7 +181,7 @@ def make_pairs(
         for j in range(1, len(sample)):
             fj = sample[j]
             gt, proj = ground_truth_matches(
-                kps[0].xy, kps[j].xy, fi.depth, fj.depth, fi.K, fi.pose, fj.pose,
+                kps[0].xy, kps[j].xy, fi.depth, fj.depth, K=fi.K, T_wi=fi.pose, T_wj=fj.pose,
                 pixel_radius=gt_settings.pixel_radius, depth_tolerance=gt_settings.depth_tolerance,
                 return_projection=True,
             )

@@ -148,7 +148,7 @@ class DepthNet(C3FModule):
         with torch.autocast(images[0].device.type, enabled=False):
             images = [im.float() for im in images]
             poses = compose_triplet_poses(T[:b].float(), T[b:].float())  # T_10 (t-1 -> t), T_21 (t -> t+1)
-            terms = self.objective(images, specular, disparities, self.depth_net.to_depth, poses, K.float(), step)
+            terms = self.objective(images, specular, disparities, self.depth_net.to_depth, poses, K.float(), step=step)
             if self.loss_config.lambda_gt_depth > 0 or self.loss_config.lambda_gt_gradient > 0:
                 self._add_supervised_term(terms, batch, disparities[1])
         return terms, disparities

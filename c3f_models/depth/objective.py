@@ -174,7 +174,7 @@ class SelfSupervisedLoss:
     def __init__(self, config: LossConfig) -> None:
         self.cfg = config
 
-    def _warp_pairs(self, pairs, images, specular, depths, poses, K, with_source_depth: bool) -> dict:
+    def _warp_pairs(self, pairs, images, specular, depths, poses, K, *, with_source_depth: bool) -> dict:
         """Warp every (target, source) pair at once; per-pair (P, B, 1, H, W) tensors.
 
         ``pe``/``identity``: photometric error of the warped / unwarped source against the target;
@@ -246,13 +246,14 @@ class SelfSupervisedLoss:
         ``dc_weight``: the training weight of L_dc when it differs from ``lambda_dc`` (warm-up)."""
         cfg = self.cfg
         dl = [depths.get(k) for k in range(3)]
-        w = self._warp_pairs(PH_PAIRS, images, specular, dl, poses, K, False)
+        w = self._warp_pairs(PH_PAIRS, images, specular, dl, poses, K, with_source_depth=False)
         err, keep, mu = self._min_error(w["pe"], w["identity"], w["reproj_ok"], w["identity_ok"], w["target_ok"][0])
         keep = self._outliers(err[None], keep[None])[0]
         ph = masked_mean(err, keep)
         ph_extra = dc = None
         if cfg.needs_source_depth:
-            w = self._warp_pairs(EXTRA_PAIRS, images, specular, dl, poses, K, cfg.use_depth_consistency)
+            w = self._warp_pairs(EXTRA_PAIRS, images, specular, dl, poses, K,
+                                 with_source_depth=cfg.use_depth_consistency)
             if cfg.use_extra_photometric:
                 one = [w[k].flatten(0, 1)[None] for k in ("pe", "identity", "reproj_ok", "identity_ok")]
                 err_x, keep_x, _ = self._min_error(*one, w["target_ok"].flatten(0, 1))
@@ -281,6 +282,7 @@ class SelfSupervisedLoss:
         to_depth,
         poses: dict[tuple[int, int], torch.Tensor],
         K: torch.Tensor,
+        *,
         step: int | None = None,
     ) -> LossTerms:
         """Multi-scale objective: each scale's disparity is upsampled (bilinear) to full

@@ -66,8 +66,9 @@ class FeaturesEncoder(Encoder):
         self.num_ch_enc = [_out_channels(self.features[end - 1]) for end in self.ends]
         if config.pretrained_path:
             ignored = ("classifier.", *(f"features.{i}." for i in range(self.ends[-1], len(features))))
-            load_pretrained(self, config.pretrained_path, option_of(names, "pretrained_path"), f"this {self.label}",
-                            "features.0.0.weight", self.frames, ignored)
+            load_pretrained(self, config.pretrained_path, option_of(names, "pretrained_path"),
+                            what=f"this {self.label}",
+                            first_conv="features.0.0.weight", frames=self.frames, ignored=ignored)
 
     def make_features(self, config: Any, names: Mapping[str, str] | None) -> nn.Sequential:
         """The untrained torchvision ``features`` for ``config`` (InputError for a value it cannot take)."""

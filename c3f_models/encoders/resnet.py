@@ -92,7 +92,8 @@ def load_resnet_weights(resnet: models.ResNet, path: str | Path, frames: int = 1
     stacked frames the first conv's RGB filters are repeated (:func:`~c3f_models.encoders.weights.load_pretrained`).
     """
     blocks = sum(len(getattr(resnet, f"layer{i}")) for i in range(1, 5))
-    load_pretrained(resnet, path, option, f"this ResNet ({blocks} residual blocks)", "conv1.weight", frames, ("fc.",))
+    load_pretrained(resnet, path, option, what=f"this ResNet ({blocks} residual blocks)", first_conv="conv1.weight",
+                    frames=frames, ignored=("fc.",))
 
 
 class ResnetEncoder(Encoder):

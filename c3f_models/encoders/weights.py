@@ -43,7 +43,7 @@ def encoder_weights(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     return state
 
 
-def load_pretrained(target: nn.Module, path: str | Path, option: str, what: str, first_conv: str,
+def load_pretrained(target: nn.Module, path: str | Path, option: str, *, what: str, first_conv: str,
                     frames: int = 1, ignored: Iterable[str] = ()) -> None:
     """Load the weights of ``path`` into ``target`` (keys as ``target.state_dict()`` names them).
 

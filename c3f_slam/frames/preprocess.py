@@ -115,6 +115,7 @@ def fill_outside(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
 def prepare_network_input(
     rgb: np.ndarray,
     camera: PinholeCamera,
+    *,
     crop: tuple[int, int] | None,
     size: tuple[int, int] | None,
     specular: bool = True,

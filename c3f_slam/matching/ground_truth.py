@@ -46,9 +46,9 @@ def project_keypoints(
     depth_i: np.ndarray,
     depth_j: np.ndarray,
     K: np.ndarray,
+    *,
     T_wi: np.ndarray,
     T_wj: np.ndarray,
-    *,
     depth_tolerance: float = 0.05,
     K_j: np.ndarray | None = None,
     depth_sampling: str = "bilinear",
@@ -81,10 +81,10 @@ def ground_truth_matches(
     kp_j: np.ndarray,
     depth_i: np.ndarray,
     depth_j: np.ndarray,
+    *,
     K: np.ndarray,
     T_wi: np.ndarray,
     T_wj: np.ndarray,
-    *,
     pixel_radius: float,
     depth_tolerance: float = 0.05,
     K_j: np.ndarray | None = None,
@@ -104,7 +104,7 @@ def ground_truth_matches(
     """
     kp_i = np.asarray(kp_i, dtype=np.float64).reshape(-1, 2)
     kp_j = np.asarray(kp_j, dtype=np.float64).reshape(-1, 2)
-    proj = project_keypoints(kp_i, depth_i, depth_j, K, T_wi, T_wj, depth_tolerance=depth_tolerance, K_j=K_j,
+    proj = project_keypoints(kp_i, depth_i, depth_j, K, T_wi=T_wi, T_wj=T_wj, depth_tolerance=depth_tolerance, K_j=K_j,
                              depth_sampling=depth_sampling)
     matches = np.zeros((0, 2), np.int64)
     cand = np.flatnonzero(proj.visible)

@@ -50,7 +50,7 @@ def _project(q: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uv, J
 
 
-def _terms(R: np.ndarray, t: np.ndarray, p_i: np.ndarray, p_j: np.ndarray, K: np.ndarray,
+def _terms(R: np.ndarray, t: np.ndarray, p_i: np.ndarray, p_j: np.ndarray, *, K: np.ndarray,
            x_i: np.ndarray, x_j: np.ndarray, huber_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals (2N, 2) in units of the Huber threshold (pixels / ``huber_px``), their
     Jacobians (2N, 2, 6) w.r.t. xi, and validity (2N,: positive depth after the transform)."""
@@ -97,7 +97,7 @@ def refine_by_reprojection(
     x_i, _ = project(p_i, K)  # the keypoints the points were lifted from
     x_j, _ = project(p_j, K)
     R, t = T0[:3, :3].copy(), T0[:3, 3].copy()
-    r, J, ok = _terms(R, t, p_i, p_j, K, x_i, x_j, huber_px)
+    r, J, ok = _terms(R, t, p_i, p_j, K=K, x_i=x_i, x_j=x_j, huber_px=huber_px)
     start = best = _robust_cost(r, ok)
     best_R, best_t = R, t
     for _ in range(iterations):
@@ -112,7 +112,7 @@ def refine_by_reprojection(
             break
         dR = axis_angle_to_matrix(xi[3:])
         R, t = dR @ R, dR @ t + xi[:3]
-        r, J, ok = _terms(R, t, p_i, p_j, K, x_i, x_j, huber_px)
+        r, J, ok = _terms(R, t, p_i, p_j, K=K, x_i=x_i, x_j=x_j, huber_px=huber_px)
         cost = _robust_cost(r, ok)
         if cost < best:
             best, best_R, best_t = cost, R, t

@@ -83,8 +83,8 @@ class FrameModel:
         if last is not None and last[0]() is rgb and last[1] == camera and last[2] == pp and last[3] is tissue:
             return last[4], view
         net_rgb, _, _ = prepare_network_input(
-            rgb, camera, pp.crop, pp.size, pp.specular_inpaint, pp.specular_threshold, pp.specular_dilation_px,
-            tissue,
+            rgb, camera, crop=pp.crop, size=pp.size, specular=pp.specular_inpaint,
+            specular_threshold=pp.specular_threshold, specular_dilation_px=pp.specular_dilation_px, tissue=tissue,
         )
         x = np.ascontiguousarray(net_rgb.transpose(2, 0, 1), dtype=np.float32) / np.float32(255.0)
         x.flags.writeable = False

@@ -238,5 +238,5 @@ class C3VDFormat(SequenceFormat):
             raise InputError(f"{rgb_paths[0]}: {exc}") from None
         camera = omni.pinhole(self.pinhole_focal, depth_scale=DEPTH_SCALE)
         mesh = folder / "coverage_mesh.obj"
-        return C3VDSequence(folder.name, folder, camera, rgb_paths, depth_paths, poses[list(frames)],
-                            mesh if mesh.is_file() else None, omni=omni)
+        return C3VDSequence(folder.name, folder, camera, rgb_paths=rgb_paths, depth_paths=depth_paths,
+                            poses=poses[list(frames)], mesh_path=mesh if mesh.is_file() else None, omni=omni)
