@@ -16,13 +16,11 @@ from c3f_slam.config import FrontendConfig
 from c3f_slam.evaluation.depth import METRIC_NAMES, depth_metrics
 from c3f_slam.io import Sequence
 from c3f_slam.io.run_outputs import write_json
-from c3f_slam.matching.ground_truth import ground_truth_matches
+from c3f_slam.matching.ground_truth import PIXEL_RADIUS, ground_truth_matches
 from c3f_slam.matching.match_accuracy import match_and_evaluate, near_misses
 from c3f_slam.matching.visual import draw_matches
 from c3f_slam.models import DepthModel, DescriptorModel
 from c3f_slam.pipeline.frontend import ContraFeatDescriptors, Frontend, SiftDescriptors
-
-PIXEL_RADIUS = 2.0  # px: a match is correct within this distance of the true position
 
 
 def slam_results(ctx: DemoContext, run_notes: dict) -> dict:

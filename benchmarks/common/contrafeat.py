@@ -8,25 +8,30 @@ Recall and precision are fractions in [0, 1] in the metrics and percentages in t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
+import yaml
 
+from benchmarks.common import ROOT
 from c3f_models.contrafeat.module import METHODS, ContraFeat
+from c3f_models.contrafeat.pairs import GroundTruthSettings
 from c3f_models.zoo.evaluate import descriptor_metrics
 
 LABELS = {"sift": "SIFT", "sift_kpf": "SIFT+kpf", "cdf": "CDF", "cdf_kpf": "CDF+kpf"}
-SMALL_MODEL = {  # ContraFeat's groups as in configs/contrafeat/small.yaml
-    "network": {"backbone_layers": 18, "descriptor_dim": 128, "fpn_channels": 64, "stem_channels": 16,
-                "head_channels": 64},
-    "optim": {"lr": 1e-3, "weight_decay": 1e-4},
-    "loss": {"tau": 0.01, "dense_points": 512, "dense_spacing": 4},
-    "keypoints": {"max_keypoints": 256, "contrast_threshold": 0.005, "border": 2},
-    "ground_truth": {"pixel_radius": 2.0, "depth_tolerance": 0.05},
-    "evaluation": {"filter_preset": "colon", "num_visualisations": 0},
-}
-GROUND_TRUTH = SMALL_MODEL["ground_truth"]
+SMALL_CONFIG = ROOT / "configs" / "contrafeat" / "small.yaml"  #: the small CPU model, the one place it is written
+
+
+def small_model_args() -> dict:
+    """ContraFeat's init arguments of :data:`SMALL_CONFIG` (only what differs from the code's
+    defaults), with no match images (``evaluation.num_visualisations`` 0)."""
+    args = yaml.safe_load(SMALL_CONFIG.read_text())["model"]["init_args"]
+    return {**args, "evaluation": {**args.get("evaluation", {}), "num_visualisations": 0}}
+
+
+SMALL_MODEL = small_model_args()
+GROUND_TRUTH = asdict(GroundTruthSettings())  #: the ground-truth matching of every ContraFeat (code defaults)
 
 
 def load_weights(model: ContraFeat, ckpt: Path, option: str = "--checkpoint") -> int:

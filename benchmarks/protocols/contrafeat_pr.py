@@ -46,6 +46,7 @@ from benchmarks.common.contrafeat import (
 from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli, check_not_empty
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
+from c3f_models.contrafeat.config import ContraFeatLossConfig
 from c3f_models.contrafeat.module import METHODS, ContraFeat
 from datamodules.config import FramesConfig, LoaderConfig, SplitConfig
 from datamodules.pairs import ContraFeatDataModule, PairSamplingConfig
@@ -102,7 +103,7 @@ class Settings:
     #: dense ground-truth correspondences per training pair added to the InfoNCE (model.dense_points, as in
     #: small.yaml; 0 = keypoint matches only, the paper's loss)
     dense_points: int = SMALL_MODEL["loss"]["dense_points"]
-    dense_spacing: int = SMALL_MODEL["loss"]["dense_spacing"]  #: grid cell of the dense samples, pixels
+    dense_spacing: int = ContraFeatLossConfig.dense_spacing  #: grid cell of the dense samples, pixels
     threads: int = 1  #: torch CPU threads (1 is fastest on a shared 2-core machine)
     seed: int = 0  #: seed_everything, and added to the sequences' seeds
 

@@ -27,7 +27,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from benchmarks.common import RESULTS
+from benchmarks.common import STUDIES
 from benchmarks.common.depth_models import add_depth_study_arguments, depth_runs
 from benchmarks.common.report import Report
 from c3f_slam.io import Sequence
@@ -71,7 +71,7 @@ def analyse(seq: Sequence, predict: Callable[[int], np.ndarray], every: int, ste
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    add_depth_study_arguments(ap, 10, RESULTS / "depth_edges.md", "depth/")
+    add_depth_study_arguments(ap, 10, STUDIES / "depth_edges.md", "depth/")
     ap.add_argument("--step", type=float, default=0.25, help="true log-depth step that makes an edge")
     args = ap.parse_args()
     if args.every < 1 or args.step <= 0:

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import RESULTS
+from benchmarks.common import STUDIES
 from benchmarks.common.report import Report
 from c3f_slam.evaluation.depth import median_scale
 from c3f_slam.geometry import backproject_pixels, relative_pose
@@ -130,7 +130,7 @@ def main() -> None:
     ap.add_argument("--gaps", type=int, nargs="+", default=[1, 10, 30])
     ap.add_argument("--pairs", type=int, default=60, help="start frames, evenly spaced over the sequence")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--report", type=Path, default=RESULTS / "depth_motion.md")
+    ap.add_argument("--report", type=Path, default=STUDIES / "depth_motion.md")
     args = ap.parse_args()
     seq = Sequence(args.sequence)
     if not (seq.has_depth and seq.has_poses):

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import RESULTS
+from benchmarks.common import STUDIES
 from benchmarks.common.depth_models import add_depth_study_arguments, depth_runs, open_depth_model
 from benchmarks.common.report import Report
 from c3f_slam.io import Sequence
@@ -118,7 +118,7 @@ def oracle_slam(seq_dir: Path, depth_model: str, feature_model: str, out: Path, 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    add_depth_study_arguments(ap, 2, RESULTS / "depth_scale_wobble.md", "depth/ and poses.txt")
+    add_depth_study_arguments(ap, 2, STUDIES / "depth_scale_wobble.md", "depth/ and poses.txt")
     ap.add_argument("--lag", type=int, default=10, help="frames between the scales correlated")
     ap.add_argument("--slam", type=Path, metavar="OUT", help="run SLAM on the one sequence into OUT instead")
     ap.add_argument("--feature-model", default="zoo:c3f-features-r18w32", help="with --slam")

@@ -23,7 +23,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from benchmarks.common import RESULTS
+from benchmarks.common import STUDIES
 from benchmarks.common.report import Report
 
 TERMS = ("ph", "ph_extra", "dc", "loss")
@@ -35,7 +35,7 @@ def main() -> None:
     ap.add_argument("--seqs", nargs="+", required=True, help="sequence names in --data (with depth and poses)")
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--no-outlier", action="store_true", help="turn off the 80th-percentile outlier removal")
-    ap.add_argument("--out", type=Path, default=RESULTS / "depthnet_loss_landscape.md")
+    ap.add_argument("--out", type=Path, default=STUDIES / "depthnet_loss_landscape.md")
     a = ap.parse_args()
     import torch
 

@@ -29,7 +29,7 @@ import json
 import time
 from pathlib import Path
 
-from benchmarks.common import RESULTS, ROOT
+from benchmarks.common import ROOT, STUDIES
 from benchmarks.common.depth_metrics import HEADER, logged_test_metrics, metric_cells
 from benchmarks.common.report import Report
 
@@ -138,7 +138,7 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--work", type=Path, default=Path("/tmp/depthnet_ttt"))
-    ap.add_argument("--out", type=Path, default=RESULTS / "depthnet_ttt.md")
+    ap.add_argument("--out", type=Path, default=STUDIES / "depthnet_ttt.md")
     a = ap.parse_args()
     bad = [kv for kv in a.overrides if "=" not in kv or not kv.partition("=")[0]]
     if bad:

@@ -21,7 +21,7 @@ import argparse
 import time
 from pathlib import Path
 
-from benchmarks.common import RESULTS
+from benchmarks.common import STUDIES
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from c3f_slam.config import preset as slam_preset
@@ -61,7 +61,7 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--variant", action="append", default=[], metavar="NAME:VOXELS")
     ap.add_argument("--sequences", nargs="+", default=["room", "colon"], choices=["room", "colon"])
     ap.add_argument("--out", type=Path, default=Path("/tmp/slam_dense_refine"))
-    ap.add_argument("--report", type=Path, default=RESULTS / "slam_dense_refine.md")
+    ap.add_argument("--report", type=Path, default=STUDIES / "slam_dense_refine.md")
     return ap.parse_args()
 
 

@@ -19,7 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from benchmarks.common import RESULTS
+from benchmarks.common import STUDIES
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 from benchmarks.protocols.slam_tracking import PAPER_FRAMES
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--pace", type=float, default=3.0)
     ap.add_argument("--step", type=int, default=25, help="also try every N-th pair where plain matching works")
-    ap.add_argument("--report", type=Path, default=RESULTS / "slam_fallback_pairs.md")
+    ap.add_argument("--report", type=Path, default=STUDIES / "slam_fallback_pairs.md")
     a = ap.parse_args(argv)
     lines = ["| sequence | pairs sampled (plain ok) | pairs plain failed | of those, guided ok | true motion mm / deg "
              "| plain error mm / deg | guided error mm / deg | dense error mm / deg | dense accepted |",

@@ -37,7 +37,7 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks.common import RESULTS, ROOT, WORK
+from benchmarks.common import ROOT, STUDIES, WORK
 from benchmarks.common.report import Report
 from benchmarks.common.simulate import SimSequence, ensure_sequence
 
@@ -209,7 +209,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--repeats", type=int, default=5, help="runs per start-up command and side")
     ap.add_argument("--export-repeats", type=int, default=3, help="export runs per model and side; variant repeats")
     ap.add_argument("--work", type=Path, default=WORK / "startup_export", help="data and output folder")
-    ap.add_argument("--report", type=Path, default=RESULTS / "startup_export.md",
+    ap.add_argument("--report", type=Path, default=STUDIES / "startup_export.md",
                     help="Markdown report; the JSON goes beside it (.json)")
     return ap.parse_args(argv)
 

@@ -21,7 +21,7 @@ import argparse
 import json
 from pathlib import Path
 
-from benchmarks.common import RESULTS, ROOT
+from benchmarks.common import ROOT, STUDIES
 from benchmarks.common.report import Report
 from benchmarks.protocols.zoo import tune_and_export
 from c3f_models.zoo.recipes import HELD_OUT
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, required=True)
     ap.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
-    ap.add_argument("--report", type=Path, default=RESULTS / "zoo_ttt_variants.md")
+    ap.add_argument("--report", type=Path, default=STUDIES / "zoo_ttt_variants.md")
     a = ap.parse_args(argv)
     seqs = simulate(tuple(s for s in HELD_OUT if s.name in SEQUENCES), 128, a.work / "heldout")
     results_path = a.work / "results.json"

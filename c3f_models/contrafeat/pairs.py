@@ -19,7 +19,7 @@ import torch
 
 from c3f_core.errors import InputError
 from c3f_slam.matching import Keypoints, Projection, detect_sift, ground_truth_matches
-from c3f_slam.matching.ground_truth import project_keypoints
+from c3f_slam.matching.ground_truth import DEPTH_TOLERANCE, PIXEL_RADIUS, project_keypoints
 
 
 @dataclass
@@ -77,8 +77,8 @@ class GroundTruthSettings:
         depth_tolerance: relative depth agreement for visibility (occlusion test).
     """
 
-    pixel_radius: float = 2.0
-    depth_tolerance: float = 0.05
+    pixel_radius: float = PIXEL_RADIUS
+    depth_tolerance: float = DEPTH_TOLERANCE
 
     def __post_init__(self) -> None:
         if self.pixel_radius <= 0 or self.depth_tolerance <= 0:

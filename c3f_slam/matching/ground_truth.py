@@ -19,6 +19,11 @@ from scipy.spatial import cKDTree
 from c3f_slam.geometry import project, relative_pose, transform_points
 from c3f_slam.matching.points import inside_image, lift_keypoints, sample_depth
 
+#: a match is correct, and a ground-truth match exists, within this distance of the true position (pixels)
+PIXEL_RADIUS = 2.0
+#: a projected point is visible when the depth there agrees within this share (the occlusion test)
+DEPTH_TOLERANCE = 0.05
+
 
 @dataclass(frozen=True)
 class Projection:
@@ -49,7 +54,7 @@ def project_keypoints(
     *,
     T_wi: np.ndarray,
     T_wj: np.ndarray,
-    depth_tolerance: float = 0.05,
+    depth_tolerance: float = DEPTH_TOLERANCE,
     K_j: np.ndarray | None = None,
     depth_sampling: str = "bilinear",
 ) -> Projection:
@@ -86,7 +91,7 @@ def ground_truth_matches(
     T_wi: np.ndarray,
     T_wj: np.ndarray,
     pixel_radius: float,
-    depth_tolerance: float = 0.05,
+    depth_tolerance: float = DEPTH_TOLERANCE,
     K_j: np.ndarray | None = None,
     depth_sampling: str = "bilinear",
     return_projection: bool = False,
