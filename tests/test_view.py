@@ -1,21 +1,28 @@
 """`python -m c3f_slam view OUT`: the 3D view page, the re-rendered video and the fly-through.
 
 The re-rendered depth from a registered pose matches the simulator's true depth; the page opens
-in headless Chromium with the network off, draws, and every layer toggles (tests/browser.py).
+in headless Chromium with the network off, draws, and every layer toggles (tests/browser.py);
+the settings (--set, --config, --print-config) reach the page and the videos, bad ones are one
+line (their replay from view.json: tests/test_replay.py).
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import re
 import shutil
+from dataclasses import fields, is_dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 import open3d as o3d
 import pytest
+import yaml
 
+from c3f_core.errors import InputError
+from c3f_core.settings import field_docs, tree_as_mapping
 from c3f_slam.cli.main import main
 from c3f_slam.coverage.render import UNSEEN_COLOUR
 from c3f_slam.io import Sequence, read_tum
@@ -26,6 +33,7 @@ from c3f_slam.view.layers import frusta, triangles_coloured
 from c3f_slam.view.raycast import MeshScene, render_pinhole, scale_intrinsics
 from c3f_slam.view.rerender import PoseLookup, RenderClock, rerender_frames
 from c3f_slam.view.scene import run_layers
+from c3f_slam.view.settings import REPORT_BUDGET, FlythroughSettings, VideoSettings, ViewSettings
 from datamodules.synthetic.fixture import make_tiny_sequence
 from tests import browser
 from tests.bad_input import fingerprint
@@ -107,7 +115,7 @@ def test_frusta_and_smoothed_path():
     poses = np.repeat(np.eye(4)[None], 50, axis=0)
     poses[:, 2, 3] = np.linspace(0, 0.1, 50) ** 2 * 10  # uneven speed along z
     poses[:, 0, 3] = 0.001 * np.sin(np.arange(50))  # and jitter
-    eyes, ups, length = smoothed_path(poses, 60)
+    eyes, ups, length = smoothed_path(poses, FlythroughSettings(frames=60))
     steps = np.linalg.norm(np.diff(eyes, axis=0), axis=1)
     assert np.allclose(steps, steps.mean(), rtol=0.05) and length == pytest.approx(0.1, rel=0.05)
     assert np.allclose(ups, [0, -1, 0], atol=1e-6)
@@ -212,7 +220,8 @@ def test_budget_decimates_and_page_alone(evaluated, tmp_path, capsys):
     try:
         assert main(["view", str(out), "--no-video", "--no-open"]) == 0
         after = fingerprint(out)
-        assert set(after) - set(before) == {"view.html"} and all(after[k] == v for k, v in before.items())
+        assert set(after) - set(before) == {"view.html", "view.json"}
+        assert all(after[k] == v for k, v in before.items())
         assert main(["view", str(out), "--no-open", "--quiet"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("error: ") and "--sequence" in err[0], err
@@ -255,3 +264,70 @@ def test_a_video_run_is_rerendered_through_the_lens_it_was_read_with(tmp_path):
     assert _lens_file({"camera_source": f"file {cam}"}) is None
     assert _lens_file({"camera_source": "fov guess 110 deg"}) is None
     assert _lens_file({"camera_source": distorted.replace(str(cam), str(tmp_path / "gone.json"))}) is None
+
+
+# ---------------------------------------------------------------------- settings
+
+
+def test_every_view_setting_has_a_meaning_and_print_config_reads_back(tmp_path, capsys):
+    """Each leaf of the tree carries a ``#:`` comment; --print-config's YAML, given back with
+    --config, is the same tree; the report's budget is one of the same class, smaller."""
+    tree = ViewSettings()
+    for group in fields(tree):
+        value = getattr(tree, group.name)
+        assert is_dataclass(value) and set(field_docs(type(value))) == {f.name for f in fields(value)}, group.name
+    assert main(["view", "--print-config"]) == 0
+    text = capsys.readouterr().out
+    assert "fov_deg: 100.0  # float: horizontal field of view (degrees)" in text
+    (tmp_path / "view.yaml").write_text(text)
+    assert main(["view", "--config", str(tmp_path / "view.yaml"), "--print-config"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out) == yaml.safe_load(text) == tree_as_mapping(tree)
+    assert REPORT_BUDGET.triangles == 105_000 < tree.budget.triangles == 250_000
+
+
+@pytest.mark.parametrize(("item", "where"), [
+    ("budget.surface=0", "budget.surface"), ("video.fps=-1", "video.fps"), ("video.crf=60", "video.crf"),
+    ("flythrough.fov_deg=180", "flythrough.fov_deg"), ("flythrough.smooth_share=0", "flythrough.smooth_share"),
+    ("flythrough.width=8", "flythrough.width"), ("flythrough.frames=1.5", "flythrough.frames"),
+    ("flythrough.speed=2", "flythrough.speed"), ("video.fps=nan", "video.fps")])
+def test_a_bad_view_setting_is_one_line_naming_it_and_nothing_is_written(item, where, evaluated, capsys):
+    out = evaluated[1]
+    before = fingerprint(out)
+    assert main(["view", str(out), "--no-open", "--quiet", "--set", item]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --set: ") and where in err[0], err
+    assert fingerprint(out) == before
+
+
+def test_groups_check_themselves():
+    for make, where in ((lambda: VideoSettings(fps=float("inf")), "video.fps"),
+                        (lambda: FlythroughSettings(height=True), "flythrough.height"),
+                        (lambda: ViewBudget(unseen=-5), "budget.unseen")):
+        with pytest.raises(InputError, match=where):
+            make()
+
+
+def test_settings_reach_the_page_and_the_videos(evaluated, tmp_path, capsys):
+    """--set of the budget, the videos' frame rate and the fly-through's size and length change
+    the files ``view`` writes, and view.json records them."""
+    seq, src = evaluated
+    out = tmp_path / "out"
+    shutil.copytree(src, out)
+    sets = ["budget.surface=2000", "video.fps=10", "flythrough.frames=20", "flythrough.width=96",
+            "flythrough.height=64", "flythrough.fov_deg=80"]
+    assert main(["view", str(out), "--no-open", "--quiet", *[a for s in sets for a in ("--set", s)]]) == 0
+    assert f"{out / 'view.json'}: the settings used" in capsys.readouterr().out
+    page = (out / "view.html").read_text()
+    data = json.loads(re.search(r'<script type="application/json" id="c3f-view-data">(.*?)</script>', page).group(1))
+    surface = next(lay for lay in data["layers"] if lay["id"] == "surface")
+    assert 0 < len(base64.b64decode(surface["indices"])) // 12 <= 2000 and "decimated" in surface["note"]
+    cap = cv2.VideoCapture(str(out / "flythrough.mp4"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 20 and cap.get(cv2.CAP_PROP_FPS) == pytest.approx(10)
+    assert (cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == (96, 64)
+    assert cv2.VideoCapture(str(out / "rerender.mp4")).get(cv2.CAP_PROP_FPS) == pytest.approx(10)
+    record = json.loads((out / "view.json").read_text())
+    assert record["settings"]["flythrough"] == {"width": 96, "height": 64, "fov_deg": 80.0, "frames": 20,
+                                                "smooth_share": 0.03, "samples": 600}
+    assert record["settings"]["budget"]["surface"] == 2000 and record["settings"]["video"]["fps"] == 10.0
+    assert record["files"] == ["view.html", "rerender.mp4", "flythrough.mp4", "view.json"]
+    assert record["videos"]["flythrough.mp4"]["frames"] == 20 and record["with_videos"] is True

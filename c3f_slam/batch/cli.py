@@ -1,6 +1,7 @@
 """``python -m c3f_slam batch DATASET --out OUT``: every sequence of a data set reconstructed
 into OUT/NAME/ (one run folder each, as ``run`` writes it), then OUT/batch.json, batch.csv and
-index.html (:mod:`c3f_slam.batch.report`).
+index.html (:mod:`c3f_slam.batch.report`); batch.json's ``config`` is the settings tree of the
+runs, which ``batch --config OUT/batch.json`` replays.
 
 The options of ``run`` that choose the inputs, models and settings (``--preset``, ``--config``,
 ``--set``, ``--depth-model``, ...) apply to every sequence. Locally ``--workers`` processes run
@@ -115,7 +116,8 @@ def batch_command(args: argparse.Namespace) -> int:
     finally:
         executor.close()
         if loop is not None:  # also after Ctrl-C: the rows so far
-            write_summary(out, loop.ordered(), _settings_record(args, b), time.perf_counter() - t0, complete)
+            write_summary(out, loop.ordered(), _settings_record(args, b), time.perf_counter() - t0, complete,
+                          cfg.as_dict())
     c = counts(rows)
     print(f"{len(rows)} sequences: {c['ok']} run, {c['skipped']} complete before, {c['failed']} failed "
           f"-> {out / 'index.html'}")

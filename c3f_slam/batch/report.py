@@ -1,7 +1,9 @@
 """The summary of a batch, written atomically into its output folder:
 
-- ``batch.json``: the settings, the counts by status and one row per sequence
-  (:class:`c3f_slam.batch.job.Row`: lengths in metres, times in seconds, shares 0..1);
+- ``batch.json``: the options, the settings tree every run started from (``config``, as a run's
+  summary.json has it: ``batch --config OUT/batch.json`` replays it), the counts by status and
+  one row per sequence (:class:`c3f_slam.batch.job.Row`: lengths in metres, times in seconds,
+  shares 0..1);
 - ``batch.csv``: the rows, one line each, the same columns;
 - ``index.html``: a table of the runs (one page, no outside file), ATE in cm, shares in %,
   each run's name a link to its folder and its figures shown where it has them.
@@ -77,12 +79,14 @@ def _html(rows: list[Row], out: Path, title: str) -> str:
 
 
 def write_summary(out: str | Path, rows: list[Row], settings: dict, wall_seconds: float,
-                  complete: bool = True) -> None:
+                  complete: bool = True, config: dict | None = None) -> None:
     """``batch.json``, ``batch.csv`` and ``index.html`` of ``rows`` in ``out`` (each atomically);
-    ``complete``: False when the batch was interrupted (the rows so far)."""
+    ``settings``: the command's options; ``config``: the settings tree as nested dicts (before each
+    run derives its frame-size thresholds); ``complete``: False when the batch was interrupted (the
+    rows so far); ``wall_seconds`` in seconds."""
     out = Path(out)
-    record = {"complete": complete, "settings": settings, "counts": counts(rows), "wall_seconds": wall_seconds,
-              "runs": [r.as_dict() for r in rows]}
+    record = {"complete": complete, "settings": settings, "config": config, "counts": counts(rows),
+              "wall_seconds": wall_seconds, "runs": [r.as_dict() for r in rows]}
     write_json(out / JSON_NAME, record)
     atomic_write_text(out / CSV_NAME, _csv(rows))
     title = f"C3Fusion batch: {settings.get('dataset', out)}"

@@ -12,6 +12,7 @@
     python -m c3f_slam calibrate IMAGE_DIR|VIDEO --out camera.json --board COLSxROWS --square METRES
         [--model pinhole|fisheye] [--every N]
     python -m c3f_slam view OUT [--gt SEQUENCE_DIR] [--sequence SEQ_OR_VIDEO] [--no-video] [--no-open]
+        [--config FILE|OUT/view.json] [--set part.field=value ...] [--print-config]
     python -m c3f_slam simcol3d SEQUENCE_DIR --depth-model depth.onnx --out SUBMISSION/SCENE/Frames_X_OP
         [--trajectory OUT/trajectory.txt] [--depth-scale F] [--threads N]
 
@@ -33,8 +34,11 @@ import sys
 from collections.abc import Sequence
 
 from c3f_core.cli_parser import OneLineParser, run_subcommand
+from c3f_core.errors import InputError
+from c3f_core.settings_cli import add_settings_options as add_settings_options_of
 from c3f_slam.cli.inputs import add_input_options, inputs_from_args, settings_from_args
 from c3f_slam.cli.settings_options import add_settings_options
+from c3f_slam.view.settings import VIEW_SETTINGS
 
 
 def _run_parser(sub: argparse._SubParsersAction) -> None:
@@ -58,8 +62,10 @@ def _view_parser(sub: argparse._SubParsersAction) -> None:
                        description="Write an interactive 3D view of a run folder (view.html: one self-contained "
                                    "file, offline) and two videos: the input beside the reconstruction re-rendered "
                                    "from the estimated poses (rerender.mp4) and a fly-through along the smoothed "
-                                   "camera path (flythrough.mp4). docs/view.md")
-    v.add_argument("out", help="run folder (summary.json, trajectory.txt, mesh.ply, unseen.ply)")
+                                   "camera path (flythrough.mp4); the settings used go to view.json. Named options "
+                                   "are the inputs and switches; the page's budget and the videos' settings are "
+                                   "the settings tree (--print-config lists them). docs/view.md")
+    v.add_argument("out", nargs="?", help="run folder (summary.json, trajectory.txt, mesh.ply, unseen.ply)")
     v.add_argument("--gt", help="ground-truth sequence folder: its path and surface as layers (default: the one "
                                 "`evaluate --gt` recorded in evaluation.json, if any)")
     v.add_argument("--sequence", help="the run's input (sequence folder or video) for rerender.mp4, when it is no "
@@ -68,6 +74,8 @@ def _view_parser(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--no-open", action="store_true", help="do not open the page in a browser (never opened "
                                                           "without a display)")
     v.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_settings_options_of(v, VIEW_SETTINGS, example="budget.surface=60000 --set flythrough.frames=120",
+                            replay="an earlier view's OUT/view.json")
 
 
 def _calibrate_parser(sub: argparse._SubParsersAction) -> None:
@@ -208,9 +216,16 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _view(args: argparse.Namespace) -> int:
+    settings = VIEW_SETTINGS.from_args(args)
+    if args.print_config:
+        print(VIEW_SETTINGS.yaml(settings), end="")
+        return 0
+    if args.out is None:
+        raise InputError("view: the following arguments are required: out")
     from c3f_slam.view.command import view_command
 
-    return view_command(args.out, args.gt, args.sequence, not args.no_video, not args.no_open, not args.quiet)
+    return view_command(args.out, args.gt, args.sequence, not args.no_video, not args.no_open, not args.quiet,
+                        settings)
 
 
 def _batch(args: argparse.Namespace) -> int:

@@ -82,7 +82,7 @@ def add_settings_options(r: argparse.ArgumentParser) -> None:
     options of every command, :func:`c3f_core.settings_cli.add_settings_options`), and the removed
     flags as hidden options that say what replaces them."""
     add_settings_options_of(r, SLAM_SETTINGS, example="fragments.min_overlap=0.8 --set fusion.tsdf.voxel_size=0.002",
-                            replay="a previous run's summary.json")
+                            replay="a previous run's summary.json (or a batch's batch.json)")
     for usage in REMOVED:
         flag, _, value = usage.partition(" ")
         r.add_argument(flag, action=_Removed, usage=usage, nargs="?" if value else 0, dest=argparse.SUPPRESS,

@@ -1,7 +1,9 @@
-"""``python -m c3f_slam view OUT``: ``OUT/view.html``, ``OUT/rerender.mp4`` and ``OUT/flythrough.mp4``.
+"""``python -m c3f_slam view OUT``: ``OUT/view.html``, ``OUT/rerender.mp4`` and ``OUT/flythrough.mp4``,
+then ``OUT/view.json``: the settings used (``settings``: ``view OUT --config OUT/view.json``
+replays them), the inputs and what was written.
 
-The page is written last, so it links only the videos that exist. Every file is written
-atomically; a run folder is never changed otherwise.
+The page is written after the videos, so it links only the videos that exist. Every file is
+written atomically; a run folder is never changed otherwise.
 """
 
 from __future__ import annotations
@@ -17,19 +19,20 @@ from tqdm import tqdm
 
 from c3f_core.atomic import atomic_write_text
 from c3f_core.errors import InputError
+from c3f_core.settings import tree_as_mapping
 from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io import read_tum
-from c3f_slam.io.run_outputs import RunOutputs
-from c3f_slam.view.budget import PAGE_BUDGET, ViewBudget
-from c3f_slam.view.flythrough import FRAMES, flythrough_frames
+from c3f_slam.io.run_outputs import RunOutputs, write_json
+from c3f_slam.view.flythrough import flythrough_frames
 from c3f_slam.view.layers import Layer
 from c3f_slam.view.page import view_data, view_page
 from c3f_slam.view.raycast import MeshScene
 from c3f_slam.view.rerender import PoseLookup, RenderClock, rerender_frames
 from c3f_slam.view.scene import run_layers
+from c3f_slam.view.settings import ViewSettings
 from c3f_slam.view.video import write_mp4
 
-PAGE, RERENDER, FLYTHROUGH = "view.html", "rerender.mp4", "flythrough.mp4"
+PAGE, RERENDER, FLYTHROUGH, RECORD = "view.html", "rerender.mp4", "flythrough.mp4", "view.json"
 CAPTIONS = {RERENDER: "input (left) beside the reconstruction rendered from each frame's estimated pose (right), "
                       "unseen wall blue",
             FLYTHROUGH: "the final model seen along the smoothed camera path, unseen wall blue"}
@@ -95,8 +98,10 @@ def _lens_file(summary: dict) -> Path | None:
     return path if path.is_file() else None
 
 
-def write_videos(out: RunOutputs, summary: dict, sequence: str | Path | None, progress: bool) -> dict[str, dict]:
-    """rerender.mp4 and flythrough.mp4 of the run (none without a mesh or a trajectory)."""
+def write_videos(out: RunOutputs, summary: dict, sequence: str | Path | None, progress: bool,
+                 settings: ViewSettings) -> dict[str, dict]:
+    """rerender.mp4 and flythrough.mp4 of the run (none without a mesh or a trajectory), encoded
+    as ``settings.video`` says, the fly-through as ``settings.flythrough`` says."""
     mesh = model_mesh(out)
     if mesh is None or not out.trajectory.is_file():
         return {}
@@ -113,11 +118,11 @@ def write_videos(out: RunOutputs, summary: dict, sequence: str | Path | None, pr
     jobs = ((RERENDER, len(stream), lambda c: rerender_frames(
                 stream, K=cam.K, width=cam.width, height=cam.height, ms=ms, lookup=PoseLookup(stamps, poses), clock=c,
                 tissue=tissue)),
-            (FLYTHROUGH, FRAMES, lambda c: flythrough_frames(ms, poses, c)))
+            (FLYTHROUGH, settings.flythrough.frames, lambda c: flythrough_frames(ms, poses, c, settings.flythrough)))
     for name, total, frames in jobs:
         clock = RenderClock()
         bar = tqdm(frames(clock), total=total, desc=name, unit="frame", disable=not progress, leave=False)
-        n = write_mp4(out.root / name, bar)
+        n = write_mp4(out.root / name, bar, settings.video)
         if n:
             done[name] = {"frames": n, "rendered": clock.frames, "ms_per_frame": clock.ms_per_frame}
     return done
@@ -143,21 +148,27 @@ def _videos_html(videos: dict[str, dict]) -> str:
 
 
 def write_view(run: str | Path, gt: str | Path | None = None, videos: bool = True,
-               sequence: str | Path | None = None, budget: ViewBudget = PAGE_BUDGET,
+               sequence: str | Path | None = None, settings: ViewSettings | None = None,
                progress: bool = True) -> ViewResult:
-    """Write the run folder's view page and (``videos``) its two videos; see the module docstring."""
+    """Write the run folder's view page and (``videos``) its two videos, then the record of the
+    ``settings`` used (default the defaults: :class:`ViewSettings`); see the module docstring."""
+    settings = settings or ViewSettings()
     out = RunOutputs(run)
     summary = read_summary(out)
-    layers: list[Layer] = run_layers(out.root, budget, gt)
+    layers: list[Layer] = run_layers(out.root, settings.budget, gt)
     res = ViewResult()
     if videos:
-        res.videos = write_videos(out, summary, sequence, progress)
+        res.videos = write_videos(out, summary, sequence, progress, settings)
     # --no-video keeps (and links) the videos an earlier view wrote
     linked = dict(res.videos) | {n: {} for n in (RERENDER, FLYTHROUGH) if not videos and (out.root / n).is_file()}
     page = view_page(f"C3Fusion view: {out.root.resolve().name}", _intro(summary, out.root),
                      view_data(layers), _videos_html(linked))
     atomic_write_text(out.root / PAGE, page)
-    res.files = [PAGE, *res.videos]
+    res.files = [PAGE, *res.videos, RECORD]
     res.page_bytes = len(page.encode())
     res.triangles = int(np.sum([lay.triangles for lay in layers]))
+    write_json(out.root / RECORD, {"settings": tree_as_mapping(settings), "gt": None if gt is None else str(gt),
+                                   "sequence": None if sequence is None else str(sequence), "with_videos": videos,
+                                   "videos": res.videos, "files": res.files, "page_bytes": res.page_bytes,
+                                   "triangles": res.triangles})
     return res

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from c3f_core.errors import InputError
+from c3f_slam.view.settings import ViewSettings
 
 
 def can_open_browser() -> bool:
@@ -22,20 +23,22 @@ def can_open_browser() -> bool:
 
 
 def view_command(out: str | Path, gt: str | Path | None, sequence: str | Path | None, videos: bool,
-                 open_page: bool, progress: bool) -> int:
-    """Write ``out``'s view (:func:`c3f_slam.view.build.write_view`), print one line per file, open the page."""
-    from c3f_slam.view.build import PAGE, write_view
+                 open_page: bool, progress: bool, settings: ViewSettings | None = None) -> int:
+    """Write ``out``'s view with ``settings`` (:func:`c3f_slam.view.build.write_view`), print one
+    line per file, open the page."""
+    from c3f_slam.view.build import PAGE, RECORD, write_view
 
     run = Path(out)
     if not run.is_dir():
         raise InputError(f"{run}: run folder not found")
-    res = write_view(run, gt=gt, videos=videos, sequence=sequence, progress=progress)
+    res = write_view(run, gt=gt, videos=videos, sequence=sequence, settings=settings, progress=progress)
     print(f"{run / PAGE}: {res.page_bytes / 1e6:.1f} MB, {res.triangles:,} triangles")
     for name, v in res.videos.items():
         ms = v["ms_per_frame"]
         print(f"{run / name}: {v['frames']} frames" + (f", {ms:.1f} ms per rendered frame" if ms else ""))
     if videos and not res.videos:
         print("no videos: the run has no mesh or no trajectory")
+    print(f"{run / RECORD}: the settings used (replay: --config {run / RECORD})")
     if open_page and can_open_browser():
         import webbrowser
 

@@ -1,11 +1,12 @@
 """``flythrough.mp4``: the final model seen from a camera gliding along the smoothed camera path.
 
-The registered camera positions are resampled by arc length, smoothed (a Gaussian of
-:data:`SMOOTH_SHARE` of the path length) and resampled again to the video's frame count, so
-the camera moves at constant speed; it looks along the path's direction of travel, with the
-run's own camera "up" (smoothed the same way) kept up. The model is ray cast on the CPU with
-a wide-angle pinhole (:data:`FOV_DEG`) and a light at the eye that fades with distance, as an
-endoscope's does.
+The registered camera positions are resampled by arc length (``samples``), smoothed (a
+Gaussian of ``smooth_share`` of the path length) and resampled again to the video's ``frames``,
+so the camera moves at constant speed; it looks along the path's direction of travel, with the
+run's own camera "up" (smoothed the same way) kept up. The model is ray cast on the CPU with a
+wide-angle pinhole (``fov_deg``, ``width`` x ``height`` pixels) and a light at the eye that fades
+with distance, as an endoscope's does. The names are the fields of
+:class:`c3f_slam.view.settings.FlythroughSettings`.
 """
 
 from __future__ import annotations
@@ -21,13 +22,8 @@ from c3f_slam.evaluation.trajectory import path_length
 from c3f_slam.geometry import look_at
 from c3f_slam.view.raycast import MeshScene, render_pinhole
 from c3f_slam.view.rerender import RenderClock
+from c3f_slam.view.settings import FlythroughSettings
 from c3f_slam.view.video import label
-
-SIZE = (384, 288)  #: width, height of the fly-through (pixels)
-FOV_DEG = 100.0  #: horizontal field of view (degrees)
-FRAMES = 240  #: frames of the fly-through (8 s at 30 frames/s)
-SMOOTH_SHARE = 0.03  #: Gaussian sigma as a share of the path length
-SAMPLES = 600  #: arc-length samples of the path before smoothing
 
 
 def _by_arc_length(points: np.ndarray, n: int) -> np.ndarray:
@@ -37,15 +33,18 @@ def _by_arc_length(points: np.ndarray, n: int) -> np.ndarray:
     return np.stack([np.interp(t, s, points[:, k]) for k in range(points.shape[1])], axis=1)
 
 
-def smoothed_path(poses: np.ndarray, frames: int = FRAMES) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """(eyes (frames, 3), ups (frames, 3), path length in metres) along the smoothed path of the
-    camera-to-world ``poses``; None when the camera did not move."""
+def smoothed_path(poses: np.ndarray, fly: FlythroughSettings | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(eyes (``fly.frames``, 3), ups (``fly.frames``, 3), path length in metres) along the
+    smoothed path of the camera-to-world ``poses`` (metres; ``fly``: default the defaults); None
+    when the camera did not move."""
+    fly = fly or FlythroughSettings()
     pos = poses[:, :3, 3]
     if path_length(pos) <= 0:
         return None
-    both = _by_arc_length(np.concatenate([pos, -poses[:, :3, 1]], axis=1), SAMPLES)  # position, camera up
-    smooth = gaussian_filter1d(both, SMOOTH_SHARE * SAMPLES, axis=0, mode="nearest")
-    out = _by_arc_length(smooth, frames)
+    both = _by_arc_length(np.concatenate([pos, -poses[:, :3, 1]], axis=1), fly.samples)  # position, camera up
+    smooth = gaussian_filter1d(both, fly.smooth_share * fly.samples, axis=0, mode="nearest")
+    out = _by_arc_length(smooth, fly.frames)
     return out[:, :3], out[:, 3:], path_length(out[:, :3])
 
 
@@ -66,18 +65,20 @@ def _camera_poses(eyes: np.ndarray, ups: np.ndarray) -> list[np.ndarray]:
 
 
 def flythrough_frames(ms: MeshScene, poses: np.ndarray, clock: RenderClock,
-                      frames: int = FRAMES) -> Iterator[np.ndarray]:
-    """The fly-through's RGB frames (nothing when the camera did not move)."""
-    path = smoothed_path(poses, frames)
+                      fly: FlythroughSettings | None = None) -> Iterator[np.ndarray]:
+    """The fly-through's RGB frames, ``fly.width`` x ``fly.height`` pixels (nothing when the
+    camera did not move; ``fly``: default the defaults)."""
+    fly = fly or FlythroughSettings()
+    path = smoothed_path(poses, fly)
     if path is None:
         return
     eyes, ups, length = path
-    cam = PinholeCamera.from_fov(*SIZE, FOV_DEG)
+    cam = PinholeCamera.from_fov(fly.width, fly.height, fly.fov_deg)
     falloff = max(0.3 * length, 1e-3)
     cams = _camera_poses(eyes, ups)
     for i, T in enumerate(cams):
         t0 = time.perf_counter()
-        img, _ = render_pinhole(ms, cam.K, T, *SIZE, falloff=falloff, ambient=0.5)
+        img, _ = render_pinhole(ms, cam.K, T, fly.width, fly.height, falloff=falloff, ambient=0.5)
         clock.seconds += time.perf_counter() - t0
         clock.frames += 1
         label(img, f"fly-through: {100 * length * i / max(1, len(cams) - 1):.1f} of {100 * length:.1f} cm",

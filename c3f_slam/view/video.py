@@ -2,7 +2,8 @@
 
 Frames go to the ffmpeg binary that the ``imageio-ffmpeg`` package ships (libx264, yuv420p,
 ``+faststart`` so a page can start playing before the whole file is read). The file is
-written beside the target under a temporary name and renamed when complete.
+written beside the target under a temporary name and renamed when complete. Frame rate and
+quality: :class:`c3f_slam.view.settings.VideoSettings`.
 """
 
 from __future__ import annotations
@@ -14,9 +15,7 @@ import cv2
 import numpy as np
 
 from c3f_core.atomic import atomic_write
-
-FPS = 30.0  #: frames per second of the view's videos
-CRF = 23  #: x264 quality (lower is better and larger)
+from c3f_slam.view.settings import VideoSettings
 
 
 def even_size(img: np.ndarray) -> np.ndarray:
@@ -25,9 +24,11 @@ def even_size(img: np.ndarray) -> np.ndarray:
     return img[: h - h % 2, : w - w % 2]
 
 
-def write_mp4(path: str | Path, frames: Iterable[np.ndarray], fps: float = FPS) -> int:
-    """Write (H, W, 3) uint8 RGB ``frames`` (all the same size) as H.264; returns the frame count
-    (no file is written for none)."""
+def write_mp4(path: str | Path, frames: Iterable[np.ndarray], video: VideoSettings | None = None) -> int:
+    """Write (H, W, 3) uint8 RGB ``frames`` (all the same size) as H.264 at ``video.fps`` frames per
+    second and quality ``video.crf`` (``video``: default the defaults); returns the frame count (no
+    file is written for none)."""
+    video = video or VideoSettings()
     import imageio_ffmpeg  # the ffmpeg binary: only when a video is written
 
     it = iter(frames)
@@ -37,9 +38,9 @@ def write_mp4(path: str | Path, frames: Iterable[np.ndarray], fps: float = FPS) 
     first = even_size(first)
     h, w = first.shape[:2]
     with atomic_write(Path(path), suffix=".mp4") as tmp:
-        writer = imageio_ffmpeg.write_frames(str(tmp), (w, h), fps=fps, codec="libx264", quality=None,
+        writer = imageio_ffmpeg.write_frames(str(tmp), (w, h), fps=video.fps, codec="libx264", quality=None,
                                              macro_block_size=2, pix_fmt_out="yuv420p",
-                                             output_params=["-crf", str(CRF), "-preset", "fast",
+                                             output_params=["-crf", str(video.crf), "-preset", "fast",
                                                             "-movflags", "+faststart"])
         writer.send(None)
         try:
