@@ -246,8 +246,8 @@ def test_camera_json_lens_model_round_trips(tmp_path):
 @pytest.mark.parametrize("change, text", [
     ({"model": "fisheye", "distortion": [0.1, 0.0, 0.0]}, "a fisheye camera takes 4 distortion coefficients, got 3"),
     ({"distortion": [0.1] * 6}, "a pinhole camera takes 0 or 4 or 5 or 8 or 12 or 14 distortion coefficients, got 6"),
-    ({"model": "kannala"}, "camera model must be one of pinhole, fisheye, got 'kannala'"),
-    ({"model": "omnidirectional"}, "datamodules convert c3vd"),
+    ({"model": "kannala"}, "camera model must be one of pinhole, fisheye, omnidirectional, got 'kannala'"),
+    ({"model": "omnidirectional"}, "missing key(s) a0, a2, a3, a4, c, d, e"),  # a pinhole's fields
     ({"fx": 0}, "camera fx must be a positive finite number"),
     ({"fy": -300}, "camera fy must be a positive finite number"),
     ({"cx": 2000.0}, "principal point cx=2000 px is far outside the 640x480 image"),

@@ -9,7 +9,8 @@ of the project's format (:class:`c3f_slam.camera.intrinsics.PinholeCamera`: pixe
 frame). ``--board`` counts *inner* corners (a board of 10 x 7 squares is 9x6); ``--square`` is
 the side of a square in metres (it sets the scale of the board poses, not the intrinsics).
 
-:class:`Undistortion` turns frames of a distorted camera into pinhole frames of the same size
+:class:`Undistortion` turns frames of a distorted camera (a fisheye or pinhole distortion, or an
+omnidirectional lens: :mod:`c3f_slam.camera.omnidirectional`) into pinhole frames of the same size
 (remap maps computed once); :class:`c3f_slam.frames.stream.FrameStream` applies it to every frame.
 """
 
@@ -26,7 +27,8 @@ import numpy as np
 
 from c3f_core.atomic import atomic_write_text
 from c3f_core.errors import InputError
-from c3f_slam.camera.intrinsics import PinholeCamera
+from c3f_slam.camera.intrinsics import MAX_PINHOLE_FOV_DEG, PinholeCamera
+from c3f_slam.camera.omnidirectional import OmniCamera
 from c3f_slam.io.sequence import IMAGE_SUFFIXES, read_rgb
 
 MODELS = ("pinhole", "fisheye")
@@ -202,15 +204,22 @@ class Undistortion:
 
     The new focal length keeps every output pixel inside the lens's image (OpenCV's
     ``getOptimalNewCameraMatrix`` with alpha 0, ``fisheye.estimateNewCameraMatrixForUndistortRectify``
-    with balance 0): no black border, a narrower field of view than the lens. Depth is remapped
-    with the nearest pixel, so values stay z-depths (the optical axis is the same)."""
+    with balance 0; an omnidirectional lens: :meth:`OmniCamera.inner_focal
+    <c3f_slam.camera.omnidirectional.OmniCamera.inner_focal>`, the principal point at the image
+    centre): no black border, a narrower field of view than the lens. Depth is remapped with the
+    nearest pixel, so values stay z-depths (the optical axis is the same)."""
 
     #: the focal length grows by this factor until every pixel of the pinhole image lies inside the lens's
     #: image (OpenCV's estimate can leave slivers of border)
     ZOOM_STEP = 1.01
 
-    def __init__(self, lens: PinholeCamera) -> None:
+    def __init__(self, lens: PinholeCamera | OmniCamera) -> None:
         self.lens = lens
+        if isinstance(lens, OmniCamera):
+            self.camera = PinholeCamera.centred(lens.width, lens.height, lens.inner_focal(MAX_PINHOLE_FOV_DEG),
+                                                depth_scale=lens.depth_scale)
+            self.maps = lens.undistort_maps(self.camera)
+            return
         D = np.asarray(lens.distortion, np.float64)
         if lens.model == "fisheye":
             K = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(lens.K, D, lens.size, np.eye(3), balance=0.0)
@@ -232,7 +241,7 @@ class Undistortion:
         return init(lens.K, D, np.eye(3), K, lens.size, cv2.CV_32FC1)
 
     @classmethod
-    def of(cls, lens: PinholeCamera) -> Undistortion | None:
+    def of(cls, lens: PinholeCamera | OmniCamera) -> Undistortion | None:
         """The undistortion of ``lens``, or None when its frames are pinhole frames already."""
         return cls(lens) if lens.is_distorted else None
 
@@ -246,4 +255,6 @@ class Undistortion:
 
     def describe(self) -> str:
         """For summary.json's ``camera_source``."""
+        if isinstance(self.lens, OmniCamera):
+            return f"{self.lens.describe()}, frames undistorted to pinhole"
         return f"{self.lens.model} lens with distortion {list(self.lens.distortion)}, frames undistorted to pinhole"

@@ -7,8 +7,10 @@ x right, y down, z forward.
 
 Lens distortion (``model`` and ``distortion``, OpenCV's conventions): ``pinhole`` with 0, 4,
 5, 8, 12 or 14 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tx, ty]]]]), or
-``fisheye`` (OpenCV's equidistant model) with exactly k1..k4. The runtime undistorts such
-frames to a pinhole camera (:class:`c3f_slam.camera.calibration.Undistortion`).
+``fisheye`` (OpenCV's equidistant model) with exactly k1..k4. A camera.json may instead describe
+an ``omnidirectional`` (Scaramuzza / OCamCalib) lens, read as a
+:class:`c3f_slam.camera.omnidirectional.OmniCamera` (its fields: that module). The runtime
+undistorts such frames to a pinhole camera (:class:`c3f_slam.camera.calibration.Undistortion`).
 """
 
 from __future__ import annotations
@@ -21,11 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from c3f_core.errors import InputError
+from c3f_slam.camera.omnidirectional import OmniCamera
 
 _REQUIRED = ("width", "height", "fx", "fy", "cx", "cy")
 
-#: lens models of camera.json's ``model`` and their allowed numbers of distortion coefficients
+#: lens models of a PinholeCamera's ``model`` and their allowed numbers of distortion coefficients
 DISTORTION_COUNTS = {"pinhole": (0, 4, 5, 8, 12, 14), "fisheye": (4,)}
+#: camera.json's ``model`` values: those and the omnidirectional lens (an OmniCamera)
+LENS_MODELS = (*DISTORTION_COUNTS, OmniCamera.model)
 #: widest field of view (degrees, per image axis) taken for a pinhole camera: beyond it the image is
 #: mostly stretched border (a wider lens needs its fisheye model), and values in normalised units
 #: or millimetres instead of pixels land here
@@ -62,10 +67,11 @@ class PinholeCamera:
                 raise InputError(f"camera {name} must be finite, got {getattr(self, name)}")
         if not (self.depth_scale > 0):
             raise InputError(f"camera depth_scale must be positive, got {self.depth_scale}")
+        if self.model == OmniCamera.model:
+            raise InputError("an omnidirectional camera is an OmniCamera (c3f_slam.camera.omnidirectional), "
+                             "not a PinholeCamera")
         if self.model not in DISTORTION_COUNTS:
-            hint = (" (a C3VD omnidirectional calibration: convert the sequence with `python -m datamodules convert "
-                    "c3vd`, which undistorts it)") if self.model.startswith("omni") else ""
-            raise InputError(f"camera model must be one of {', '.join(DISTORTION_COUNTS)}, got {self.model!r}{hint}")
+            raise InputError(f"camera model must be one of {', '.join(LENS_MODELS)}, got {self.model!r}")
         counts = DISTORTION_COUNTS[self.model]
         if len(self.distortion) not in counts:
             raise InputError(f"a {self.model} camera takes {' or '.join(map(str, counts))} distortion coefficients, "
@@ -79,12 +85,19 @@ class PinholeCamera:
         """Camera with square pixels whose *horizontal* field of view is ``fov_deg`` degrees."""
         if not 0 < fov_deg < 180:
             raise InputError(f"field of view must be in (0, 180) degrees, got {fov_deg}")
-        f = (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
-        return cls(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0, **kw)
+        return cls.centred(width, height, (width / 2.0) / math.tan(math.radians(fov_deg) / 2.0), **kw)
 
     @classmethod
-    def from_json(cls, path: str | Path) -> PinholeCamera:
-        """Read ``camera.json`` of the project's sequence layout (docs/datasets.md, Sequence layout)."""
+    def centred(cls, width: int, height: int, focal: float, **kw: float) -> PinholeCamera:
+        """Camera with square pixels of ``focal`` pixels and the principal point at the image centre."""
+        return cls(width, height, focal, focal, (width - 1) / 2.0, (height - 1) / 2.0, **kw)
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> PinholeCamera | OmniCamera:
+        """Read ``camera.json`` of the project's sequence layout (docs/datasets.md, Sequence layout):
+        the runtime's one reader of camera files. ``"model": "omnidirectional"`` gives an
+        :class:`~c3f_slam.camera.omnidirectional.OmniCamera` (a lens the frames are undistorted
+        from), any other model a PinholeCamera. InputError: one line naming the file and field."""
         path = Path(path)
         if not path.is_file():
             raise InputError(f"{path}: camera file not found")
@@ -92,6 +105,13 @@ class PinholeCamera:
             data = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise InputError(f"{path}: not valid JSON ({exc})") from None
+        if not isinstance(data, dict):
+            raise InputError(f"{path}: not a JSON object of camera fields")
+        if data.get("model") == OmniCamera.model:
+            try:
+                return OmniCamera.from_dict(data)
+            except InputError as exc:
+                raise InputError(f"{path}: {exc}") from None
         missing = [k for k in _REQUIRED if k not in data]
         if missing:
             raise InputError(f"{path}: missing key(s) {', '.join(missing)}")

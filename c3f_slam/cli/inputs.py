@@ -27,8 +27,9 @@ def add_input_options(r: argparse.ArgumentParser, threads_help: str = RUN_THREAD
     r.add_argument("--feature-model", help="ContraFeat ONNX export (descriptors at the SIFT keypoints), or zoo:NAME")
     lens = r.add_mutually_exclusive_group()
     lens.add_argument("--camera", help="camera.json of a video (default: camera.json beside the video; make one with "
-                                       "`python -m c3f_slam calibrate`); a distorted lens (fisheye or pinhole "
-                                       "distortion coefficients) is undistorted to a pinhole camera")
+                                       "`python -m c3f_slam calibrate`); a distorted lens (pinhole distortion "
+                                       "coefficients, fisheye, or omnidirectional as C3VD publishes it) is "
+                                       "undistorted to a pinhole camera")
     lens.add_argument("--fov", type=float, metavar="DEG",
                       help="no calibration: guess a pinhole camera of DEG degrees horizontal field of view for a "
                            "video (summary.json camera_source says it is a guess)")

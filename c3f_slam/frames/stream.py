@@ -19,7 +19,7 @@ frame index itself).
 
 Intrinsics: a video's come from ``camera`` (a camera.json, default the one beside the video, or a
 :class:`c3f_slam.camera.intrinsics.FovGuess`), a folder's from its camera.json. A distorted camera (a
-``fisheye`` model, or pinhole distortion coefficients) has its frames undistorted to a pinhole
+``fisheye`` or ``omnidirectional`` model, or pinhole distortion coefficients) has its frames undistorted to a pinhole
 camera of the same size (:class:`c3f_slam.camera.calibration.Undistortion`); :attr:`FrameStream.camera`
 is then that pinhole camera; :attr:`FrameStream.camera_file` is the camera.json read (None for a
 camera given as an object or guessed) and :attr:`FrameStream.camera_source` says where the
@@ -39,6 +39,7 @@ import numpy as np
 from c3f_core.errors import InputError
 from c3f_slam.camera.calibration import Undistortion
 from c3f_slam.camera.intrinsics import FovGuess, PinholeCamera
+from c3f_slam.camera.omnidirectional import OmniCamera
 from c3f_slam.frames.quality import FrameQualityGate
 from c3f_slam.io.sequence import Sequence, read_depth_png, read_rgb
 
@@ -87,9 +88,10 @@ def frame_status(
     return OK, mean
 
 
-def _load_camera(camera: PinholeCamera | str | Path | None, source: Path) -> tuple[PinholeCamera, Path | None]:
-    """A video's intrinsics and the camera.json they were read from (None: given as an object)."""
-    if isinstance(camera, PinholeCamera):
+def _load_camera(camera: PinholeCamera | OmniCamera | str | Path | None,
+                 source: Path) -> tuple[PinholeCamera | OmniCamera, Path | None]:
+    """A video's intrinsics (its lens) and the camera.json they were read from (None: given as an object)."""
+    if isinstance(camera, PinholeCamera | OmniCamera):
         return camera, None
     if camera is not None:
         return PinholeCamera.from_json(camera), Path(camera)
@@ -143,7 +145,7 @@ class FrameStream:
     def __init__(
         self,
         source: str | Path,
-        camera: PinholeCamera | FovGuess | str | Path | None = None,
+        camera: PinholeCamera | OmniCamera | FovGuess | str | Path | None = None,
         use_depth: bool = True,
         start: int = 0,
         step: int = 1,
