@@ -224,8 +224,8 @@ def _view(args: argparse.Namespace) -> int:
         raise InputError("view: the following arguments are required: out")
     from c3f_slam.view.command import view_command
 
-    return view_command(args.out, args.gt, args.sequence, not args.no_video, not args.no_open, not args.quiet,
-                        settings)
+    return view_command(args.out, gt=args.gt, sequence=args.sequence, videos=not args.no_video,
+                        open_page=not args.no_open, progress=not args.quiet, settings=settings)
 
 
 def _batch(args: argparse.Namespace) -> int:

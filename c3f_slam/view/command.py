@@ -22,7 +22,7 @@ def can_open_browser() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def view_command(out: str | Path, gt: str | Path | None, sequence: str | Path | None, videos: bool,
+def view_command(out: str | Path, *, gt: str | Path | None, sequence: str | Path | None, videos: bool,
                  open_page: bool, progress: bool, settings: ViewSettings | None = None) -> int:
     """Write ``out``'s view with ``settings`` (:func:`c3f_slam.view.build.write_view`), print one
     line per file, open the page."""
