@@ -140,6 +140,30 @@ def test_unregistered_frames_say_so(evaluated):
     assert np.std(frames[2][40:, 256:]) > 10  # a rendered colon
 
 
+def test_a_repeated_frame_shows_the_pose_it_repeats_and_a_skipped_one_its_cause(evaluated, tmp_path):
+    """Frames without a pose: a repeat the gate skipped is rendered from the last registered pose
+    (the same picture as the render before it), a blurred one names its cause (frame_log.csv)."""
+    from c3f_slam.frames.stream import open_stream
+    from c3f_slam.io.run_outputs import FrameLog
+
+    seq, out = evaluated
+    stamps, poses = read_tum(out / "trajectory.txt")
+    keep = ~np.isin(np.arange(len(stamps)), [2, 4])
+    log = FrameLog(tmp_path / "frame_log.csv")
+    for i, outcome in enumerate(["lone", "extended", "duplicate", "extended", "blurred"]):
+        log.write(i, float(stamps[i]), outcome)
+    log.close()
+    outcomes = FrameLog.read(tmp_path / "frame_log.csv")
+    assert outcomes == {0: "lone", 1: "extended", 2: "duplicate", 3: "extended", 4: "blurred"}
+    stream = open_stream(seq, use_depth=False, max_frames=5)
+    cam, ms, clock = stream.camera, MeshScene.of(o3d.io.read_triangle_mesh(str(out / "mesh.ply"))), RenderClock()
+    frames = list(rerender_frames(stream, K=cam.K, width=cam.width, height=cam.height, ms=ms,
+                                  lookup=PoseLookup(stamps[keep], poses[keep]), clock=clock, outcomes=outcomes))
+    assert clock.frames == 4  # 0, 1, the repeat 2 (from frame 1's pose) and 3; not the blurred 4
+    assert np.array_equal(frames[2][40:, 256:], frames[1][40:, 256:])  # frame 1's render again
+    assert np.median(frames[4][40:, 256:]) == 40  # grey panel with its cause
+
+
 def test_the_rerender_shows_the_reconstruction_inside_the_tissue_area_only(evaluated):
     """With the run's tissue area (a scope's octagon, say), the reconstruction panel is black
     outside it and the same render inside it."""

@@ -278,6 +278,15 @@ class FrameLog:
         if not self.file.closed:
             self.file.close()
 
+    @staticmethod
+    def read(path: str | Path) -> dict[int, str]:
+        """Frame index -> outcome of a ``frame_log.csv`` (empty without the file)."""
+        path = Path(path)
+        if not path.is_file():
+            return {}
+        rows = path.read_text(encoding="utf-8").splitlines()[1:]
+        return {int(index): outcome for index, _, outcome in (row.split(",", 2) for row in rows if row)}
+
 
 class RunOutputs:
     """The files of one runtime run in ``root`` (created on first write)."""

@@ -22,7 +22,7 @@ from c3f_core.errors import InputError
 from c3f_core.settings import tree_as_mapping
 from c3f_slam.camera.intrinsics import PinholeCamera
 from c3f_slam.io import read_tum
-from c3f_slam.io.run_outputs import RunOutputs, write_json
+from c3f_slam.io.run_outputs import FrameLog, RunOutputs, write_json
 from c3f_slam.view.flythrough import flythrough_frames
 from c3f_slam.view.layers import Layer
 from c3f_slam.view.page import view_data, view_page
@@ -117,7 +117,7 @@ def write_videos(out: RunOutputs, summary: dict, sequence: str | Path | None, pr
     done = {}
     jobs = ((RERENDER, len(stream), lambda c: rerender_frames(
                 stream, K=cam.K, width=cam.width, height=cam.height, ms=ms, lookup=PoseLookup(stamps, poses), clock=c,
-                tissue=tissue)),
+                tissue=tissue, outcomes=FrameLog.read(out.frame_log))),
             (FLYTHROUGH, settings.flythrough.frames, lambda c: flythrough_frames(ms, poses, c, settings.flythrough)))
     for name, total, frames in jobs:
         clock = RenderClock()
