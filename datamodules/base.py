@@ -6,7 +6,9 @@ crop, resize (intrinsics follow), specular mask (Y > 0.9, 13-px dilation) and in
 masked pixels. A sequence of the project's layout whose camera.json names a ``tissue_mask``
 (a scope's border and overlays: ``python -m c3f_demo.ingest`` writes one for a video) is seen as
 the runtime sees it: the pixels outside the tissue area are filled with a continuation of the
-tissue before the network sees them, and are left out of the losses with the specular ones.
+tissue before the network sees them, and are left out of the losses with the specular ones. A
+simulator sequence with recording effects (``covered/NNNNNN.png`` beside ``rgb/``: fluid, bubbles,
+added highlights; docs/datasets.md, Recording effects) has those pixels left out too.
 The settings groups (split, sampling, frames, loader) are those of :mod:`datamodules.config`.
 
 Batch layout (``F`` = frames per sample, in ``sampling.frame_offsets`` order; t is at index
@@ -17,7 +19,8 @@ key                   shape / type                 meaning
 ====================  ===========================  =========================================
 ``image``             (B, F, 3, H, W) float32      RGB in [0, 1], specular pixels inpainted
 ``specular``          (B, F, 1, H, W) bool         True = left out of the losses: a
-                                                  highlight, or outside the tissue area
+                                                  highlight, outside the tissue area, or
+                                                  covered (fluid, bubbles: ``covered/``)
 ``K``                 (B, 3, 3) float32            intrinsics of the resized frames, pixels
 ``depth``             (B, F, 1, H, W) float32      ground-truth depth, metres, 0 = none (opt.)
 ``pose``              (B, F, 4, 4) float32         ground-truth camera-to-world, metres (opt.)
@@ -83,6 +86,24 @@ def tissue_of(seq: FrameSource) -> np.ndarray | None:
     return read_mask_png(path, seq.camera.width, seq.camera.height, f"tissue mask of sequence {seq.name!r}")
 
 
+def covered_of(seq: FrameSource, i: int) -> np.ndarray | None:
+    """(H, W) bool mask of frame ``i`` of a sequence with a ``covered/`` folder beside ``rgb/`` (the
+    simulator's recording effects: True = fluid, bubbles or an added highlight), else None."""
+    root = getattr(seq, "root", None)
+    if root is None or not (Path(root) / "covered").is_dir():
+        return None
+    names = getattr(seq, "frame_names", None)
+    path = Path(root) / "covered" / f"{names[i] if names else f'{i:06d}'}.png"
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise InputError(f"sequence {seq.name!r} frame {i}: cannot read its covered mask {path}")
+    mask = img > 0
+    if mask.shape != (seq.camera.height, seq.camera.width):
+        raise InputError(f"sequence {seq.name!r} frame {i}: covered mask is {mask.shape[1]}x{mask.shape[0]}, "
+                         f"not the frame's {seq.camera.width}x{seq.camera.height}")
+    return mask
+
+
 class FrameTupleDataset(Dataset):
     """Tuples of frames (the centre t and t + offset * stride) from several sequences.
 
@@ -132,6 +153,14 @@ class FrameTupleDataset(Dataset):
             box = seq.camera.center_crop_box(*crop) if crop is not None else (0, 0, seq.camera.width,
                                                                               seq.camera.height)
             mask = mask | ~on_grid(tissue, box, (cam.width, cam.height))
+        covered = covered_of(seq, i)
+        if covered is not None:  # a grid pixel over any covered frame pixel is left out
+            x0, y0, w, h = seq.camera.center_crop_box(*crop) if crop is not None else (0, 0, seq.camera.width,
+                                                                                       seq.camera.height)
+            part = covered[y0:y0 + h, x0:x0 + w].astype(np.float32)
+            if (w, h) != (cam.width, cam.height):
+                part = cv2.resize(part, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+            mask = mask | (part > 0)
         depth = None
         if self.load_depth:
             d = seq.read_depth(i)

@@ -29,6 +29,7 @@ from typing import Any
 from c3f_core.errors import InputError
 from c3f_core.settings import convert_value, field_types, tree_from_mapping
 from c3f_core.settings_cli import SettingsSpec
+from datamodules.synthetic.recording import RecordingParams
 
 PATH_KINDS = ("A", "B", "random")
 LAYOUTS = ("c3f", "uts", "simcol3d", "c3vd", "colon10k")  # output layouts (c3f = the project's own, docs/datasets.md)
@@ -307,6 +308,9 @@ class SimParams(_Group):
     camera: CameraParams = field(default_factory=CameraParams)
     path: PathParams = field(default_factory=PathParams)
     nuisance: NuisanceParams = field(default_factory=NuisanceParams)
+    #: effects of a real recording on the frames (fluid, bubbles, highlights, light, sensor noise,
+    #: interlacing, JPEG, video; :mod:`datamodules.synthetic.recording`), all off by default
+    recording: RecordingParams = field(default_factory=RecordingParams)
 
     def to_dict(self) -> dict[str, Any]:
         """Every parameter as nested plain dicts (params.json's ``params``)."""
