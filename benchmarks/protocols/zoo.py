@@ -28,15 +28,27 @@ Sections (setting ``only``; each one's numbers are kept in ``WORK/SECTION.json``
 - ``ablation_selfsup``: the same from a self-supervised start instead (``start_steps`` steps of the
   Monodepth2 objective from random weights), the counterpart of the paper's ImageNet start: the
   zoo weights were trained with a supervised term, so any self-supervised step leads away from them.
+- ``real``: real frames: every ``phantom_every``-th frame of the C3VD phantom clip (``--phantom DIR``:
+  the clip's folder with ``split.py``, or its split; never in the repository; without it the
+  section is skipped with a line saying so): for every depth entry of the zoo, Spearman's rank
+  correlation of its depth (as the runtime predicts it: border filled from the tissue mask found
+  from the frames) with the data set's depth render (brighter = farther) over the tissue pixels
+  that are not occluded and have a rendered depth (:mod:`c3f_slam.evaluation.rank_depth`,
+  :mod:`benchmarks.common.phantom`); the heuristic "darker is farther" (blurred luma) on the same
+  pixels; the same after ``phantom_ttt_steps`` steps of test-time training from the entry's
+  weights on the clip (the demo's path: the frames ingested as a sequence, repeats dropped;
+  ``tune_and_export``), with the guard's decision; the share of the border where the network
+  outputs depth and where the runtime passes it on.
 
     python -m benchmarks.protocols.zoo
     python -m benchmarks.protocols.zoo --set only=slam,coverage --set slam_set=match_filter.reprojection_refit=true
+    python -m benchmarks.protocols.zoo --set only=real --phantom ../shared/data/c3vd_phantom_preview
 
 Inputs: the models by name from the zoo (settings ``depth``, ``features``; trained by ``python -m
 c3f_models.zoo``, not here); the held-out and training sequences generated from the recipes'
 presets and seeds; sequences and runs under ``--work`` (default ``runs/bench/zoo``). Settings
 (``--print-config``: each with its default and meaning): :class:`Settings`; ``--heldout`` (a
-folder) and ``--redo`` stay plain options.
+folder), ``--phantom`` (a folder) and ``--redo`` stay plain options.
 """
 
 from __future__ import annotations
@@ -55,10 +67,11 @@ import numpy as np
 from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli, check_choices, check_not_empty
 from benchmarks.common.report import Report, json_beside
+from c3f_core.errors import InputError
 from c3f_models.zoo.recipes import HELD_OUT, QUICK_HELD_OUT, TRAIN, shortened
 from c3f_models.zoo.train import REPO, simulate
 
-SECTIONS = ("depth", "matches", "slam", "coverage", "ttt", "ablation", "ablation_selfsup")
+SECTIONS = ("depth", "matches", "slam", "coverage", "ttt", "ablation", "ablation_selfsup", "real")
 ABLATION = {"c3fusion": "configs/depthnet/paper_objective.yaml", "monodepth2": "configs/depthnet/monodepth2.yaml"}
 #: test-time training's sequences -> their appearance (seq1: trained; seq5: in no training sequence)
 TTT_SEQUENCES = {"seq1_s2001": "trained", "seq1_s2002": "trained", "seq5_s2005": "unseen", "seq5_s2006": "unseen"}
@@ -318,6 +331,101 @@ def _pct(x) -> str:
     return "n/a" if x is None else f"{100 * x:.1f}"
 
 
+def _phantom_depth(model_path: Path, clip, masks: list[np.ndarray]) -> dict:
+    """One depth model on the phantom frames ``clip`` as the runtime predicts (border filled from
+    the tissue mask, depth outside it 0): Spearman with the render inside ``masks``; the share
+    (0..1, mean over frames) of the border where the network outputs depth and where the runtime
+    passes depth on."""
+    from types import SimpleNamespace
+
+    from c3f_slam.evaluation.rank_depth import outside_share, rank_depth
+    from c3f_slam.models.nets import DepthModel
+    from c3f_slam.pipeline.frontend import ModelDepth
+
+    model = DepthModel(model_path, threads=2)
+    runtime = ModelDepth(model, clip.camera, tissue=clip.tissue.pixels)
+    preds, net_out, run_out = [], [], []
+    for k, rgb in enumerate(clip.rgb):
+        net, view = model.predict_network(rgb, clip.camera, clip.tissue.pixels)
+        net_out.append(outside_share(view.network_to_frame(net, model.upsample), clip.tissue.pixels))
+        depth = runtime.predict(SimpleNamespace(rgb=rgb, index=k)).frame
+        run_out.append(outside_share(depth, clip.tissue.pixels))
+        preds.append(depth)
+    return {"spearman": rank_depth(preds, clip.depth, masks),
+            "outside_network": float(np.mean(net_out)) if None not in net_out else None,
+            "outside_runtime": float(np.mean(run_out)) if None not in run_out else None}
+
+
+def _depth_entries() -> list:
+    """Every depth entry of the zoo (its folder), by name."""
+    from c3f_slam.models import zoo
+
+    return [e for e in zoo.entries() if e.kind == "depth"]
+
+
+def real_section(a: argparse.Namespace) -> dict:
+    """The ``real`` section (module notes): every depth entry of the zoo on the phantom clip ``a.phantom``."""
+    from benchmarks.common.phantom import phantom_sequence, read_phantom, split_folder
+    from c3f_slam.evaluation.rank_depth import luminance_depth, rank_depth
+    split = split_folder(a.phantom, a.work)
+    clip = read_phantom(split, a.phantom_every)
+    masks = [clip.valid(k) for k in range(len(clip.indices))]
+    out = {"frames": clip.indices, "tissue_share": clip.tissue.share, "tissue_source": clip.tissue.source,
+           "counted_share": float(np.mean([m.mean() for m in masks])), "ttt_steps": a.phantom_ttt_steps,
+           "darker_is_farther": rank_depth([luminance_depth(f) for f in clip.rgb], clip.depth, masks), "models": {}}
+    seq = phantom_sequence(split, a.work / "real") if a.phantom_ttt_steps > 0 else None
+    for entry in _depth_entries():
+        row = {"before": _phantom_depth(entry.file_for("depth", "--depth"), clip, masks)}
+        if seq is not None:
+            run = a.work / "real" / "ttt" / entry.name
+            shutil.rmtree(run, ignore_errors=True)
+            t0 = time.time()
+            guard = tune_and_export(f"zoo:{entry.name}", entry.folder / "config.yaml", seq, run,
+                                    a.phantom_ttt_steps) / "guard.json"
+            row.update(after=_phantom_depth(run / "onnx" / "depthnet.onnx", clip, masks),
+                       guard=json.loads(guard.read_text()) if guard.is_file() else None,
+                       ttt_wall_s=round(time.time() - t0, 1))
+        out["models"][entry.name] = row
+    return out
+
+
+def _rho(r: dict | None) -> str:
+    if not r or r.get("mean") is None:
+        return "n/a"
+    pooled = "n/a" if r.get("pooled") is None else f"{r['pooled']:.3f}"
+    return f"{r['mean']:.3f} ({r['median']:.3f}; {pooled})"
+
+
+def real_lines(r: dict) -> list[str]:
+    frames = r["frames"]
+    steps = r.get("ttt_steps", 0)
+    every = frames[1] - frames[0] if len(frames) > 1 else 1
+    text = (f"Every {every}-th frame of the C3VD phantom clip "
+            f"({len(frames)} frames: {frames[0]}..{frames[-1]}; a real colonoscope in a silicone phantom, "
+            "the data set's preview, never in the repository). Spearman rank correlation of predicted depth with the "
+            "data set's depth render (8-bit grey, brighter = farther), over the pixels of the tissue area found from "
+            f"the frames ({_pct(r['tissue_share'])} % of the frame; {r['tissue_source']}) that are not occluded and "
+            f"have a rendered depth ({_pct(r['counted_share'])} % of the frame): mean over the frames (median; all "
+            "pixels pooled). Depth as the runtime predicts it (the border filled from the tissue area in the network "
+            "input).")
+    if steps:
+        text += (f" After: {steps} steps of test-time training from the entry's weights on the clip's frames "
+                 "(ttt.yaml + paper_objective.yaml, batch 4, no ground truth; repeated frames dropped), the guard on.")
+    lines = [text, "",
+             "| depth | Spearman | after test-time training | change | border with network depth % | "
+             "border with runtime depth % | guard: kept step, events |", "|---|---|---|---|---|---|---|"]
+    for name, m in r["models"].items():
+        b, f, g = m["before"], m.get("after"), m.get("guard") or {}
+        change = (f"{f['spearman']['mean'] - b['spearman']['mean']:+.3f}"
+                  if f and f["spearman"]["mean"] is not None and b["spearman"]["mean"] is not None else "")
+        events = ", ".join(e["event"] for e in g.get("events", [])) or "none"
+        lines.append(f"| zoo:{name} | {_rho(b['spearman'])} | {_rho(f['spearman']) if f else 'not measured'} | "
+                     f"{change} | {_pct(b['outside_network'])} | {_pct(b['outside_runtime'])} | "
+                     f"{(str(g.get('best_step', 'n/a')) + ', ' + events) if f else ''} |")
+    lines.append(f"| darker is farther (blurred luma) | {_rho(r['darker_is_farther'])} | | | | | |")
+    return lines
+
+
 def depth_lines(d: dict) -> list[str]:
     from c3f_models.zoo.card import _depth_table
 
@@ -456,11 +564,12 @@ RENDER = {"depth": lambda d, m: depth_lines(d), "matches": lambda d, m: matches_
           "slam": lambda d, m: slam_lines(d), "coverage": lambda d, m: coverage_lines(d),
           "ttt": lambda d, m: ttt_lines(d),
           "ablation": lambda d, m: ablation_lines(d, m.get("depth", {}).get("mean")),
-          "ablation_selfsup": lambda d, m: ablation_selfsup_lines(d)}
+          "ablation_selfsup": lambda d, m: ablation_selfsup_lines(d), "real": lambda d, m: real_lines(d)}
 TITLES = {"depth": "Depth (held-out)", "matches": "Matches (held-out pairs)", "slam": "SLAM at default settings",
           "coverage": "Unseen wall on zoo depth (coverage_accuracy cases, SIFT)", "ttt": "Test-time training",
           "ablation": "The paper's objective against the Monodepth2 baseline (same start, same budget)",
-          "ablation_selfsup": "The same from a self-supervised start"}
+          "ablation_selfsup": "The same from a self-supervised start",
+          "real": "Real frames (C3VD phantom clip, depth render)"}
 
 
 @dataclass(frozen=True)
@@ -469,7 +578,7 @@ class Settings:
 
     depth: str = "zoo:c3f-depth-r18w32"  #: depth model (zoo:NAME)
     features: str = "zoo:c3f-features-r18w32"  #: descriptor model (zoo:NAME)
-    #: sections run: depth, matches, slam, coverage, ttt, ablation, ablation_selfsup
+    #: sections run: depth, matches, slam, coverage, ttt, ablation, ablation_selfsup, real (real: with --phantom)
     only: tuple[str, ...] = SECTIONS
     #: settings KEY=VALUE of every SLAM run of the slam and coverage sections (c3f_slam run --set KEY=VALUE)
     slam_set: tuple[str, ...] = ()
@@ -478,11 +587,18 @@ class Settings:
     ablation_seeds: tuple[int, ...] = (1, 2, 3)  #: seeds of the ablation fits
     #: ablation_selfsup: steps of the Monodepth2 objective from random weights that make the start
     start_steps: int = 400
+    phantom_every: int = 24  #: real: take every N-th frame of the phantom clip (frames)
+    #: real: test-time training steps (batch 4) on the phantom clip from each depth entry; 0: none
+    phantom_ttt_steps: int = 60
     #: a check of the script: 16-frame held-out sequences, tiny training data (numbers mean nothing)
     quick: bool = False
 
     def __post_init__(self) -> None:
         check_not_empty(self, "only", "ablation_seeds")
+        if self.phantom_every < 1:
+            raise InputError(f"phantom_every must be at least 1, got {self.phantom_every}")
+        if self.phantom_ttt_steps < 0:
+            raise InputError(f"phantom_ttt_steps must be 0 or more, got {self.phantom_ttt_steps}")
         check_choices("only", self.only, SECTIONS)
 
 
@@ -496,17 +612,37 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--report", type=Path, default=RESULTS / "zoo.md", help=REPORT_HELP)
     ap.add_argument("--heldout", type=Path, default=REPO / "runs" / "zoo" / "heldout",
                     help="folder of the held-out sequences (made when missing; the recipes' evaluation uses the same)")
+    ap.add_argument("--phantom", type=Path,
+                    help="section real: the phantom clip's folder (with split.py) or its split (rgb/, depth_render/, "
+                         "occlusion/, camera.json); without it the section is skipped")
     options, settings = CLI.parse(ap, argv)
     a = CLI.flat(options, settings)  # the sections read their settings from one namespace (a.depth, a.work, ...)
+    wanted = [name for name in SECTIONS if name in a.only]
+    if "real" in wanted and a.phantom is None:
+        wanted.remove("real")
+        if not wanted:
+            ap.error("--phantom: section real needs the phantom clip's folder (--phantom DIR)")
+        print("zoo: section real skipped: no --phantom DIR given", file=sys.stderr)
     a.work.mkdir(parents=True, exist_ok=True)
     heldout = QUICK_HELD_OUT if a.quick else HELD_OUT
-    seqs = simulate(heldout, 128, a.work / "heldout" if a.quick else a.heldout)
-    compute = {"depth": lambda: depth_section(a, seqs), "matches": lambda: matches_section(a, seqs),
-               "slam": lambda: slam_section(a, seqs), "coverage": lambda: coverage_section(a),
-               "ttt": lambda: ttt_section(a, seqs), "ablation": lambda: ablation_section(a, seqs),
-               "ablation_selfsup": lambda: ablation_selfsup_section(a, seqs)}
-    results = {name: _cached(a.work, name, a.redo, compute[name], a.slam_set if name in ("slam", "coverage") else None)
-               for name in SECTIONS if name in a.only}
+    made: list[Path] = []
+
+    def seqs() -> list[Path]:  # the held-out sequences, simulated only for a section that reads them
+        if not made:
+            made.extend(simulate(heldout, 128, a.work / "heldout" if a.quick else a.heldout))
+        return made
+
+    compute = {"depth": lambda: depth_section(a, seqs()), "matches": lambda: matches_section(a, seqs()),
+               "slam": lambda: slam_section(a, seqs()), "coverage": lambda: coverage_section(a),
+               "ttt": lambda: ttt_section(a, seqs()), "ablation": lambda: ablation_section(a, seqs()),
+               "ablation_selfsup": lambda: ablation_selfsup_section(a, seqs()), "real": lambda: real_section(a)}
+    keys = {"slam": a.slam_set, "coverage": a.slam_set}
+    if "real" in wanted:  # kept in WORK with the clip, the frames, the steps and the depth entries' files
+        keys["real"] = [f"phantom={a.phantom.resolve()}", f"phantom_every={a.phantom_every}",
+                        f"phantom_ttt_steps={a.phantom_ttt_steps}", *(
+                            f"zoo:{e.name}={f.sha256[:12]}" for e in _depth_entries()
+                            for f in e.files.values() if f.role == "depth")]
+    results = {name: _cached(a.work, name, a.redo, compute[name], keys.get(name)) for name in wanted}
     json_path = json_beside(a.report)
     old = json.loads(json_path.read_text()) if json_path.is_file() else {}
     merged = {**old.get("data", old).get("sections", {}), **results}  # (a file of before Report.publish: no "data")
