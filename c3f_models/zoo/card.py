@@ -12,7 +12,7 @@ from pathlib import Path
 
 import yaml
 
-from c3f_models.zoo.recipes import Recipe, SimSpec
+from c3f_models.zoo.recipes import DATASETS, Recipe, SimSpec
 
 LICENSE = "apache-2.0"
 DEPTH_METRICS = {"abs_rel": "Abs Rel", "sq_rel": "Sq Rel (cm)", "rmse": "RMSE (cm)", "rmse_log": "RMSE log",
@@ -70,7 +70,7 @@ def front_matter(recipe: Recipe, state: dict, step: int, files: dict, results: d
         "pipeline_tag": "depth-estimation" if recipe.kind == "depth" else "image-feature-extraction",
         "tags": ["colonoscopy", "endoscopy", "onnx", "c3fusion",
                  "monocular-depth" if recipe.kind == "depth" else "local-descriptors"],
-        "datasets": ["c3fusion-colon-simulator"],
+        "datasets": ["c3fusion-colon-simulator", *([recipe.dataset] if recipe.dataset else [])],
         "model-index": _model_index(recipe, nums, heldout),
         "c3fusion": {
             "kind": recipe.kind,
@@ -79,7 +79,8 @@ def front_matter(recipe: Recipe, state: dict, step: int, files: dict, results: d
             "files": files,
             "training": {"steps": step, "wall_s": round(wall, 1), "machine": machines,
                          "command": recipe.command,
-                         "config": recipe.config, "chunks": len(state.get("chunks", []))},
+                         "config": recipe.config, "chunks": len(state.get("chunks", [])),
+                         **({"init": f"zoo:{recipe.init}"} if recipe.init else {})},
             "heldout": [s.name for s in heldout],
             "metrics": {k: round(v, 5) for k, v in nums.items() if not math.isnan(v)},
         },
@@ -133,6 +134,19 @@ def _tuning_lines(recipe: Recipe) -> list[str]:
             f"    --model.init_weights zoo:{recipe.name} --data.data_dir DATA  # fine-tuning"]
 
 
+def _data_line(recipe: Recipe) -> str:
+    """The card's line on the training data: the simulator's sequences, or the published data set's folder."""
+    if recipe.dataset:
+        module, title = DATASETS[recipe.dataset]
+        return (f"- Data: {title} as published or converted, the folder given with `--data` (`{module}`, its "
+                "automatic split).")
+    looks = " with randomised looks (`_l<seed>`: `datamodules.synthetic.randomize.sample_look`)" if any(
+        s.look is not None for s in recipe.train) else ""
+    return ("- Data (simulator, `python -m datamodules.synthetic generate`, 128 px" + looks + "): training "
+            + ", ".join(f"{s.name} ({s.frames} frames, {s.step_mm:.2f} mm/frame)" for s in recipe.train)
+            + "; validation " + ", ".join(s.name for s in recipe.val) + ".")
+
+
 def body(recipe: Recipe, state: dict, step: int, files: dict, results: dict, heldout: tuple[SimSpec, ...]) -> str:
     chunks = state.get("chunks", [])
     wall = sum(c["wall_s"] for c in chunks)
@@ -148,13 +162,14 @@ def body(recipe: Recipe, state: dict, step: int, files: dict, results: dict, hel
         f"- Command: `{recipe.command}` (config `{recipe.config}`); {step} optimiser "
         f"steps in {len(chunks)} chunk(s), {wall / 60:.1f} min of wall time on "
         + "; ".join(sorted({c['machine'] for c in chunks})) + ".",
-        "- Data (simulator, `python -m datamodules.synthetic generate`, 128 px): training "
-        + ", ".join(f"{s.name} ({s.frames} frames, {s.step_mm:.2f} mm/frame)" for s in recipe.train)
-        + "; validation " + ", ".join(s.name for s in recipe.val) + ".",
+        *([f"- Start: the weights of `zoo:{recipe.init}` (fine-tuned)."] if recipe.init else []),
+        _data_line(recipe),
         "", "## Held-out results", "",
         "Sequences never used for training: " + ", ".join(f"{s.name}" for s in heldout)
         + f" ({heldout[0].frames} frames each, {heldout[0].step_mm:.2f} mm/frame, 128 px). "
-        "seq5's appearance (orange, dark, grainy mucosa) is in no training sequence.", "",
+        + ("seq5 is in no training sequence (the randomised looks may come near its orange, dark, grainy mucosa)."
+           if any(s.look is not None for s in recipe.train) else
+           "seq5's appearance (orange, dark, grainy mucosa) is in no training sequence."), "",
         *(_depth_table(results) if recipe.kind == "depth" else _match_table(results)), "",
     ]
     if recipe.kind == "depth":

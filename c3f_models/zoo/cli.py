@@ -4,10 +4,12 @@
     python -m c3f_models zoo show NAME [--json]    # one entry's card (or its machine-readable part)
     python -m c3f_models zoo verify [NAME ...]     # every file's SHA-256 against its card
     python -m c3f_models zoo recipes               # the recipes ``train`` knows
-    python -m c3f_models zoo train NAME [--work DIR] [--max-minutes M] [--quick]
+    python -m c3f_models zoo train NAME [--data DIR] [--work DIR] [--max-minutes M] [--quick]
 
 ``train`` runs the recipe (:mod:`c3f_models.zoo.train`): simulate, fit (resumable: the same
-command continues an interrupted run exactly), then package and evaluate into the zoo.
+command continues an interrupted run exactly), then package and evaluate into the zoo. A recipe
+that fine-tunes (``Recipe.init``) starts from that entry's verified weights, found in ``--zoo``
+or else in the default zoo; a published-data recipe needs ``--data`` (the data set's folder).
 Bad input is one ``error: ...`` line and exit status 2.
 """
 
@@ -35,6 +37,8 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("recipes", help="the recipes that `train` knows")
     t = sub.add_parser("train", help="run a recipe: simulate, train (resumable), evaluate, export into the zoo")
     t.add_argument("name", help="recipe name (see `recipes`)")
+    t.add_argument("--data", type=Path,
+                   help="the data set's folder, as published or converted (recipes of a published data set only)")
     t.add_argument("--work", type=Path, help="work folder (default: runs/zoo/NAME); rerun to resume")
     t.add_argument("--heldout", type=Path, help="folder of the held-out sequences (default: runs/zoo/heldout)")
     t.add_argument("--max-minutes", type=float, help="stop training after this long (it resumes where it stopped)")
@@ -86,8 +90,27 @@ def _recipes(args: argparse.Namespace) -> int:
     from c3f_models.zoo.recipes import RECIPES
 
     for r in RECIPES.values():
-        print(f"{r.name:28s} {r.kind:12s} {r.steps:6d} steps  {r.summary}")
+        print(f"{r.name:28s} {r.kind:12s} {r.steps:6d} steps  {r.summary}" + (" (--data DIR)" if r.dataset else ""))
     return 0
+
+
+def _init_weights(name: str, kind: str, root: Path) -> Path:
+    """The verified weights file of zoo entry ``name``: in ``root``, else in the default zoo."""
+    where = root if (root / name / zoo.CARD).is_file() else zoo.zoo_root()
+    return zoo.entry(name, "zoo train", where).file_for("weights", "zoo train", kind=kind)
+
+
+def _data_folder(name: str, recipe, data: Path | None) -> Path | None:
+    """The ``--data`` folder of a published-data recipe (InputError when missing or given to another)."""
+    if recipe.dataset is None:
+        if data is not None:
+            raise InputError(f"--data: recipe {name} trains on simulator sequences and takes no data folder")
+        return None
+    if data is None:
+        raise InputError(f"--data: recipe {name} needs the {recipe.dataset} folder (zoo train NAME --data DIR)")
+    if not data.is_dir():
+        raise InputError(f"--data: folder not found: {data}")
+    return data.resolve()
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -98,14 +121,18 @@ def _train(args: argparse.Namespace) -> int:
     if args.name not in RECIPES:
         raise InputError(f"zoo train: no recipe {args.name!r} (there are: {', '.join(RECIPES)})")
     recipe = quick(RECIPES[args.name]) if args.quick else RECIPES[args.name]
-    run = RecipeRun(recipe, args.work or default_work(recipe.name))
-    heldout, heldout_root = (QUICK_HELD_OUT, run.work / "heldout") if args.quick else (HELD_OUT, None)
-    heldout_root = args.heldout or heldout_root or REPO / "runs" / "zoo" / "heldout"
-    print(f"[{recipe.name}] simulate {len(recipe.train) + len(recipe.val)} sequences into {run.data}", flush=True)
-    simulate(recipe.train + recipe.val, recipe.size, run.data, args.jobs)
-    print(f"[{recipe.name}] fit to {recipe.steps} steps (log: {run.log})", flush=True)
+    source = _data_folder(args.name, recipe, args.data)
     if args.trainer_config is not None and not args.trainer_config.is_file():
         raise InputError(f"--trainer-config: file not found: {args.trainer_config}")
+    init = _init_weights(recipe.init, recipe.kind, _root(args)) if recipe.init else None
+    run = RecipeRun(recipe, args.work or default_work(recipe.name), init=init, source=source)
+    heldout, heldout_root = (QUICK_HELD_OUT, run.work / "heldout") if args.quick else (HELD_OUT, None)
+    heldout_root = args.heldout or heldout_root or REPO / "runs" / "zoo" / "heldout"
+    if source is None:
+        print(f"[{recipe.name}] simulate {len(recipe.train) + len(recipe.val)} sequences into {run.data}", flush=True)
+        simulate(recipe.train + recipe.val, recipe.size, run.data, args.jobs)
+    print(f"[{recipe.name}] fit to {recipe.steps} steps" + (f" from zoo:{recipe.init}" if init else "")
+          + f" (log: {run.log})", flush=True)
     if not fit(run, recipe.steps, args.max_minutes, args.trainer_config):
         print(f"[{recipe.name}] stopped after --max-minutes {args.max_minutes:g}; the same command continues")
         return 0

@@ -3,10 +3,11 @@
 ``python -m c3f_models zoo train NAME [--work DIR] [--max-minutes M]`` runs, each stage skipped
 when already done:
 
-1. ``simulate``: the recipe's sequences into ``WORK/data`` (the project's own generator);
+1. ``simulate``: the recipe's sequences into ``WORK/data`` (the project's own generator; a
+   published-data recipe reads the ``--data`` folder instead);
 2. ``fit``: ``python -m c3f_models fit`` with the recipe's config and ``WORK/fit.yaml`` (data,
-   split, steps, logging into ``WORK/run``); an interrupted fit (Ctrl-C, ``--max-minutes``, a
-   killed process) continues exactly from its newest checkpoint;
+   split, steps, start weights of a fine-tune, logging into ``WORK/run``); an interrupted fit
+   (Ctrl-C, ``--max-minutes``, a killed process) continues exactly from its newest checkpoint;
 3. ``package``: the weights in float16 (``weights.safetensors``), their ONNX export (float16
    storage, float32 compute, parity-checked), the held-out evaluation and the model card, written
    into the zoo (:mod:`c3f_models.zoo.package`).
@@ -39,14 +40,17 @@ CHECKPOINT_EVERY = 250  #: optimiser steps between checkpoints (what an interrup
 
 @dataclass(frozen=True)
 class RecipeRun:
-    """The work folder of one recipe (everything under ``work``)."""
+    """The work folder of one recipe (everything under ``work``); ``init``: the verified weights
+    file that starts the fit (:attr:`Recipe.init`); ``source``: a published-data recipe's folder."""
 
     recipe: Recipe
     work: Path
+    init: Path | None = None
+    source: Path | None = None
 
     @property
     def data(self) -> Path:
-        return self.work / "data"
+        return self.source if self.source is not None else self.work / "data"
 
     @property
     def run_dir(self) -> Path:
@@ -90,9 +94,10 @@ def default_work(name: str) -> Path:
 
 # ---------------------------------------------------------------------------------------- simulate
 def generate_command(spec: SimSpec, size: int, out: Path) -> list[str]:
-    """The simulator's command line that writes ``spec`` with square frames of ``size`` pixels to ``out``."""
+    """The simulator's command line that writes ``spec`` with square frames of ``size`` pixels to
+    ``out`` (its look's items last)."""
     sets = (f"seed={spec.seed}", f"path.frames={spec.frames}", f"camera.width={size}", f"camera.height={size}",
-            f"path.coverage={spec.coverage}")
+            f"path.coverage={spec.coverage}", *spec.look_items)
     return [sys.executable, "-m", "datamodules.synthetic", "generate", "--preset", spec.preset,
             *(arg for kv in sets for arg in ("--set", kv)), "--out", str(out), "--no-progress", "--overwrite"]
 
@@ -118,8 +123,12 @@ def simulate(specs: tuple[SimSpec, ...], size: int, root: Path, jobs: int = 2) -
 
 # ---------------------------------------------------------------------------------------- fit
 def write_fit_yaml(run: RecipeRun, steps: int) -> Path:
-    """The recipe's last config file: data folder and split, steps, logging into ``WORK/run``."""
+    """The recipe's last config file: data folder and split (a published data set: its data
+    module's own), steps, start weights, logging into ``WORK/run``."""
     r = run.recipe
+    split = {"train": [s.name for s in r.train], "val": [s.name for s in r.val], "test": [],
+             "val_fraction": 0.0, "test_fraction": 0.0}
+    data = {"data_dir": str(run.data)} if r.dataset else {"data_dir": str(run.data), "split": split}
     cfg = {
         "trainer": {
             "max_steps": steps, "default_root_dir": str(run.run_dir),
@@ -132,10 +141,10 @@ def write_fit_yaml(run: RecipeRun, steps: int) -> Path:
             "logger": {"class_path": "lightning.pytorch.loggers.TensorBoardLogger",
                        "init_args": {"save_dir": str(run.run_dir), "name": "tb", "version": 0}},
         },
-        "data": {"init_args": {"data_dir": str(run.data), "split": {
-            "train": [s.name for s in r.train], "val": [s.name for s in r.val], "test": [],
-            "val_fraction": 0.0, "test_fraction": 0.0}}},
+        "data": {"init_args": data},
     }
+    if run.init is not None:
+        cfg["model"] = {"init_args": {"init_weights": str(run.init)}}
     run.work.mkdir(parents=True, exist_ok=True)
     run.fit_yaml.write_text(yaml.safe_dump(cfg, sort_keys=False))
     return run.fit_yaml
@@ -177,6 +186,7 @@ def fit(run: RecipeRun, steps: int, max_minutes: float | None = None, trainer_co
     if step >= steps:
         return True
     start = time.time()
+    run.work.mkdir(parents=True, exist_ok=True)
     with open(run.log, "a") as log:
         log.write(f"\n# {time.strftime('%Y-%m-%d %H:%M:%S')} from step {step}\n")
         log.flush()
