@@ -200,6 +200,15 @@ class DemoConfig:
         return asdict(self)
 
 
+#: what the two quick presets share: fewer steps in every stage, a smaller report
+QUICK_STAGES = {
+    "depth": DepthTrainConfig(steps=12, batch_size=2),
+    "ttt": TestTimeConfig(steps=3, batch_size=2, pose_warmup_steps=1),
+    "features": FeatureTrainConfig(steps=6),
+    "report": ReportConfig(sample_frames=3, depth_eval_stride=3, pair_frame=10, render_size=240),
+    "quick": True,
+}
+
 #: the presets by name (read-only), complete trees (fields not named: the dataclasses' defaults).
 #: From the zoo only the held-out sequence is simulated (the training sequences are the zoo's) at
 #: the zoo model's frame size; the quick ones have shorter sequences and fewer steps.
@@ -213,11 +222,7 @@ PRESETS: MappingProxyType[str, DemoConfig] = MappingProxyType({
     "quick": DemoConfig(
         simulate=SimulateConfig(train=(), train_frames=0, test_frames=40, size=ZOO_SIZE, train_coverage=0.025,
                                 test_coverage=0.02),
-        depth=DepthTrainConfig(steps=12, batch_size=2),
-        ttt=TestTimeConfig(steps=3, batch_size=2, pose_warmup_steps=1),
-        features=FeatureTrainConfig(steps=6),
-        report=ReportConfig(sample_frames=3, depth_eval_stride=3, pair_frame=10, render_size=240),
-        quick=True,
+        **QUICK_STAGES,
         zoo=ZooModels(),
     ),
     "from-scratch": DemoConfig(
@@ -226,11 +231,7 @@ PRESETS: MappingProxyType[str, DemoConfig] = MappingProxyType({
     "quick-from-scratch": DemoConfig(
         simulate=SimulateConfig(train=(("seq1", 100),), train_frames=48, test_frames=40, train_coverage=0.025,
                                 test_coverage=0.02),
-        depth=DepthTrainConfig(steps=12, batch_size=2),
-        ttt=TestTimeConfig(steps=3, batch_size=2, pose_warmup_steps=1),
-        features=FeatureTrainConfig(steps=6),
-        report=ReportConfig(sample_frames=3, depth_eval_stride=3, pair_frame=10, render_size=240),
-        quick=True,
+        **QUICK_STAGES,
     ),
 })
 

@@ -24,6 +24,7 @@ from c3f_slam.camera.intrinsics import FovGuess, PinholeCamera
 from c3f_slam.cli.main import main
 from c3f_slam.frames.stream import FrameStream
 from c3f_slam.io import SequenceWriter
+from tests import checkerboard
 from tests import onnx_fixtures as fx
 
 W, H = 640, 480
@@ -36,14 +37,7 @@ SOLVE = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 
 # ------------------------------------------------------------------ rendering
 def board_image() -> np.ndarray:
-    """The board's squares with a white border of one square, PX pixels a square (grey uint8)."""
-    nx, ny = BOARD[0] + 1, BOARD[1] + 1
-    img = np.full(((ny + 2) * PX, (nx + 2) * PX), 255, np.uint8)
-    for j in range(ny):
-        for i in range(nx):
-            if (i + j) % 2 == 0:
-                img[(j + 1) * PX:(j + 2) * PX, (i + 1) * PX:(i + 2) * PX] = 0
-    return img
+    return checkerboard.board_image(BOARD, PX)
 
 
 def pixel_rays(cam: PinholeCamera) -> np.ndarray:

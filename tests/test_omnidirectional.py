@@ -24,6 +24,7 @@ from c3f_slam.cli.main import main
 from c3f_slam.frames.stream import FrameStream
 from c3f_slam.io import SequenceWriter
 from datamodules.formats.omnicam import C3VD_CALIBRATION
+from tests import checkerboard
 from tests import onnx_fixtures as fx
 
 #: C3VD's lens at a fifth of its size (270 x 216), as the runtime's model (not C3VD's file reader)
@@ -33,14 +34,7 @@ BOARD, SQUARE, PX = (9, 6), 0.16, 24  # inner corners; square side on the plane 
 
 # ------------------------------------------------------------------ rendering
 def board_image() -> np.ndarray:
-    """The board's squares with a white border of one square, PX pixels a square (grey uint8)."""
-    nx, ny = BOARD[0] + 1, BOARD[1] + 1
-    img = np.full(((ny + 2) * PX, (nx + 2) * PX), 255, np.uint8)
-    for j in range(ny):
-        for i in range(nx):
-            if (i + j) % 2 == 0:
-                img[(j + 1) * PX:(j + 2) * PX, (i + 1) * PX:(i + 2) * PX] = 0
-    return img
+    return checkerboard.board_image(BOARD, PX)
 
 
 def board_corners() -> np.ndarray:

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 import cv2
 import numpy as np
-from scipy.stats import rankdata
+from scipy.stats import spearmanr
 
 from c3f_core.errors import InputError
 
@@ -50,13 +50,10 @@ def spearman(pred: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = None) 
 
 
 def _rank_corr(x: np.ndarray, y: np.ndarray) -> float | None:
-    if x.size < MIN_PIXELS:
+    """SciPy's Spearman rho (ties ranked by their mean), None when too few or constant."""
+    if x.size < MIN_PIXELS or np.ptp(x) == 0 or np.ptp(y) == 0:
         return None
-    rx, ry = rankdata(x).astype(np.float64), rankdata(y).astype(np.float64)
-    rx -= rx.mean()
-    ry -= ry.mean()
-    den = float(np.sqrt((rx * rx).sum() * (ry * ry).sum()))
-    return float((rx * ry).sum() / den) if den > 0 else None
+    return float(spearmanr(x, y).statistic)
 
 
 def luminance_depth(rgb: np.ndarray, blur_share: float = LUMA_BLUR_SHARE) -> np.ndarray:
