@@ -206,7 +206,11 @@ class FallbackConfig:
     graph prunes a wrong one. Off by default: on the simulator's colon frames Open3D's dense
     odometry is off by about the inter-frame motion itself, and such results pass the
     residual checks (docs/design.md, Tracking breaks; measured in
-    docs/lab_notes/2026-12-02-slam-fallback-pairs.md).
+    docs/lab_notes/2026-12-02-slam-fallback-pairs.md). ``bridge`` (on): where neither found a
+    link, the frame is placed by the motion of the last link (constant velocity over the time
+    between the frames), if that pose passes the same residual checks; at most
+    ``bridge_max_frames`` frames in a row. Its edge is a ``fallback`` edge of the same trust
+    (docs/design.md, Tracking breaks).
     """
 
     guided: bool = True  #: match again near where the last motion puts each keypoint
@@ -219,6 +223,16 @@ class FallbackConfig:
     min_inlier_share: float = 0.6  #: of the frame's valid depth pixels that must land on the previous frame ...
     max_depth_residual: float = 0.05  #: ... with |depth difference| below this share of the depth ...
     max_photometric_rmse: float = 0.06  #: ... and an intensity RMSE (0..1 grey) below this
+    #: place a frame that nothing linked where the camera's last motion puts it (constant velocity),
+    #: checked on the same residuals, as a low-trust prunable edge
+    bridge: bool = True
+    bridge_max_frames: int = 1  #: consecutive frames a bridge may place (then the track breaks)
+    bridge_window: int = 4  #: the velocity is the mean over this many last links in a row
+    #: a bridge's own residual bounds (share of depth pixels landing on the previous frame's depth,
+    #: intensity RMSE 0..1): a fold sweeping through the view fails the dense ones even at the true
+    #: pose, while a cut to another place of the colon lands under 0.3 (docs/design.md)
+    bridge_min_inlier_share: float = 0.45
+    bridge_max_photometric_rmse: float = 0.1  #: see bridge_min_inlier_share
 
     def __post_init__(self) -> None:
         check(0 < self.guided_radius <= 1, f"fallback.guided_radius must be in (0, 1], got {self.guided_radius}")
@@ -227,6 +241,11 @@ class FallbackConfig:
         check(self.max_step > 0 and 0 < self.max_turn_deg <= 180,
                f"fallback.max_step must be > 0 (metres) and fallback.max_turn_deg in (0, 180], "
                f"got {self.max_step}, {self.max_turn_deg}")
+        at_least(self.bridge_max_frames, 1, "fallback.bridge_max_frames")
+        at_least(self.bridge_window, 1, "fallback.bridge_window")
+        check(0 < self.bridge_min_inlier_share <= 1 and self.bridge_max_photometric_rmse > 0,
+               "fallback.bridge_min_inlier_share must be in (0, 1] and fallback.bridge_max_photometric_rmse > 0, "
+               f"got {self.bridge_min_inlier_share}, {self.bridge_max_photometric_rmse}")
         check(0 < self.min_inlier_share <= 1 and self.max_depth_residual > 0 and self.max_photometric_rmse > 0,
                "fallback.min_inlier_share must be in (0, 1], fallback.max_depth_residual and "
                f"fallback.max_photometric_rmse > 0, got {self.min_inlier_share}, {self.max_depth_residual}, "

@@ -97,14 +97,18 @@ class FragmentSlam:
                     link, n = self.recovery.guided_link(self.prev, feat, min(frame.depth.shape[:2]))
         with self.t.stage("fallback"):
             rgbd = self.recovery.frame(frame.rgb, frame.depth)
-            dense = self.recovery.dense_link(rgbd) if link is None and self.prev is not None and not self.gap else None
+            tracked = self.prev is not None and not self.gap
+            dense = self.recovery.dense_link(rgbd) if link is None and tracked else None
+            bridge = self.recovery.bridge_link(rgbd, frame.timestamp) if link is None and dense is None and tracked \
+                else None
+            dense = dense or bridge
         reason = self._new_fragment_reason(link, n, frame.depth)
         if reason is None:
             fid, kind = self._extend_active(feat, link), EXTENDED
         else:
             fid, kind = self._open_fragment(frame, link, reason, dense)
         self.prev, self.gap = feat, False
-        self.recovery.settle(link or dense, rgbd)
+        self.recovery.settle(link or dense, rgbd, frame.timestamp, bridged=bridge is not None)
         rejoined = bool(self.rejoin.pending) and self._try_rejoin(feat)
         return FrameDecision(frame.index, fid, kind, reason, rejoined)
 
