@@ -1,5 +1,5 @@
 """Real-frame depth evaluation: the rank metric (:mod:`c3f_slam.evaluation.rank_depth`), the
-phantom-folder reader (:mod:`benchmarks.common.phantom`, on a tiny fake folder in split.py's
+phantom-folder reader (:mod:`datamodules.phantom`, on a tiny fake folder in split.py's
 layout) and the zoo protocol's ``real`` section without ``--phantom``. Fast, no torch."""
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ def _fake_split(folder, n: int = 6, size: tuple[int, int] = (64, 60)) -> None:
 
 
 def test_phantom_reader_on_a_fake_split_folder(tmp_path):
-    from benchmarks.common.phantom import read_phantom, split_folder
+    from datamodules.phantom import read_phantom, split_folder
 
     _fake_split(tmp_path / "clip")
     assert split_folder(tmp_path / "clip", tmp_path / "work") == tmp_path / "clip"
@@ -120,7 +120,7 @@ def test_phantom_reader_on_a_fake_split_folder(tmp_path):
 
 
 def test_phantom_reader_refuses_an_incomplete_folder(tmp_path):
-    from benchmarks.common.phantom import read_phantom, split_folder
+    from datamodules.phantom import read_phantom, split_folder
 
     _fake_split(tmp_path / "clip", n=3)
     (tmp_path / "clip" / "occlusion" / "000001.png").unlink()

@@ -29,7 +29,6 @@ names an input and ``--sheet`` an output (paths), plain options.
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import zlib
 from dataclasses import dataclass
@@ -90,13 +89,12 @@ def read_rgb(path: Path) -> np.ndarray:
 
 
 def phantom_frames(phantom: Path, work: Path, every: int) -> tuple[list[np.ndarray], np.ndarray]:
-    """Every ``every``-th frame of the phantom clip (split by its split.py into ``work``) and the
-    clip's tissue mask (from all its frames)."""
-    folder = work / "phantom_frames"
-    if not any((folder / "rgb").glob("*.png")):
-        if not (phantom / "split.py").is_file():
-            raise InputError(f"--phantom: no split.py in {phantom}")
-        subprocess.run([sys.executable, str(phantom / "split.py"), str(folder)], check=True, capture_output=True)
+    """Every ``every``-th frame of the phantom clip (its split, or the clip's folder split by its
+    split.py into ``work``: :func:`datamodules.phantom.split_folder`) and the clip's tissue mask
+    (from all its frames)."""
+    from datamodules.phantom import split_folder
+
+    folder = split_folder(phantom, work)
     everything = [read_rgb(p) for p in sorted((folder / "rgb").glob("*.png"))]
     return everything[::every], static_border(everything)
 

@@ -33,12 +33,13 @@ Sections (setting ``only``; each one's numbers are kept in ``WORK/SECTION.json``
   section is skipped with a line saying so): for every depth entry of the zoo, Spearman's rank
   correlation of its depth (as the runtime predicts it: border filled from the tissue mask found
   from the frames) with the data set's depth render (brighter = farther) over the tissue pixels
-  that are not occluded and have a rendered depth (:mod:`c3f_slam.evaluation.rank_depth`,
-  :mod:`benchmarks.common.phantom`); the heuristic "darker is farther" (blurred luma) on the same
-  pixels; the same after ``phantom_ttt_steps`` steps of test-time training from the entry's
-  weights on the clip (the demo's path: the frames ingested as a sequence, repeats dropped;
-  ``tune_and_export``), with the guard's decision; the share of the border where the network
-  outputs depth and where the runtime passes it on.
+  that are not occluded and have a rendered depth (:mod:`c3f_models.zoo.real`, the code of
+  ``python -m c3f_models zoo real``; :mod:`datamodules.phantom`); the heuristic "darker is
+  farther" (blurred luma) on the same pixels; the same after ``phantom_ttt_steps`` steps of
+  test-time training from the entry's weights on the clip (the demo's path: the frames ingested
+  as a sequence, repeats dropped; :func:`c3f_models.zoo.ttt.tune_and_export`), with the guard's
+  decision; the share of the border where the network outputs depth and where the runtime passes
+  it on.
 
     python -m benchmarks.protocols.zoo
     python -m benchmarks.protocols.zoo --set only=slam,coverage --set slam_set=match_filter.reprojection_refit=true
@@ -68,8 +69,10 @@ from benchmarks.common import RESULTS, ROOT, WORK
 from benchmarks.common.protocol_cli import REPORT_HELP, ProtocolCli, check_choices, check_not_empty
 from benchmarks.common.report import Report, json_beside
 from c3f_core.errors import InputError
+from c3f_models.zoo.card import rho_text
 from c3f_models.zoo.recipes import HELD_OUT, QUICK_HELD_OUT, TRAIN, shortened
 from c3f_models.zoo.train import REPO, simulate
+from c3f_models.zoo.ttt import tune_and_export
 
 SECTIONS = ("depth", "matches", "slam", "coverage", "ttt", "ablation", "ablation_selfsup", "real")
 ABLATION = {"c3fusion": "configs/depthnet/paper_objective.yaml", "monodepth2": "configs/depthnet/monodepth2.yaml"}
@@ -160,24 +163,6 @@ def coverage_section(a: argparse.Namespace) -> dict:
     ns = argparse.Namespace(preset="seq1", seed=7, frames=300, size=128, depth_model=a.depth,
                             slam_options=_set_options(a.slam_set))
     return {c.name: run_case(c, ns, a.work / "coverage") for c in CASES}
-
-
-def tune_and_export(model: str, config: Path, seq: Path, run: Path, steps: int, extra: tuple[str, ...] = ()) -> Path:
-    """Test-time train ``model`` (a zoo name; ``config`` its config.yaml) on ``seq`` for ``steps``
-    steps of batch 4 with the paper's objective (ttt.yaml + paper_objective.yaml, then
-    ``extra`` options), into ``run``; export its depth graph; returns the checkpoint folder
-    (``guard.json`` is there) after writing ``run/onnx/depthnet.onnx``."""
-    _cli(["-m", "c3f_models", "fit", "--config", str(config), "--config", "configs/depthnet/ttt.yaml",
-          "--config", "configs/depthnet/paper_objective.yaml", *extra, "--model.init_weights", model,
-          "--data.loader.batch_size", "4", "--data.data_dir", str(seq), "--trainer.max_epochs", "-1",
-          "--trainer.max_steps", str(steps), "--trainer.default_root_dir", str(run),
-          "--trainer.logger.init_args.save_dir", str(run), "--trainer.logger.init_args.version", "0",
-          "--trainer.enable_progress_bar", "false"], f"ttt {seq.name}")
-    checkpoints = run / "tb" / "version_0" / "checkpoints"
-    _cli(["-m", "c3f_models", "export", "--config", str(run / "tb" / "version_0" / "config.yaml"),
-          "--ckpt_path", str(checkpoints / "last.ckpt"), "--output_dir", str(run / "onnx"), "--graphs", "[depth]",
-          "--frames", str(seq)], f"export ttt {seq.name}")
-    return checkpoints
 
 
 def ttt_section(a: argparse.Namespace, seqs: list[Path]) -> dict:
@@ -331,31 +316,6 @@ def _pct(x) -> str:
     return "n/a" if x is None else f"{100 * x:.1f}"
 
 
-def _phantom_depth(model_path: Path, clip, masks: list[np.ndarray]) -> dict:
-    """One depth model on the phantom frames ``clip`` as the runtime predicts (border filled from
-    the tissue mask, depth outside it 0): Spearman with the render inside ``masks``; the share
-    (0..1, mean over frames) of the border where the network outputs depth and where the runtime
-    passes depth on."""
-    from types import SimpleNamespace
-
-    from c3f_slam.evaluation.rank_depth import outside_share, rank_depth
-    from c3f_slam.models.nets import DepthModel
-    from c3f_slam.pipeline.frontend import ModelDepth
-
-    model = DepthModel(model_path, threads=2)
-    runtime = ModelDepth(model, clip.camera, tissue=clip.tissue.pixels)
-    preds, net_out, run_out = [], [], []
-    for k, rgb in enumerate(clip.rgb):
-        net, view = model.predict_network(rgb, clip.camera, clip.tissue.pixels)
-        net_out.append(outside_share(view.network_to_frame(net, model.upsample), clip.tissue.pixels))
-        depth = runtime.predict(SimpleNamespace(rgb=rgb, index=k)).frame
-        run_out.append(outside_share(depth, clip.tissue.pixels))
-        preds.append(depth)
-    return {"spearman": rank_depth(preds, clip.depth, masks),
-            "outside_network": float(np.mean(net_out)) if None not in net_out else None,
-            "outside_runtime": float(np.mean(run_out)) if None not in run_out else None}
-
-
 def _depth_entries() -> list:
     """Every depth entry of the zoo (its folder), by name."""
     from c3f_slam.models import zoo
@@ -364,36 +324,21 @@ def _depth_entries() -> list:
 
 
 def real_section(a: argparse.Namespace) -> dict:
-    """The ``real`` section (module notes): every depth entry of the zoo on the phantom clip ``a.phantom``."""
-    from benchmarks.common.phantom import phantom_sequence, read_phantom, split_folder
-    from c3f_slam.evaluation.rank_depth import luminance_depth, rank_depth
+    """The ``real`` section (module notes): every depth entry of the zoo on the phantom clip
+    ``a.phantom``, each scored by :func:`c3f_models.zoo.real.entry_numbers` (what ``zoo real`` records)."""
+    from c3f_models.zoo import real
+    from datamodules.phantom import read_phantom, split_folder
+
     split = split_folder(a.phantom, a.work)
     clip = read_phantom(split, a.phantom_every)
-    masks = [clip.valid(k) for k in range(len(clip.indices))]
-    out = {"frames": clip.indices, "tissue_share": clip.tissue.share, "tissue_source": clip.tissue.source,
-           "counted_share": float(np.mean([m.mean() for m in masks])), "ttt_steps": a.phantom_ttt_steps,
-           "darker_is_farther": rank_depth([luminance_depth(f) for f in clip.rgb], clip.depth, masks), "models": {}}
-    seq = phantom_sequence(split, a.work / "real") if a.phantom_ttt_steps > 0 else None
+    masks = real.counted_masks(clip)
+    out = {**real.clip_numbers(clip, masks), "ttt_steps": a.phantom_ttt_steps, "models": {}}
+    seq = real.phantom_sequence(split, a.work / "real") if a.phantom_ttt_steps > 0 else None
     for entry in _depth_entries():
-        row = {"before": _phantom_depth(entry.file_for("depth", "--depth"), clip, masks)}
-        if seq is not None:
-            run = a.work / "real" / "ttt" / entry.name
-            shutil.rmtree(run, ignore_errors=True)
-            t0 = time.time()
-            guard = tune_and_export(f"zoo:{entry.name}", entry.folder / "config.yaml", seq, run,
-                                    a.phantom_ttt_steps) / "guard.json"
-            row.update(after=_phantom_depth(run / "onnx" / "depthnet.onnx", clip, masks),
-                       guard=json.loads(guard.read_text()) if guard.is_file() else None,
-                       ttt_wall_s=round(time.time() - t0, 1))
-        out["models"][entry.name] = row
+        out["models"][entry.name] = real.entry_numbers(entry, clip, masks, option="--depth",
+                                                       ttt_steps=a.phantom_ttt_steps, sequence=seq,
+                                                       work=a.work / "real" / "ttt" / entry.name)
     return out
-
-
-def _rho(r: dict | None) -> str:
-    if not r or r.get("mean") is None:
-        return "n/a"
-    pooled = "n/a" if r.get("pooled") is None else f"{r['pooled']:.3f}"
-    return f"{r['mean']:.3f} ({r['median']:.3f}; {pooled})"
 
 
 def real_lines(r: dict) -> list[str]:
@@ -419,10 +364,10 @@ def real_lines(r: dict) -> list[str]:
         change = (f"{f['spearman']['mean'] - b['spearman']['mean']:+.3f}"
                   if f and f["spearman"]["mean"] is not None and b["spearman"]["mean"] is not None else "")
         events = ", ".join(e["event"] for e in g.get("events", [])) or "none"
-        lines.append(f"| zoo:{name} | {_rho(b['spearman'])} | {_rho(f['spearman']) if f else 'not measured'} | "
+        lines.append(f"| zoo:{name} | {rho_text(b['spearman'])} | {rho_text(f['spearman']) if f else 'not measured'} | "
                      f"{change} | {_pct(b['outside_network'])} | {_pct(b['outside_runtime'])} | "
                      f"{(str(g.get('best_step', 'n/a')) + ', ' + events) if f else ''} |")
-    lines.append(f"| darker is farther (blurred luma) | {_rho(r['darker_is_farther'])} | | | | | |")
+    lines.append(f"| darker is farther (blurred luma) | {rho_text(r['darker_is_farther'])} | | | | | |")
     return lines
 
 

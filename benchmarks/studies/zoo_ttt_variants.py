@@ -23,9 +23,9 @@ from pathlib import Path
 
 from benchmarks.common import ROOT, STUDIES
 from benchmarks.common.report import Report
-from benchmarks.protocols.zoo import tune_and_export
 from c3f_models.zoo.recipes import HELD_OUT
 from c3f_models.zoo.train import simulate
+from c3f_models.zoo.ttt import tune_and_export
 
 MODEL = "zoo:c3f-depth-r18w32"
 SEQUENCES = ("seq1_s2001", "seq5_s2005")
@@ -51,7 +51,7 @@ def variant(key: str, seq: Path, work: Path) -> dict:
     from c3f_slam.models import zoo
     entry = zoo.entry(MODEL, "--model")
     run = work / "runs" / key / seq.name
-    checkpoints = tune_and_export(MODEL, entry.folder / "config.yaml", seq, run, STEPS, tuple(VARIANTS[key][1]))
+    checkpoints = tune_and_export(MODEL, entry.folder / "config.yaml", seq, run, STEPS, extra=tuple(VARIANTS[key][1]))
     before = depth_heldout(entry.file_for("depth", "--model"), [seq])["per_sequence"][seq.name]["median_scaled"]
     after = depth_heldout(run / "onnx" / "depthnet.onnx", [seq])["per_sequence"][seq.name]["median_scaled"]
     guard = json.loads((checkpoints / "guard.json").read_text())

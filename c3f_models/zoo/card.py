@@ -1,18 +1,23 @@
 """The model card of a zoo entry (``zoo/NAME/README.md``), Hugging Face's convention: YAML front
 matter (licence, data, ``model-index`` metrics) and then the text. The project's own
 machine-readable part sits under ``c3fusion`` (kind, files with their SHA-256, training, the
-held-out numbers); :mod:`c3f_slam.models.zoo` reads it back. Every number comes from the recipe run's
-``recipe.json`` and ``evaluation.json``; nothing is typed in by hand.
+held-out numbers, the real-frame numbers when measured); :mod:`c3f_slam.models.zoo` reads it back.
+Every number comes from the recipe run's ``recipe.json`` and ``evaluation.json`` (its ``real`` part
+from ``zoo real``: :mod:`c3f_models.zoo.real`); nothing is typed in by hand. A card is re-rendered
+from the installed entry alone (:func:`rewrite_card`).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
 import yaml
 
-from c3f_models.zoo.recipes import DATASETS, Recipe, SimSpec
+from c3f_core.atomic import atomic_write
+from c3f_core.errors import InputError
+from c3f_models.zoo.recipes import DATASETS, HELD_OUT, QUICK_HELD_OUT, RECIPES, Recipe, SimSpec, quick
 
 LICENSE = "apache-2.0"
 DEPTH_METRICS = {"abs_rel": "Abs Rel", "sq_rel": "Sq Rel (cm)", "rmse": "RMSE (cm)", "rmse_log": "RMSE log",
@@ -26,6 +31,17 @@ SUMMARY_NUMBERS = {"abs_rel": "Abs Rel", "a1": "δ<1.25", "abs_rel_unseen_appear
                    "cdf_kpf_precision": "precision", "sift_kpf_recall": "SIFT+kpf recall",
                    "sift_kpf_precision": "precision"}
 TRAINED_APPEARANCES = ("seq1", "seq2", "seq3", "seq4")
+#: the real frames' data set in the card's model-index
+REAL_DATASET = {"type": "c3vd-phantom-preview", "name": "C3VD phantom preview (real frames)"}
+#: what the real-frame numbers do not say (the card lists them beside the numbers)
+REAL_LIMITS = (
+    "A silicone phantom filmed with a real colonoscope, scored against a depth rendered from the phantom's "
+    "registered model, is not a patient: one scene, no mucus, bubbles, blood, peristalsis or variation between "
+    "patients.",
+    "The reference is an 8-bit relative depth render (brighter = farther, no unit): only the rank correlation is "
+    "meaningful, not Abs Rel, δ or the metric scale.",
+    "The camera is guessed (C3VD's 1350x1080 camera scaled to the 446x448 panel, as a pinhole), not calibrated.",
+)
 
 
 def headline(recipe: Recipe, results: dict) -> dict[str, float]:
@@ -43,7 +59,9 @@ def headline(recipe: Recipe, results: dict) -> dict[str, float]:
     return {f"{k}_{q}": m[f"{k}_{q}"] for k in MATCH_METHODS for q in ("recall", "precision")}
 
 
-def _model_index(recipe: Recipe, nums: dict[str, float], heldout: tuple[SimSpec, ...]) -> list[dict]:
+def _model_index(recipe: Recipe, nums: dict[str, float], heldout: tuple[SimSpec, ...],
+                 more: list[dict]) -> list[dict]:
+    """The model-index: the held-out results, then ``more`` (the real frames' result, when measured)."""
     data = {"type": "c3fusion-colon-simulator", "split": "test",
             "name": f"held-out simulator sequences ({', '.join(s.name for s in heldout)}; 128 px)"}
     if recipe.kind == "depth":
@@ -56,14 +74,72 @@ def _model_index(recipe: Recipe, nums: dict[str, float], heldout: tuple[SimSpec,
         task = {"type": "image-feature-extraction", "name": "Keypoint matching (SIFT keypoints, kpf filter)"}
         metrics = [{"type": f"{k}_{q}", "name": f"{MATCH_METHODS[k]} {q}", "value": round(nums[f'{k}_{q}'], 4)}
                    for k in MATCH_METHODS for q in ("recall", "precision")]
-    return [{"name": recipe.name, "results": [{"task": task, "dataset": data, "metrics": metrics}]}]
+    return [{"name": recipe.name, "results": [{"task": task, "dataset": data, "metrics": metrics}, *more]}]
 
 
-def front_matter(recipe: Recipe, state: dict, step: int, files: dict, results: dict,
-                 heldout: tuple[SimSpec, ...]) -> dict:
+def training_record(recipe: Recipe, state: dict, step: int) -> dict:
+    """The card's ``c3fusion.training`` from a recipe run's ``recipe.json`` (``state``) and its
+    optimiser ``step``: steps, wall time (s, summed over the fit's chunks), machines, command, config."""
+    chunks = state.get("chunks", [])
+    return {"steps": step, "wall_s": round(sum(c["wall_s"] for c in chunks), 1),
+            "machine": sorted({c["machine"] for c in chunks}), "command": recipe.command,
+            "config": recipe.config, "chunks": len(chunks), **({"init": f"zoo:{recipe.init}"} if recipe.init else {})}
+
+
+def rho_text(r: dict | None) -> str:
+    """A :func:`~c3f_slam.evaluation.rank_depth.rank_depth` result as ``mean (median; pooled)``, or n/a."""
+    if not r or r.get("mean") is None:
+        return "n/a"
+    pooled = "n/a" if r.get("pooled") is None else f"{r['pooled']:.3f}"
+    return f"{r['mean']:.3f} ({r['median']:.3f}; {pooled})"
+
+
+def real_command(name: str, *, every: int | None = None, ttt_steps: int | None = None) -> str:
+    """The ``zoo real`` command line that measures entry ``name`` on the phantom clip (``DIR``)."""
+    return (f"python -m c3f_models zoo real {name} --phantom DIR" + (f" --every {every}" if every else "")
+            + (f" --ttt-steps {ttt_steps}" if ttt_steps is not None else ""))
+
+
+def real_numbers(results: dict) -> dict | None:
+    """The card's ``c3fusion.real``: the real-frame Spearman (mean over the frames) before and, when
+    measured, after test-time training, the darker-is-farther baseline, the frames; None when
+    ``results`` (evaluation.json) has no ``real`` part."""
+    r = results.get("real")
+    if not r:
+        return None
+
+    def mean(x: dict | None) -> float | None:
+        return None if not x or x.get("mean") is None else round(x["mean"], 4)
+
+    out = {"clip": r["clip"], "frames": len(r["frames"]), "every": r["every"], "date": r["date"],
+           "spearman": mean(r["before"]["spearman"]), "ttt_steps": r["ttt_steps"]}
+    if "after" in r:
+        out["spearman_after_ttt"] = mean(r["after"]["spearman"])
+    out["darker_is_farther"] = mean(r["darker_is_farther"])
+    return out
+
+
+def _real_index(results: dict) -> list[dict]:
+    """The model-index result of the real frames (none when not measured)."""
+    nums = real_numbers(results)
+    if nums is None:
+        return []
+    r = results["real"]
+    metrics = [{"type": "spearman", "name": "Spearman rank correlation with the depth render (mean over frames)",
+                "value": nums["spearman"]}]
+    if "spearman_after_ttt" in nums:
+        metrics.append({"type": "spearman", "name": f"the same after {nums['ttt_steps']} steps of test-time training",
+                        "value": nums["spearman_after_ttt"]})
+    return [{"task": {"type": "depth-estimation", "name": "Monocular depth (rank correlation with a relative "
+                      "reference)"},
+             "dataset": {**REAL_DATASET, "split": f"every {r['every']} frames ({nums['frames']} frames)"},
+             "metrics": metrics}]
+
+
+def front_matter(recipe: Recipe, training: dict, files: dict, results: dict, heldout: tuple[SimSpec, ...]) -> dict:
+    """The card's YAML front matter (``training``: :func:`training_record`)."""
     nums = headline(recipe, results)
-    wall = sum(c["wall_s"] for c in state.get("chunks", []))
-    machines = sorted({c["machine"] for c in state.get("chunks", [])})
+    real = real_numbers(results)
     return {
         "license": LICENSE,
         "library_name": "c3fusion",
@@ -71,18 +147,16 @@ def front_matter(recipe: Recipe, state: dict, step: int, files: dict, results: d
         "tags": ["colonoscopy", "endoscopy", "onnx", "c3fusion",
                  "monocular-depth" if recipe.kind == "depth" else "local-descriptors"],
         "datasets": ["c3fusion-colon-simulator", *([recipe.dataset] if recipe.dataset else [])],
-        "model-index": _model_index(recipe, nums, heldout),
+        "model-index": _model_index(recipe, nums, heldout, _real_index(results)),
         "c3fusion": {
             "kind": recipe.kind,
             "summary": recipe.summary,
             "recipe": recipe.name,
             "files": files,
-            "training": {"steps": step, "wall_s": round(wall, 1), "machine": machines,
-                         "command": recipe.command,
-                         "config": recipe.config, "chunks": len(state.get("chunks", [])),
-                         **({"init": f"zoo:{recipe.init}"} if recipe.init else {})},
+            "training": training,
             "heldout": [s.name for s in heldout],
             "metrics": {k: round(v, 5) for k, v in nums.items() if not math.isnan(v)},
+            **({"real": real} if real else {}),
         },
     }
 
@@ -147,9 +221,34 @@ def _data_line(recipe: Recipe) -> str:
             + "; validation " + ", ".join(s.name for s in recipe.val) + ".")
 
 
-def body(recipe: Recipe, state: dict, step: int, files: dict, results: dict, heldout: tuple[SimSpec, ...]) -> str:
-    chunks = state.get("chunks", [])
-    wall = sum(c["wall_s"] for c in chunks)
+def _real_lines(name: str, results: dict) -> list[str]:
+    """The card's "Real frames" section of a depth entry: the numbers of ``zoo real`` with their
+    frames, command and limits, or that they were not measured and the command that measures them."""
+    r = results.get("real")
+    head = ["## Real frames", ""]
+    if not r:
+        return [*head, f"Not measured on real frames. `{real_command(name)}` measures it (DIR: the C3VD phantom "
+                "preview clip's folder with its split.py, or its split) and adds the numbers here.", ""]
+    frames, steps = r["frames"], r["ttt_steps"]
+    rows = [f"| zoo:{name} | {rho_text(r['before']['spearman'])} |"]
+    if "after" in r:
+        g = r.get("guard") or {}
+        events = ", ".join(e["event"] for e in g.get("events", [])) or "none"
+        rows.append(f"| zoo:{name} after {steps} steps of test-time training (guard: kept step "
+                    f"{g.get('best_step', 'n/a')}; {events}) | {rho_text(r['after']['spearman'])} |")
+    rows.append(f"| darker is farther (blurred luma), the same pixels | {rho_text(r['darker_is_farther'])} |")
+    return [*head,
+            f"One frame in {r['every']} of the C3VD phantom preview clip (`{r['clip']}`: {len(frames)} frames, "
+            f"{frames[0]}..{frames[-1]}; a real colonoscope in a silicone phantom). {r['convention']}.", "",
+            "| depth | Spearman: mean (median; pooled) |", "|---|---|", *rows, "",
+            f"Measured on {r['date']} by `{real_command(name, every=r['every'], ttt_steps=steps)}` (DIR: the "
+            f"clip's folder or its split; here `{r['clip']}`)"
+            + ("." if steps else "; no test-time training."), "",
+            "Limits:", "", *(f"- {x}" for x in REAL_LIMITS), ""]
+
+
+def body(recipe: Recipe, training: dict, files: dict, results: dict, heldout: tuple[SimSpec, ...]) -> str:
+    """The card's Markdown after the front matter (``training``: :func:`training_record`)."""
     flag = "--depth-model" if recipe.kind == "depth" else "--feature-model"
     lines = [
         f"# {recipe.name}", "", recipe.summary + ".", "",
@@ -159,9 +258,9 @@ def body(recipe: Recipe, state: dict, step: int, files: dict, results: dict, hel
         *_tuning_lines(recipe),
         "```", "",
         "## Training", "",
-        f"- Command: `{recipe.command}` (config `{recipe.config}`); {step} optimiser "
-        f"steps in {len(chunks)} chunk(s), {wall / 60:.1f} min of wall time on "
-        + "; ".join(sorted({c['machine'] for c in chunks})) + ".",
+        f"- Command: `{recipe.command}` (config `{recipe.config}`); {training['steps']} optimiser "
+        f"steps in {training['chunks']} chunk(s), {training['wall_s'] / 60:.1f} min of wall time on "
+        + "; ".join(training["machine"]) + ".",
         *([f"- Start: the weights of `zoo:{recipe.init}` (fine-tuned)."] if recipe.init else []),
         _data_line(recipe),
         "", "## Held-out results", "",
@@ -180,7 +279,10 @@ def body(recipe: Recipe, state: dict, step: int, files: dict, results: dict, hel
                   "`c3f_slam.io.simcol3d`), mean over the sequences: "
                   + ", ".join(f"{name} {results['depth']['simcol3d'][k]:.3f}" for k, name in SIMCOL3D.items())
                   + ".", ""]
-    lines += [*_storage_lines(recipe, results), "## Deviations from the paper", "",
+    lines += _storage_lines(recipe, results)
+    if recipe.kind == "depth":
+        lines += _real_lines(recipe.name, results)
+    lines += ["## Deviations from the paper", "",
               *(f"- {d}" for d in recipe.deviations), "",
               "## Known limits", "", *(f"- {x}" for x in recipe.limits), "",
               "## Files", "", "| file | role | bytes | SHA-256 |", "|---|---|---|---|",
@@ -189,20 +291,75 @@ def body(recipe: Recipe, state: dict, step: int, files: dict, results: dict, hel
     return "\n".join(lines)
 
 
-def write_card(path: Path, recipe: Recipe, *, state: dict, step: int, files: dict, results: dict,
+def write_card(path: Path, recipe: Recipe, *, training: dict, files: dict, results: dict,
                heldout: tuple[SimSpec, ...]) -> Path:
-    meta = front_matter(recipe, state, step, files, results, heldout)
+    """Write the card ``path`` (front matter and text) of an entry of ``recipe``."""
+    meta = front_matter(recipe, training, files, results, heldout)
     text = "---\n" + yaml.safe_dump(meta, sort_keys=False, allow_unicode=True) + "---\n" + body(
-        recipe, state, step, files, results, heldout)
-    path.write_text(text, encoding="utf-8")
+        recipe, training, files, results, heldout)
+    with atomic_write(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
     return path
 
 
+def card_recipe(own: dict, where: str) -> Recipe:
+    """The recipe a card's ``c3fusion`` part names (a quick check's: the quick version); InputError
+    naming the card ``where`` when it names none that exists."""
+    name = str(own.get("recipe"))
+    base = name.removesuffix("-quick")
+    if base not in RECIPES:
+        raise InputError(f"{where}: c3fusion.recipe {name!r} is no recipe of this checkout (there are: "
+                         f"{', '.join(RECIPES)}); the card cannot be made again")
+    return quick(RECIPES[base]) if name.endswith("-quick") else RECIPES[base]
+
+
+def card_inputs(folder: Path) -> tuple[Recipe, dict, dict, tuple[SimSpec, ...]]:
+    """What the card of the installed entry ``folder`` is made from, read from its own front
+    matter: (recipe, training, files with their SHA-256, held-out sequences); InputError naming the
+    card when it cannot be made again (no such recipe or held-out sequence in this checkout)."""
+    from c3f_slam.models.zoo import CARD, read_entry
+
+    own, where = read_entry(folder).own, str(folder / CARD)
+    recipe = card_recipe(own, where)
+    pool = {s.name: s for s in (QUICK_HELD_OUT if recipe.quick else HELD_OUT)}
+    missing = [n for n in own.get("heldout", []) if n not in pool]
+    if missing or not own.get("heldout"):
+        raise InputError(f"{where}: held-out sequence(s) {', '.join(missing) or '(none listed)'} unknown to the "
+                         "recipes; the card cannot be made again")
+    return recipe, own["training"], own["files"], tuple(pool[n] for n in own["heldout"])
+
+
+def rewrite_card(folder: Path) -> Path:
+    """Render the card of the installed entry ``folder`` again from :func:`card_inputs` and its
+    ``evaluation.json``: what ``zoo real`` runs after adding the real-frame numbers; every other
+    number stays as it was."""
+    from c3f_slam.models.zoo import CARD
+
+    recipe, training, files, heldout = card_inputs(folder)
+    results = json.loads((folder / "evaluation.json").read_text())
+    return write_card(folder / CARD, recipe, training=training, files=files, results=results, heldout=heldout)
 
 
 def summary_numbers(metrics: dict) -> str:
     """The :data:`SUMMARY_NUMBERS` of a card's metrics, one line."""
     return ", ".join(f"{label} {metrics[k]:.3f}" for k, label in SUMMARY_NUMBERS.items() if k in metrics)
+
+
+def real_summary(own: dict) -> str:
+    """A card's real-frame numbers (its ``c3fusion`` part) in one line: empty for a descriptors
+    entry, "not measured" for a depth entry without them."""
+    if own.get("kind") != "depth":
+        return ""
+    r = own.get("real")
+    if not r:
+        return "not measured"
+
+    def num(x: float | None) -> str:
+        return "n/a" if x is None else f"{x:.3f}"
+
+    after = (f", {num(r['spearman_after_ttt'])} after {r['ttt_steps']} test-time training steps"
+             if "spearman_after_ttt" in r else "")
+    return f"Spearman {num(r['spearman'])}{after} (darker is farther {num(r['darker_is_farther'])})"
 
 
 def write_index(root: Path) -> Path:
@@ -218,13 +375,17 @@ def write_index(root: Path) -> Path:
              "python -m c3f_slam run SEQ --depth-model zoo:NAME --feature-model zoo:NAME --out OUT",
              "python -m c3f_models fit ... --model.init_weights zoo:NAME        # fine-tuning, test-time training",
              "```", "", "A file whose SHA-256 differs from its card is refused. This table is generated from the "
-             "cards by `zoo train`.", "", "| entry | kind | what | held-out numbers (see its card) |",
-             "|---|---|---|---|"]
+             "cards by `zoo train` and `zoo real` (real frames: the C3VD phantom clip, Spearman rank correlation "
+             "with its depth render; see each card).", "",
+             "| entry | kind | what | held-out numbers (see its card) | real frames |", "|---|---|---|---|---|"]
     for e in zoo.entries(root):
-        lines.append(f"| [{e.name}]({e.name}/README.md) | {e.kind} | {e.summary} | {summary_numbers(e.metrics)} |")
+        lines.append(f"| [{e.name}]({e.name}/README.md) | {e.kind} | {e.summary} | {summary_numbers(e.metrics)} "
+                     f"| {real_summary(e.own)} |")
     path = root / "README.md"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 
 
-__all__ = ["SUMMARY_NUMBERS", "front_matter", "headline", "summary_numbers", "write_card", "write_index"]
+__all__ = ["REAL_LIMITS", "SUMMARY_NUMBERS", "card_inputs", "card_recipe", "front_matter", "headline", "real_command",
+           "real_numbers", "real_summary", "rewrite_card", "rho_text", "summary_numbers", "training_record",
+           "write_card", "write_index"]

@@ -1,16 +1,19 @@
-"""``python -m c3f_models zoo``: list, show, verify and train the zoo's models.
+"""``python -m c3f_models zoo``: list, show, verify and train the zoo's models, and score them on real frames.
 
     python -m c3f_models zoo list                  # the entries, their kind and headline numbers
     python -m c3f_models zoo show NAME [--json]    # one entry's card (or its machine-readable part)
     python -m c3f_models zoo verify [NAME ...]     # every file's SHA-256 against its card
     python -m c3f_models zoo recipes               # the recipes ``train`` knows
     python -m c3f_models zoo train NAME [--data DIR] [--work DIR] [--max-minutes M] [--quick]
+    python -m c3f_models zoo real NAME --phantom DIR [--every N] [--ttt-steps N]   # real-frame numbers
 
 ``train`` runs the recipe (:mod:`c3f_models.zoo.train`): simulate, fit (resumable: the same
 command continues an interrupted run exactly), then package and evaluate into the zoo. A recipe
 that fine-tunes (``Recipe.init``) starts from that entry's verified weights, found in ``--zoo``
 or else in the default zoo; a published-data recipe needs ``--data`` (the data set's folder).
-Bad input is one ``error: ...`` line and exit status 2.
+``real`` scores a depth entry on the C3VD phantom clip (:mod:`c3f_models.zoo.real`), stores the
+numbers in its ``evaluation.json`` and renders its card and the zoo's index again. Bad input is
+one ``error: ...`` line and exit status 2.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from pathlib import Path
 
 from c3f_core.cli_parser import OneLineParser, run_subcommand
 from c3f_core.errors import InputError
+from c3f_models.zoo.real import EVERY
 from c3f_slam.models import zoo
 
 
@@ -49,6 +53,18 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--trainer-config", type=Path,
                    help="a trainer preset composed after the recipe's config, e.g. configs/trainer/gpu.yaml "
                         "(default: the recipe's CPU settings)")
+    r = sub.add_parser("real", help="a depth entry on the real frames of the C3VD phantom clip: Spearman with its "
+                                    "depth render, into the entry's evaluation.json and card")
+    r.add_argument("name", help="a depth entry of the zoo")
+    r.add_argument("--phantom", type=Path, required=True,
+                   help="the phantom clip's folder (with split.py) or its split (rgb/, depth_render/, occlusion/, "
+                        "camera.json); never in the repository")
+    r.add_argument("--every", type=int, default=EVERY, help=f"take every N-th frame of the clip (default {EVERY})")
+    r.add_argument("--ttt-steps", type=int, default=0,
+                   help="test-time training steps (batch 4) from the entry's weights on the clip before scoring "
+                        "again (default 0: none; 60 take about 5 minutes on 2 CPU cores)")
+    r.add_argument("--work", type=Path, help="work folder for the split clip and test-time training "
+                                             "(default: runs/zoo/real)")
     return p
 
 
@@ -57,13 +73,15 @@ def _root(args: argparse.Namespace) -> Path:
 
 
 def _list(args: argparse.Namespace) -> int:
-    from c3f_models.zoo.card import summary_numbers
+    from c3f_models.zoo.card import real_summary, summary_numbers
 
     found = zoo.entries(_root(args))
     if not found:
         print(f"no models in {_root(args)}")
     for e in found:
-        print(f"{e.name:28s} {e.kind:12s} {e.summary}\n{'':41s}{summary_numbers(e.metrics)}")
+        real = real_summary(e.own)
+        print(f"{e.name:28s} {e.kind:12s} {e.summary}\n{'':41s}{summary_numbers(e.metrics)}"
+              + (f"\n{'':41s}real frames: {real}" if real else ""))
     return 0
 
 
@@ -142,7 +160,25 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"list": _list, "show": _show, "verify": _verify, "recipes": _recipes, "train": _train}
+def _real(args: argparse.Namespace) -> int:
+    from c3f_models.zoo.card import card_inputs, rho_text
+    from c3f_models.zoo.real import measure, record
+    from c3f_models.zoo.train import REPO
+
+    e = zoo.entry(args.name, "zoo real", _root(args))
+    e.file_for("depth", "zoo real")  # a descriptors entry: refused in one line
+    card_inputs(e.folder)  # a card that cannot be made again: refused before anything runs
+    real = measure(e, args.phantom, args.work or REPO / "runs" / "zoo" / "real", every=args.every,
+                   ttt_steps=args.ttt_steps)
+    card = record(e, real)
+    after = f", after {args.ttt_steps} test-time training steps {rho_text(real['after']['spearman'])}" \
+        if "after" in real else ""
+    print(f"zoo:{e.name} on {len(real['frames'])} phantom frames: Spearman {rho_text(real['before']['spearman'])}"
+          f"{after}; darker is farther {rho_text(real['darker_is_farther'])} (mean (median; pooled)) -> {card}")
+    return 0
+
+
+COMMANDS = {"list": _list, "show": _show, "verify": _verify, "recipes": _recipes, "train": _train, "real": _real}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -23,7 +23,7 @@ import yaml
 
 from c3f_core.errors import InputError
 from c3f_models.checkpoints import read_checkpoint_weights
-from c3f_models.zoo.card import write_card, write_index
+from c3f_models.zoo.card import training_record, write_card, write_index
 from c3f_models.zoo.evaluate import depth_heldout, descriptor_heldout
 from c3f_models.zoo.recipes import Recipe, SimSpec
 from c3f_models.zoo.train import REPO, RecipeRun, newest_checkpoint, simulate
@@ -121,7 +121,8 @@ def package(run: RecipeRun, zoo_dir: Path, heldout: tuple[SimSpec, ...], heldout
     (stage / "evaluation.json").write_text(json.dumps(results, indent=2) + "\n")
     files = {name: {"role": role, "sha256": sha256_of(stage / name), "bytes": (stage / name).stat().st_size}
              for name, role in _entry_files(r).items()}
-    write_card(stage / "README.md", r, state=run.read_state(), step=step, files=files, results=results, heldout=heldout)
+    write_card(stage / "README.md", r, training=training_record(r, run.read_state(), step), files=files,
+               results=results, heldout=heldout)
     dest = install(stage, zoo_dir / r.name, [*files, "README.md", "config.yaml", "evaluation.json"])
     write_index(zoo_dir)
     return dest

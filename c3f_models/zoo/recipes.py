@@ -129,8 +129,8 @@ HELD_OUT = tuple(at_pace(p, s, 300) for p, s in (
     ("seq1", 2001), ("seq1", 2002), ("seq3", 2003), ("seq3", 2004), ("seq5", 2005), ("seq5", 2006)))
 
 LIMITS = (
-    "trained and evaluated on the project's procedural simulator only: not measured on real colonoscopy video "
-    "(no real data set is on this machine)",
+    "trained and evaluated on held-out sequences of the project's procedural simulator only; no patient video "
+    "was measured (a depth entry's numbers on the real frames of a phantom, when measured, are under Real frames)",
     "128x128 input: the runtime resizes every frame to it (after the recorded crop)",
     "the paper's specular mask (luma > 0.9, dilated 13 px) covers a median 10-23 % of a training frame (up to "
     "36 %) on this simulator's bright near wall, not only highlights; those pixels are inpainted before the "
