@@ -1,7 +1,7 @@
 """The demo on a user's own video (``python -m c3f_demo --video FILE``): the stages it adds to the
 demo's and the numbers its report shows, none of which needs ground truth.
 
-Stages: ``ingest`` (the video's frames as a sequence folder, ``python -m c3f_demo.ingest``), then
+Stages: ``ingest`` (the video's frames as a sequence folder, ``python -m datamodules.ingest``), then
 the demo's own ``train_depth`` / ``ttt_depth`` / ``train_features`` / ``export`` / ``slam`` on that
 folder, ``view`` (``python -m c3f_slam view`` of the run the report shows) and the report
 (:class:`c3f_demo.report_stage.VideoReport`). Lengths in metres, times in seconds.
@@ -18,8 +18,8 @@ from pathlib import Path
 from c3f_core.errors import InputError
 from c3f_demo.config import DemoConfig, VideoConfig
 from c3f_demo.context import DemoContext
-from c3f_demo.ingest import RECORD, open_video
 from c3f_demo.stages import Stage
+from datamodules.ingest import RECORD, open_video
 
 VIEW_FILES = ("view.html", "rerender.mp4", "flythrough.mp4")
 #: a run folder's per-frame log, when the runtime writes one: columns index, timestamp and either
@@ -78,7 +78,7 @@ class Ingest(Stage):
 
     def run(self, ctx, done=None):
         v = ctx.cfg.video
-        ctx.run(self.name, ["-m", "c3f_demo.ingest", v.path, "--out", str(ctx.test_seq), *camera_args(v),
+        ctx.run(self.name, ["-m", "datamodules.ingest", v.path, "--out", str(ctx.test_seq), *camera_args(v),
                             "--max-fps", repr(v.max_fps), "--max-frames", str(v.max_frames),
                             "--max-side", str(v.max_side)])
         return json.loads((ctx.test_seq / RECORD).read_text())

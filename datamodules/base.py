@@ -4,7 +4,7 @@ A sample is a tuple of frames around a centre frame t, by default (t-1, t, t+1) 
 configurable stride, pre-processed as the paper does (docs/design.md, Pre-processing): centre
 crop, resize (intrinsics follow), specular mask (Y > 0.9, 13-px dilation) and inpainting of the
 masked pixels. A sequence of the project's layout whose camera.json names a ``tissue_mask``
-(a scope's border and overlays: ``python -m c3f_demo.ingest`` writes one for a video) is seen as
+(a scope's border and overlays: ``python -m datamodules.ingest`` writes one for a video) is seen as
 the runtime sees it: the pixels outside the tissue area are filled with a continuation of the
 tissue before the network sees them, and are left out of the losses with the specular ones. A
 simulator sequence with recording effects (``covered/NNNNNN.png`` beside ``rgb/``: fluid, bubbles,

@@ -39,7 +39,7 @@ TRAINING_STACK = frozenset({"torch", "torchvision", "lightning", "kornia", "json
                             "onnxscript", "c3f_models", "export", "c3f_demo", "benchmarks"})
 #: the parts of datamodules that import without torch (tests/test_import_boundary.py proves it)
 TORCH_FREE_DATAMODULES = ("datamodules.synthetic", "datamodules.formats", "datamodules.convert", "datamodules.config",
-                          "datamodules.__main__", "datamodules.phantom")
+                          "datamodules.__main__", "datamodules.phantom", "datamodules.ingest")
 #: commands whose start in a subprocess (``[sys.executable, "-m", NAME, ...]``) needs the stack
 TRAINING_COMMANDS = frozenset({"c3f_models", "c3f_demo"})
 

@@ -21,11 +21,11 @@ import pytest
 from c3f_core.errors import InputError
 from c3f_demo import config as demo_cfg
 from c3f_demo.cli import _parser, config_of
-from c3f_demo.ingest import frame_step, ingest, read_times, target_size
 from c3f_demo.report import SECTIONS, VIDEO_SECTIONS, build_report
 from c3f_demo.report_records import Figures, Image, ReportData
 from c3f_demo.video import frame_counts
 from c3f_slam.camera.intrinsics import PinholeCamera
+from datamodules.ingest import frame_step, ingest, read_times, target_size
 
 ROOT = Path(__file__).resolve().parents[1]
 #: sections of the simulator demo that need its ground truth

@@ -11,7 +11,7 @@ over the tissue pixels that are not occluded and have a rendered depth; per fram
 median and all pixels pooled. The baseline on the same pixels: "darker is farther" (blurred
 luma). Optionally the same after test-time training from the entry's weights on the clip
 (:func:`c3f_models.zoo.ttt.tune_and_export`: the paper's objective, batch 4, the guard on) on
-the clip's frames ingested as the demo ingests a video (``python -m c3f_demo.ingest``: repeats
+the clip's frames ingested as the demo ingests a video (:func:`datamodules.ingest.ingest`: repeats
 dropped, 256 px).
 """
 
@@ -29,7 +29,8 @@ import numpy as np
 from c3f_core.atomic import atomic_write
 from c3f_core.errors import InputError
 from c3f_models.zoo.card import rewrite_card, write_index
-from c3f_models.zoo.ttt import run_module, tune_and_export
+from c3f_models.zoo.ttt import tune_and_export
+from datamodules.ingest import ingest
 from datamodules.phantom import PhantomFrames, frame_names, read_phantom, split_folder, write_video
 
 #: the default frame step on the clip (frames): 13 of its 289 frames, about 0.4 s apart
@@ -81,15 +82,14 @@ def model_on_clip(model_path: Path, clip: PhantomFrames, masks: list[np.ndarray]
 def phantom_sequence(split: Path, work: Path, *, max_side: int = 256) -> Path:
     """The split clip's frames as a sequence folder ``work/phantom_seq`` (made once), for
     test-time training: the frames as a 60 frames/s video, then the demo's ingest
-    (``python -m c3f_demo.ingest``: every frame, repeats dropped, at most ``max_side`` pixels on
+    (:func:`datamodules.ingest.ingest`: every frame, repeats dropped, at most ``max_side`` pixels on
     the long side, times.txt and the tissue mask beside)."""
     seq = work / "phantom_seq"
     if (seq / "camera.json").is_file():
         return seq
     video = write_video([split / "rgb" / n for n in frame_names(split)], work / "phantom_seq_video" / "phantom.mp4")
     (video.parent / "camera.json").write_text((split / "camera.json").read_text())
-    run_module(["-m", "c3f_demo.ingest", str(video), "--out", str(seq), "--max-fps", "60", "--max-frames", "10000",
-                "--max-side", str(max_side)], "ingest of the phantom clip")
+    ingest(video, seq, max_fps=60.0, max_frames=10000, max_side=max_side)
     return seq
 
 

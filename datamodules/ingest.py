@@ -1,4 +1,4 @@
-"""``python -m c3f_demo.ingest VIDEO --out SEQ``: a video's frames as a sequence folder that the
+"""``python -m datamodules.ingest VIDEO --out SEQ``: a video's frames as a sequence folder that the
 training data modules and the SLAM runtime read (docs/datasets.md, Sequence layout).
 
 ``SEQ`` gets ``rgb/NNNNNN.png``, ``camera.json`` (pinhole), ``times.txt`` (each frame's time in
@@ -150,7 +150,7 @@ def read_times(seq: str | Path) -> dict[int, float]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = OneLineParser(prog="python -m c3f_demo.ingest",
+    ap = OneLineParser(prog="python -m datamodules.ingest",
                        description="A video's frames as a sequence folder (rgb/, camera.json, frames.csv, "
                                    "ingest.json), subsampled and resized for a CPU.")
     ap.add_argument("video", type=Path, help="the video file")
