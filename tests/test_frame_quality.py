@@ -413,3 +413,26 @@ def test_a_run_skips_the_simulators_spoiled_frames_by_cause_and_keeps_one_map(tm
     spoiled = [i for i, names in truth.items() if any(n in expect for n in names)]
     assert sum(outcome[i] != "extended" and outcome[i] != "keyframe" for i in spoiled) >= 0.7 * len(spoiled)
     assert s["registered_share_of_usable"] >= 0.9 and len(s["components"]) == 1
+
+
+def highlights(rgb: np.ndarray, count: int = 40, seed: int = 0) -> np.ndarray:
+    """``rgb`` with ``count`` large soft specular highlights (saturated white blobs of 6-16 px)."""
+    rng = np.random.default_rng(seed)
+    blobs = np.zeros(rgb.shape[:2], np.float32)
+    h, w = blobs.shape
+    for _ in range(count):
+        centre = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        axes = (int(rng.integers(6, 17)), int(rng.integers(3, 9)))
+        cv2.ellipse(blobs, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+    alpha = np.clip(cv2.GaussianBlur(blobs, (0, 0), 1.5) * 1.5, 0, 1)[..., None]
+    return (rgb * (1 - alpha) + 255 * alpha).astype(np.uint8)
+
+
+def test_a_sharp_view_full_of_highlights_is_not_blurred_but_its_blurred_copy_is():
+    """Large highlights carry their edges into the coarser octave: measured with them, a sharp wet
+    view reads as blurred (the control); left out (the default), it passes, and blur still shows."""
+    frame = highlights(view(20.0, 10.0))
+    control = warmed_gate(cfg=FrameQualityConfig(blur_highlight_level=255.0))
+    assert control.assess(frame).status == BLURRED
+    assert warmed_gate().assess(frame).status == OK
+    assert warmed_gate().assess(highlights(gaussian_blur(view(20.0, 10.0)))).status == BLURRED

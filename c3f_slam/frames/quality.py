@@ -161,7 +161,7 @@ class FrameQualityGate:
         mean_luma = float(luma.mean())
         if not masks.all_inside:  # outside the mask: a constant, so it can change nothing
             grey[~masks.inside] = mean_luma
-        sharpness = _sharpness(grey, masks.laplacian)
+        sharpness = _sharpness(grey, _without_highlights(grey, masks.laplacian, self.cfg.blur_highlight_level))
         reference = self.reference
         ratio = None if reference is None else sharpness / max(reference, 1e-12)
         small = cv2.resize(grey, masks.dup, interpolation=cv2.INTER_AREA)
@@ -309,6 +309,20 @@ def _sharpness(grey: np.ndarray, inside: np.ndarray) -> float:
         c = float(np.mean(np.square(cv2.filter2D(smooth, cv2.CV_32F, kernel)[inside])))
         shares.append(f / c if c > 0 else 0.0)
     return 100.0 * min(shares)
+
+
+#: the share of the measured pixels that must remain once highlights are left out (else all count)
+_MIN_SHARPNESS_SHARE = 0.2
+
+
+def _without_highlights(grey: np.ndarray, inside: np.ndarray, level: float) -> np.ndarray:
+    """``inside`` without the pixels at least ``level`` bright (luma) and their 5x5 neighbours;
+    ``inside`` itself when fewer than :data:`_MIN_SHARPNESS_SHARE` of its pixels would remain."""
+    if level >= 255:
+        return inside
+    near = cv2.dilate((grey >= level).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    keep = inside & ~near
+    return keep if keep.sum() >= _MIN_SHARPNESS_SHARE * inside.sum() else inside
 
 
 def _covered_share(grey: np.ndarray, inside: np.ndarray, cfg: FrameQualityConfig) -> float:
