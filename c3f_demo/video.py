@@ -9,7 +9,6 @@ folder, ``view`` (``python -m c3f_slam view`` of the run the report shows) and t
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import json
 from dataclasses import asdict
@@ -19,12 +18,10 @@ from c3f_core.errors import InputError
 from c3f_demo.config import DemoConfig, VideoConfig
 from c3f_demo.context import DemoContext
 from c3f_demo.stages import Stage
+from c3f_slam.io.run_outputs import FrameLog, RunOutputs
 from datamodules.ingest import RECORD, open_video
 
 VIEW_FILES = ("view.html", "rerender.mp4", "flythrough.mp4")
-#: a run folder's per-frame log, when the runtime writes one: columns index, timestamp and either
-#: outcome (a skip cause or the back-end's decision) or status and decision
-FRAME_LOG = "frame_log.csv"
 
 
 def check_video(v: VideoConfig) -> None:
@@ -121,16 +118,12 @@ def jitter(run: Path) -> dict:
 
 
 def frame_log(run: Path) -> list[str] | None:
-    """Per frame of ``frame_log.csv`` (when the run wrote one), in order, its label: its
-    ``outcome``, or its ``status`` when that is a skip cause, else its ``decision`` (else ``ok``);
-    None without the file."""
-    path = run / FRAME_LOG
+    """Per frame of the run's ``frame_log.csv`` (:class:`~c3f_slam.io.run_outputs.FrameLog`), in
+    the order of the frames, its outcome; None without the file."""
+    path = RunOutputs(run).frame_log
     if not path.is_file():
         return None
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    return [r.get("outcome") or (r.get("status") if r.get("status") not in ("ok", "", None) else
-                                 r.get("decision") or "ok") for r in rows]
+    return [outcome for _, outcome in sorted(FrameLog.read(path).items())]
 
 
 def frame_counts(summary: dict) -> dict[str, int]:
@@ -165,4 +158,4 @@ def run_metrics(ctx: DemoContext, name: str, note: dict) -> dict:
     return res
 
 
-__all__ = ["FRAME_LOG", "Ingest", "View", "check_video", "frame_counts", "frame_log", "jitter", "run_metrics"]
+__all__ = ["Ingest", "View", "check_video", "frame_counts", "frame_log", "jitter", "run_metrics"]

@@ -56,6 +56,7 @@ from c3f_models.zoo.recipes import at_pace
 from c3f_slam.evaluation.surface import distance_to_mesh
 from c3f_slam.evaluation.trajectory import associate, ate, evaluate_trajectory, jitter_ratio
 from c3f_slam.io import Sequence, read_tum
+from c3f_slam.io.run_outputs import FrameLog, RunOutputs
 from c3f_slam.io.sequence import encode_depth, read_depth_png
 
 FEATURES = ["--feature-model", "zoo:c3f-features-r18w32"]
@@ -189,8 +190,7 @@ def nuisance_truth(run_dir: Path, bordered: Path) -> dict:
     out = {"mask_iou": float((found & true).sum() / max(1, (found | true).sum())),
            "mask_share": float(found.mean()), "true_mask_share": float(true.mean())}
     labels = {int(k): set(v) for k, v in json.loads((bordered / "nuisances.json").read_text()).items()}
-    lines = (run_dir / "frame_log.csv").read_text().splitlines()[1:]
-    outcome = {int(r.split(",")[0]): r.split(",")[2] for r in lines}
+    outcome = FrameLog.read(RunOutputs(run_dir).frame_log)
     for cause, names in (("blurred", {"motion_blur", "defocus"}), ("duplicate", {"repeat"})):
         # a repeat of a blurred frame is a repeat: the gate counts a repeated picture once
         truth = {i for i, v in labels.items() if v & names and (cause == "duplicate" or "repeat" not in v)}
