@@ -345,7 +345,7 @@ def real_lines(r: dict) -> list[str]:
     frames = r["frames"]
     steps = r.get("ttt_steps", 0)
     every = frames[1] - frames[0] if len(frames) > 1 else 1
-    text = (f"Every {every}-th frame of the C3VD phantom clip "
+    text = (f"One frame in {every} of the C3VD phantom clip "
             f"({len(frames)} frames: {frames[0]}..{frames[-1]}; a real colonoscope in a silicone phantom, "
             "the data set's preview, never in the repository). Spearman rank correlation of predicted depth with the "
             "data set's depth render (8-bit grey, brighter = farther), over the pixels of the tissue area found from "
