@@ -216,12 +216,13 @@ def scaled_motion(T: np.ndarray, ratio: float) -> np.ndarray:
 
 
 class MotionBridge:
-    """Places a frame that nothing linked by the last link's motion (see the module notes).
+    """Places a frame that nothing linked by the camera's velocity (see the module notes).
 
     The velocity is the mean over the last ``bridge_window`` links in a row (one link on predicted
     depth can be off by several degrees). State: the previous processed frame
     (:class:`RgbdFrame`) and time stamp, those links' T_prev,cur and the seconds each spanned
-    (emptied by a gap or a frame without a link), and the number of frames bridged in a row."""
+    (emptied by a processed frame without a link; skipped frames keep them), and the number of
+    frames bridged in a row."""
 
     def __init__(self, cfg: FallbackConfig, K: np.ndarray) -> None:
         self.cfg = cfg
