@@ -155,4 +155,4 @@ def test_zoo_real_section_lines():
     text = "\n".join(zoo.real_lines(r))
     assert "| zoo:a | 0.850 (0.850; 0.840) | 0.900 (0.850; 0.840) | +0.050 |" in text and "3, collapse" in text
     assert "| zoo:b | 0.850 (0.850; 0.840) | not measured |" in text and "| darker is farther" in text
-    assert "Every 24-th frame" in text and "5 steps" in text
+    assert "One frame in 24" in text and "5 steps" in text

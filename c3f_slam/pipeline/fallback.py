@@ -120,7 +120,7 @@ def fallback_information(m: PairMatch, cfg: FallbackConfig) -> np.ndarray:
     return cfg.trust * information_from_points(m.points_j)
 
 
-def verified_edge(T_ij: np.ndarray, prev: RgbdFrame, cur: RgbdFrame, K: np.ndarray, cfg: FallbackConfig,
+def verified_edge(T_ij: np.ndarray, prev: RgbdFrame, cur: RgbdFrame, K: np.ndarray, cfg: FallbackConfig, *,
                   bounds: FallbackConfig, outcomes: Counter[str]) -> PairMatch | None:
     """``T_ij`` as a fallback edge if it passes :meth:`Verification.failure` under ``bounds``
     (counted in ``outcomes``), else None: its verified points, evenly subsampled to
@@ -158,7 +158,7 @@ class DenseFallback:
         if T is None:
             self.outcomes["no_convergence"] += 1
             return None
-        return verified_edge(T, self.prev, cur, self.K, self.cfg, self.cfg, self.outcomes)
+        return verified_edge(T, self.prev, cur, self.K, self.cfg, bounds=self.cfg, outcomes=self.outcomes)
 
     def strength(self, n_points: int) -> int:
         """The inlier count a fallback edge of ``n_points`` verified points ranks as beside sparse
@@ -260,7 +260,7 @@ class MotionBridge:
         T, steps = predicted
         bounds = replace(self.checks, max_step=self.cfg.max_step * steps,
                          max_turn_deg=min(180.0, self.cfg.max_turn_deg * steps))
-        return verified_edge(T, self.prev, cur, self.K, self.cfg, bounds, self.outcomes)
+        return verified_edge(T, self.prev, cur, self.K, self.cfg, bounds=bounds, outcomes=self.outcomes)
 
     def remember(self, frame: RgbdFrame | None, stamp: float, link: PairMatch | None, bridged: bool) -> None:
         """The frame just processed (at ``stamp`` seconds), placed by ``link`` (a bridge when
