@@ -81,11 +81,19 @@ def check_refused(case: Case, capsys, only: bool = True) -> None:
     assert left_beside(case.out) == [] and not any(p.exists() for p in case.absent)
 
 
+def default_sigint() -> None:
+    """In the child before it starts: Ctrl-C raises KeyboardInterrupt there, whatever the parent ignores."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def interrupt(cmd: Sequence[str], started: Callable[[], bool], delay_s: float,
               timeout_s: float = 300.0) -> tuple[int, str]:
     """Run ``cmd`` from the repository root and send it SIGINT (Ctrl-C) ``delay_s`` seconds after
     ``started()`` first holds; returns its exit status and stderr. Fails when it ends first."""
-    proc = subprocess.Popen(list(cmd), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # SIGINT's default action in the child: a shell without job control starts background jobs with
+    # SIGINT ignored, and the child would inherit that (``nohup make test &`` made the run end with 0)
+    proc = subprocess.Popen(list(cmd), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=default_sigint)
     try:
         deadline = time.monotonic() + timeout_s
         while proc.poll() is None and not started():

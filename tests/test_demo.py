@@ -27,6 +27,7 @@ from c3f_demo.report import SECTIONS, build_report
 from c3f_demo.report_records import Figures, Image, ReportData, Video, ViewData, ViewFigures
 from c3f_demo.stages import Stage
 from c3f_demo.state import DemoState, stage_key
+from tests.bad_input import default_sigint
 from tests.startup import packages_loaded_by
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -439,7 +440,8 @@ def test_ctrl_c_is_one_line_and_keeps_finished_stages(tmp_path, sig):
 
     out = tmp_path / "out"
     p = subprocess.Popen([sys.executable, "-m", "c3f_demo", "--out", str(out), "--quick", "--from-scratch"],
-                         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=default_sigint)
     t0 = time.time()
     while not (out / "logs" / "train_depth.log").exists() and time.time() - t0 < 300:
         time.sleep(0.5)
