@@ -13,8 +13,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -26,7 +24,7 @@ from c3f_models.checkpoints import read_checkpoint_weights
 from c3f_models.zoo.card import training_record, write_card, write_index
 from c3f_models.zoo.evaluate import depth_heldout, descriptor_heldout
 from c3f_models.zoo.recipes import Recipe, SimSpec
-from c3f_models.zoo.train import REPO, RecipeRun, newest_checkpoint, simulate
+from c3f_models.zoo.train import RecipeRun, newest_checkpoint, run_module, simulate
 from c3f_slam.models.zoo import sha256_of
 
 ONNX_FILE = {"depth": "depthnet.onnx", "pose": "posenet.onnx", "descriptors": "contrafeat.onnx"}
@@ -70,12 +68,8 @@ def model_config(run: RecipeRun) -> dict:
 def export(run: RecipeRun, weights: Path, out: Path, storage: str = "float16") -> dict:
     """``python -m c3f_models export`` of ``weights`` with the run's config; returns export.json."""
     graphs = "[" + ",".join(run.recipe.graphs) + "]"
-    cmd = [sys.executable, "-m", "c3f_models", "export", "--config", str(run.config), "--ckpt_path", str(weights),
-           "--output_dir", str(out), "--graphs", graphs, "--storage", storage]
-    done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
-    if done.returncode != 0:
-        last = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
-        raise InputError(f"export of {run.recipe.name} failed: {last}")
+    run_module(["-m", "c3f_models", "export", "--config", str(run.config), "--ckpt_path", str(weights),
+                "--output_dir", str(out), "--graphs", graphs, "--storage", storage], f"export of {run.recipe.name}")
     return json.loads((out / "export.json").read_text())
 
 

@@ -93,6 +93,15 @@ def default_work(name: str) -> Path:
 
 
 # ---------------------------------------------------------------------------------------- simulate
+def run_module(args: list[str], what: str) -> subprocess.CompletedProcess:
+    """``python ARGS`` in the repository; InputError ``WHAT failed: <its last error line>`` when it fails."""
+    done = subprocess.run([sys.executable, *args], cwd=REPO, capture_output=True, text=True)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
+        raise InputError(f"{what} failed: {last[-300:]}")
+    return done
+
+
 def generate_command(spec: SimSpec, size: int, out: Path) -> list[str]:
     """The simulator's command line that writes ``spec`` with square frames of ``size`` pixels to
     ``out`` (its look's items last)."""
@@ -110,10 +119,7 @@ def simulate(specs: tuple[SimSpec, ...], size: int, root: Path, jobs: int = 2) -
         out = root / spec.name
         if (out / "camera.json").is_file() and len(list((out / "rgb").glob("*.png"))) == spec.frames:
             return out
-        done = subprocess.run(generate_command(spec, size, out), cwd=REPO, capture_output=True, text=True)
-        if done.returncode != 0:
-            last = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
-            raise InputError(f"simulate {spec.name}: {last}")
+        run_module(generate_command(spec, size, out)[1:], f"simulate {spec.name}")
         return out
 
     root.mkdir(parents=True, exist_ok=True)

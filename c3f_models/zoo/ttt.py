@@ -8,21 +8,9 @@ repository, so a run is the one a user would type.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
-from c3f_core.errors import InputError
-from c3f_models.zoo.train import REPO
-
-
-def run_module(args: list[str], what: str) -> subprocess.CompletedProcess:
-    """``python ARGS`` in the repository; InputError ``WHAT failed: <its last error line>`` when it fails."""
-    done = subprocess.run([sys.executable, *args], cwd=REPO, capture_output=True, text=True)
-    if done.returncode != 0:
-        last = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
-        raise InputError(f"{what} failed: {last[-300:]}")
-    return done
+from c3f_models.zoo.train import run_module
 
 
 def tune_and_export(model: str, config: Path, seq: Path, run: Path, steps: int, *,
@@ -44,4 +32,4 @@ def tune_and_export(model: str, config: Path, seq: Path, run: Path, steps: int, 
     return checkpoints
 
 
-__all__ = ["run_module", "tune_and_export"]
+__all__ = ["tune_and_export"]
