@@ -28,10 +28,12 @@ intrinsics came from.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -53,6 +55,16 @@ FRAME_COUNT_SLACK = 1
 BLACK_THRESHOLD = 5.0
 #: a frame with at least SATURATED_SHARE of its pixels at a luma of SATURATED_THRESHOLD or more is saturated
 SATURATED_THRESHOLD, SATURATED_SHARE = 250.0, 0.9
+
+
+class RawFrame(NamedTuple):
+    """A frame as read (:meth:`FrameStream.read`): stream ``index``, ``timestamp`` seconds, ``rgb``
+    (H, W, 3) uint8, ``depth`` (H, W) float32 metres or None."""
+
+    index: int
+    timestamp: float
+    rgb: np.ndarray
+    depth: np.ndarray | None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -144,7 +156,7 @@ class FrameStream:
 
     def __init__(
         self,
-        source: str | Path,
+        source: str | Path | int,
         camera: PinholeCamera | OmniCamera | FovGuess | str | Path | None = None,
         use_depth: bool = True,
         start: int = 0,
@@ -155,7 +167,9 @@ class FrameStream:
         saturated_threshold: float = SATURATED_THRESHOLD,
         saturated_share: float = SATURATED_SHARE,
     ) -> None:
-        self.source = Path(source)
+        #: a capture device's OpenCV index (``source`` an int), read like a video without an end
+        self.device: int | None = source if isinstance(source, int) and not isinstance(source, bool) else None
+        self.source = Path(f"capture device {source}") if self.device is not None else Path(source)
         if start < 0 or step < 1 or (max_frames is not None and max_frames < 0):
             raise InputError(f"bad frame range: start={start} step={step} max_frames={max_frames}")
         if fps is not None and not fps > 0:
@@ -168,9 +182,9 @@ class FrameStream:
         #: the frame-quality gate every otherwise usable frame passes, in order (None: none); its
         #: cause becomes the frame's status (:mod:`c3f_slam.frames.quality`)
         self.quality: FrameQualityGate | None = None
-        if not self.source.exists():
+        if self.device is None and not self.source.exists():
             raise InputError(f"{self.source}: no such file or folder")
-        if self.source.is_dir():
+        if self.device is None and self.source.is_dir():
             if isinstance(camera, FovGuess):
                 raise InputError(f"{self.source}: --fov is for videos; a sequence folder uses its camera.json")
             self.sequence = UndistortedSequence(self.source)
@@ -179,7 +193,7 @@ class FrameStream:
             self.camera_file: Path | None = self.source / "camera.json"
             self.is_video = False
         else:
-            if self.source.suffix.lower() not in VIDEO_SUFFIXES:
+            if self.device is None and self.source.suffix.lower() not in VIDEO_SUFFIXES:
                 raise InputError(
                     f"{self.source}: not a sequence folder or a video ({', '.join(VIDEO_SUFFIXES)})"
                 )
@@ -187,6 +201,9 @@ class FrameStream:
             if isinstance(camera, FovGuess):  # the guess needs the frames' size
                 width, height = self._probe_video()
                 lens, self.camera_file = camera.camera(width, height), None
+            elif camera is None and self.device is not None:
+                raise InputError(f"{self.source}: a capture device needs intrinsics: pass --camera camera.json "
+                                 "or --fov DEG")
             else:  # a missing or bad camera.json is told before the video is opened
                 lens, self.camera_file = _load_camera(camera, self.source)
                 width, height = self._probe_video()
@@ -201,9 +218,11 @@ class FrameStream:
 
     # ------------------------------------------------------------------ video
     def _open(self) -> cv2.VideoCapture:
-        cap = cv2.VideoCapture(str(self.source))
+        cap = cv2.VideoCapture(self.device if self.device is not None else str(self.source))
         if not cap.isOpened():
             cap.release()
+            if self.device is not None:
+                raise InputError(f"{self.source}: does not open (no such camera, or in use)")
             raise InputError(f"{self.source}: video does not open (unsupported codec or corrupt file)")
         return cap
 
@@ -225,6 +244,7 @@ class FrameStream:
     def _iter_video(self) -> Iterator[tuple[int, float, np.ndarray, None]]:
         cap = self._open()
         self.truncation = None
+        t0 = time.monotonic()
         try:
             index = 0
             while True:
@@ -241,7 +261,8 @@ class FrameStream:
                 self.camera.check_image(bgr.shape, f"{self.source} frame {index}")
                 if self.undistortion is not None:
                     bgr = self.undistortion.rgb(bgr)
-                yield index, index / self.video_fps, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), None
+                stamp = time.monotonic() - t0 if self.device is not None else index / self.video_fps
+                yield index, stamp, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), None
                 index += 1
         finally:
             cap.release()
@@ -289,21 +310,31 @@ class FrameStream:
         k = max(0, -(-(n - self.start) // self.step))
         return k if self.max_frames is None else min(k, self.max_frames)
 
-    def __iter__(self) -> Iterator[StreamFrame]:
+    def read(self) -> Iterator[RawFrame | StreamFrame]:
+        """The frames as read, not judged yet (:meth:`judge`); an unreadable one as its
+        :class:`StreamFrame`. A live run reads on one thread and judges on another."""
         raw = self._iter_video() if self.is_video else self._iter_folder()
         if self.max_frames is not None:
             raw = islice(raw, self.max_frames)
+        for item in raw:
+            yield item if isinstance(item, StreamFrame) else RawFrame(*item)
+
+    def judge(self, item: RawFrame | StreamFrame) -> StreamFrame:
+        """A frame read, flagged: black, saturated, then the quality gate's causes, in stream
+        order (the gate compares a frame with the ones before it)."""
+        if isinstance(item, StreamFrame):
+            return item
+        status, mean = frame_status(item.rgb, *self._thresholds)
+        if status == OK and self.quality is not None:  # blurred, dark, washed out, covered, repeated
+            status = self.quality.assess(item.rgb).status
+        return StreamFrame(index=item.index, timestamp=item.timestamp, rgb=item.rgb, depth=item.depth, status=status,
+                           mean_luma=mean)
+
+    def __iter__(self) -> Iterator[StreamFrame]:
         if self.quality is not None:
             self.quality.reset()
-        for item in raw:
-            if isinstance(item, StreamFrame):
-                yield item
-                continue
-            index, stamp, rgb, depth = item
-            status, mean = frame_status(rgb, *self._thresholds)
-            if status == OK and self.quality is not None:  # blurred, dark, washed out, covered, repeated
-                status = self.quality.assess(rgb).status
-            yield StreamFrame(index=index, timestamp=stamp, rgb=rgb, depth=depth, status=status, mean_luma=mean)
+        for item in self.read():
+            yield self.judge(item)
 
 
 def open_stream(source: str | Path, **kwargs) -> FrameStream:
