@@ -90,6 +90,11 @@ class SlamMap(Protocol):
     def current_pose(self) -> np.ndarray | None:
         """Camera-to-world pose of the last placed frame (None when unregistered or none)."""
 
+    def current_placement(self) -> tuple[int, np.ndarray] | None:
+        """The last placed frame's component (an id that stays the same across merges into it)
+        and the frame's camera-to-world pose in that component's frame, whether or not it is
+        the main map (None before the first placed frame)."""
+
     def in_main(self, fid: int) -> bool:
         """Fragment ``fid`` is registered (in the main map)."""
 

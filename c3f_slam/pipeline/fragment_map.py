@@ -253,22 +253,37 @@ class FragmentMap:
             out.append(MapComponent(rows, poses, frags, len(members)))
         return out
 
-    def pose_of_log(self, row: int) -> np.ndarray | None:
-        """World pose of the frame in log row ``row`` (None when unregistered)."""
+    def _placed(self, row: int) -> tuple[int, np.ndarray] | None:
+        """The global node log row ``row`` hangs off and the row's pose in the frame of that
+        node's component (None when not placed)."""
         if self.log.fragment[row] < 0:
             return None
         node = self.log.node[row]
         if node >= 0:  # its fragment is closed
-            return self.graph.pose(node) @ self.log.node_pose(row) if self._node_in_main(node) else None
+            return node, self.graph.pose(node) @ self.log.node_pose(row)
         act = self.active  # a frame of the active fragment
         assert act is not None and act.id == self.log.fragment[row]
-        if not self._node_in_main(act.node):
+        return act.node, self.graph.pose(act.node) @ act.node_pose(self.log.local[row])
+
+    def pose_of_log(self, row: int) -> np.ndarray | None:
+        """World pose of the frame in log row ``row`` (None when unregistered)."""
+        placed = self._placed(row)
+        if placed is None or not self._node_in_main(placed[0]):
             return None
-        return self.graph.pose(act.node) @ act.node_pose(self.log.local[row])
+        return placed[1]
 
     def current_pose(self) -> np.ndarray | None:
         """World pose of the last placed frame (None when lone or none)."""
         return self.pose_of_log(self._last_row) if self._last_row >= 0 else None
+
+    def current_placement(self) -> tuple[int, np.ndarray] | None:
+        """The last placed frame's component, named by its oldest keyframe (the same across
+        merges into it), and the frame's pose in that component's frame, main or not (None
+        before the first)."""
+        placed = self._placed(self._last_row) if self._last_row >= 0 else None
+        if placed is None:
+            return None
+        return self.graph.component_oldest(placed[0]), placed[1]
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(frame indices, timestamps, poses (N, 4, 4) NaN when unregistered, registered mask)."""

@@ -60,6 +60,10 @@ class OdometryMap:
     def current_pose(self) -> np.ndarray | None:
         return self._last
 
+    def current_placement(self) -> tuple[int, np.ndarray] | None:
+        """The baseline has one component (0) and one frame: the last tracked frame's pose."""
+        return None if self._last is None else (0, self._last)
+
     def trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         poses = np.array(self.poses).reshape(-1, 4, 4)
         reg = np.isfinite(poses).all(axis=(1, 2))

@@ -26,8 +26,10 @@ from __future__ import annotations
 import contextlib
 import time
 import traceback
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 from open3d.geometry import TriangleMesh
@@ -48,7 +50,7 @@ from c3f_slam.pipeline.components import (
     write_components,
 )
 from c3f_slam.pipeline.coverage_stage import run_coverage
-from c3f_slam.pipeline.frame_step import DecisionCounts, FrameInput
+from c3f_slam.pipeline.frame_step import DecisionCounts, FrameDecision, FrameInput
 from c3f_slam.pipeline.frontend import Frontend
 from c3f_slam.pipeline.fusion_frames import FusionFrames, fusion_frames
 from c3f_slam.pipeline.keyframe_store import CACHE_DIR as KEYFRAME_CACHE_DIR
@@ -77,6 +79,24 @@ class FrameCounts:
                 **{f"skipped_{k}": v for k, v in self.skipped.items()}, "frame_decisions": self.decisions.as_dict()}
 
 
+class RunObserver(Protocol):
+    """Something that follows a run as it happens (the live view, :mod:`c3f_slam.live`): it may
+    replace the frames the run takes, sees each frame's outcome, and ends with the run."""
+
+    def frames(self, stream: FrameStream) -> Iterable[StreamFrame]:
+        """The frames the run takes (the stream itself, or paced and thinned as a capture)."""
+
+    def opened(self, run: SlamRun) -> None:
+        """The run's sources and back-end are open, its frames are :meth:`frames` (before the first)."""
+
+    def stepped(self, run: SlamRun, item: PerceivedFrame, outcome: str, decision: FrameDecision | None) -> None:
+        """A frame was taken: ``outcome`` its skip reason or the back-end's decision kind."""
+
+    def finished(self, outputs: RunOutputs, summary: dict) -> None:
+        """The run ended (``summary['status']``), its outputs written, before the folder is
+        published; may add files to ``outputs.root``. Never raises."""
+
+
 def _progress(total: int | None, enabled: bool):
     if not enabled:
         return None
@@ -92,8 +112,9 @@ class SlamRun:
     they hold (freed by :meth:`close`, also on errors; use it as a context manager)."""
 
     def __init__(self, cfg: SlamConfig, sources: RunSources, outputs: RunOutputs, timings: Timings,
-                 factory: BackendFactory, progress: bool) -> None:
+                 factory: BackendFactory, progress: bool, observer: RunObserver | None = None) -> None:
         self.cfg, self.sources, self.timings, self.outputs = cfg, sources, timings, outputs
+        self.observer = observer
         self.counts = FrameCounts()
         self.log = FrameLog(outputs.frame_log)  #: what happened to each frame, written as it happens
         self.components: list[ComponentEntry] | None = None  #: after finish(): the map's components
@@ -134,7 +155,12 @@ class SlamRun:
         perceive = Perception(self.sources.depth, self.frontend)
         try:
             fc = self.cfg.frames
-            with Prefetcher(self.sources.stream, perceive, fc.prefetch, fc.perception_workers) as frames:
+            stream = self.sources.stream
+            taken = stream
+            if self.observer is not None:
+                taken = self.observer.frames(stream)
+                self.observer.opened(self)
+            with Prefetcher(taken, perceive, fc.prefetch, fc.perception_workers) as frames:
                 for item in frames:
                     self.step(item)
                 self.timings.add("wait", frames.wait_seconds)
@@ -151,14 +177,14 @@ class SlamRun:
         if self.bar is not None:
             self.bar.update(1)
         if not frame.usable:
-            self._skip(frame, frame.status)
+            self._skip(item, frame.status)
             if frame.status == UNREADABLE:
                 self._check_bad_frames(frame)
             return
         feat = item.features
         assert feat is not None and item.depth is not None
         if int(np.isfinite(feat.points).all(axis=1).sum()) < self.cfg.match_filter.min_matches:
-            self._skip(frame, "featureless")
+            self._skip(item, "featureless")
             return
         self.counts.processed += 1
         decision = self.backend.add(FrameInput(feat, item.depth, frame.rgb))
@@ -169,6 +195,8 @@ class SlamRun:
                 self._fuse(decision.fragment, item)
         if self.bar is not None:
             self.bar.set_postfix(kf=self.backend.map.n_keyframes(), refresh=False)
+        if self.observer is not None:
+            self.observer.stepped(self, item, decision.kind, decision)
 
     def _check_bad_frames(self, frame: StreamFrame) -> None:
         """InputError once more frames were unreadable than ``--max-bad-frames`` allows."""
@@ -176,10 +204,13 @@ class SlamRun:
         if n > limit:
             raise InputError(f"{frame.error} ({n} unreadable frames, more than --max-bad-frames {limit})")
 
-    def _skip(self, frame: StreamFrame, reason: str) -> None:
+    def _skip(self, item: PerceivedFrame, reason: str) -> None:
+        frame = item.frame
         self.counts.skipped[reason] += 1
         self.log.write(frame.index, frame.timestamp, reason)
         self.backend.skip(frame.index, frame.timestamp)
+        if self.observer is not None:
+            self.observer.stepped(self, item, reason, None)
 
     def _fuse(self, fid: int, item: PerceivedFrame) -> None:
         """Record the frame (log row) under its fragment for the fusion at the end."""
@@ -230,14 +261,16 @@ def run_slam(
     inputs: RunInputs | None = None,
     *,
     progress: bool = True, slam_factory: BackendFactory | None = None, overwrite: bool = False,
+    observer: RunObserver | None = None,
 ) -> dict:
     """Run on ``sequence`` (folder, or video file with model depth) and write the outputs into
     the run folder ``out``; returns the summary. ``cfg``: the settings tree (default the colon
     preset; which frames are read: ``cfg.frames``); ``inputs``: descriptors, depth and camera
     choices (:class:`RunInputs`, default SIFT and depth files); ``overwrite``: replace a
     complete earlier run in ``out`` (:class:`RunFolder`); ``slam_factory`` may replace the
-    back-end (tests). The run is built beside ``out`` and moved into place when it ends, also on
-    errors (summary.json says ``error`` and how far it got). InputError on bad input, including
+    back-end (tests); ``observer`` follows the run (:class:`RunObserver`: the live view). The
+    run is built beside ``out`` and moved into place when it ends, also on errors (summary.json
+    says ``error`` and how far it got). InputError on bad input, including
     a run in which no frame could be registered (after writing its outputs)."""
     cfg = cfg or SlamConfig()
     inputs = inputs or RunInputs()
@@ -260,7 +293,7 @@ def run_slam(
         cfg = cfg.for_frame_size(sources.camera.width, sources.camera.height).for_depth_source(inputs.depth_source)
         summary["config"] = cfg.as_dict()  # with the thresholds derived from the frame size and depth source
         factory = slam_factory or (OdometrySlam if cfg.mode == "odometry" else FragmentSlam)
-        with SlamRun(cfg, sources, outputs, timings, factory, progress) as run:
+        with SlamRun(cfg, sources, outputs, timings, factory, progress, observer=observer) as run:
             mesh = run.run()
         summary.update(_write_main_mesh(outputs, mesh))
         summary.update(run_coverage(outputs, mesh, run.backend.map, sources, cfg))
@@ -269,12 +302,18 @@ def run_slam(
     except BaseException as exc:  # write what we have, then pass the error on
         _record_error(summary, exc)
         write_run_outputs(outputs, run, summary, t_start)
+        if observer is not None:
+            observer.finished(outputs, summary)
+            outputs.write_summary(summary)
         with contextlib.suppress(OSError):  # keep the original error visible; bad input never
             _keep_or_publish(folder, exc)   # replaces a complete earlier run (--overwrite)
         raise
     write_run_outputs(outputs, run, summary, t_start)
     failed = _truncated(summary, sources.stream) or _no_frame_registered(summary, sequence)
     if failed:
+        outputs.write_summary(summary)
+    if observer is not None:
+        observer.finished(outputs, summary)
         outputs.write_summary(summary)
     folder.publish()
     if failed:
