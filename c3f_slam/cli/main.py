@@ -5,6 +5,8 @@
     python -m c3f_slam run SEQUENCE_DIR|VIDEO --depth-model depth.onnx --feature-model feat.onnx --out OUT
         [--camera camera.json | --fov DEG] [--threads N] [--providers CUDAExecutionProvider,CPUExecutionProvider]
     python -m c3f_slam run [--preset room] [--config FILE] [--set ...] --print-config
+    python -m c3f_slam live VIDEO|SEQUENCE_DIR|DEVICE --out OUT [the options of run] [--port N] [--host ADDRESS]
+        [--rate FPS | --as-fast-as-possible] [--alert-threshold SHARE] [--alert-margin METRES] [--linger SECONDS]
     python -m c3f_slam batch DATASET_DIR|LIST_FILE --out OUT [--workers N] [--threads N] [--ray auto|ADDRESS|local]
         [the options of run: models, --preset, --config, --set ...]
     python -m c3f_slam evaluate OUT --gt SEQUENCE_DIR
@@ -53,6 +55,28 @@ def _run_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--overwrite", action="store_true",
                    help="replace a complete earlier run in --out (an incomplete one is always replaced)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_settings_options(r)
+
+
+def _live_parser(sub: argparse._SubParsersAction) -> None:
+    from c3f_slam.cli.live_options import add_live_options
+
+    r = sub.add_parser("live", help="run SLAM on a video, sequence folder or capture device as it plays, with a "
+                                    "page that shows the unseen wall (http://127.0.0.1:PORT/)",
+                       description="The run of `run`, live: the source is played at its own frame rate (newest "
+                                   "frame wins when processing falls behind: the others are dropped and counted), "
+                                   "and a page on the loopback address shows the frame, the map so far, the "
+                                   "unrolled wall with its unseen cells, the unseen share per segment and an alert "
+                                   "when the scope leaves a segment with more unseen wall than the threshold. The "
+                                   "run folder is written at the end as `run` writes it, plus live.json. "
+                                   "docs/live.md")
+    r.add_argument("source", nargs="?", help="a video (with --depth-model), a sequence folder, or a capture device's "
+                                             "OpenCV index (0, 1, ...; with --camera or --fov)")
+    r.add_argument("--out", help="output folder (a run folder, as `run` writes it)")
+    add_input_options(r)
+    add_live_options(r)
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace a complete earlier run in --out (an incomplete one is always replaced)")
     add_settings_options(r)
 
 
@@ -106,6 +130,7 @@ def _parser() -> argparse.ArgumentParser:
     ap = OneLineParser(prog="python -m c3f_slam", description="C3Fusion SLAM runtime")
     sub = ap.add_subparsers(dest="command", required=True)
     _run_parser(sub)
+    _live_parser(sub)
     _batch_parser(sub)
     e = sub.add_parser("evaluate", help="ATE / RPE / registered share / coverage of a run against ground truth")
     e.add_argument("out", help="run folder (trajectory.txt, summary.json, mesh.ply)")
@@ -143,13 +168,23 @@ def _warn_replay_inputs(summary: dict, inputs) -> None:
               "to replay it exactly", file=sys.stderr)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _settings_or_print(args: argparse.Namespace):
+    """The run's settings tree and the replayed summary (``--config``); None after printing the
+    tree (``--print-config``)."""
     from c3f_slam.config.loading import config_yaml
 
     cfg, replayed = settings_from_args(args)
     if args.print_config:
         print(config_yaml(cfg), end="")
+        return None
+    return cfg, replayed
+
+
+def _run(args: argparse.Namespace) -> int:
+    settings = _settings_or_print(args)
+    if settings is None:
         return 0
+    cfg, replayed = settings
     from c3f_slam.pipeline import run_slam
 
     inputs = inputs_from_args(args)
@@ -167,6 +202,27 @@ def _run(args: argparse.Namespace) -> int:
         print(f"{len(written)} part(s) not joined to the main map written to {args.out}/components/: "
               + ", ".join(f"{c['id']:02d} ({c['frames']} frames, {c['first_frame']}-{c['last_frame']})"
                           for c in written))
+    return 0
+
+
+def _live(args: argparse.Namespace) -> int:
+    from c3f_slam.cli.live_options import live_settings_from_args, live_source
+
+    tree = _settings_or_print(args)
+    if tree is None:
+        return 0
+    cfg, _ = tree
+    settings = live_settings_from_args(args)
+    from c3f_slam.live.loop import run_live
+
+    s, live = run_live(live_source(args.source), args.out, cfg, inputs_from_args(args), settings,
+                       overwrite=args.overwrite)
+    rec = s.get("live", {})
+    unseen = s.get("unseen_share")
+    print(f"{s['frames']} frames taken of {rec.get('frames_delivered', 0)} delivered "
+          f"({100 * rec.get('dropped_share', 0):.1f} % dropped), {s['registered_frames']} registered, "
+          f"{len(rec.get('alerts', []))} alert(s)"
+          + (f", unseen wall {100 * unseen:.1f} %" if unseen is not None else "") + f" -> {args.out}")
     return 0
 
 
@@ -234,17 +290,18 @@ def _batch(args: argparse.Namespace) -> int:
     return batch_command(args)
 
 
-COMMANDS = {"run": _run, "batch": _batch, "evaluate": _evaluate, "inspect": _inspect, "simcol3d": _simcol3d,
-            "view": _view, "calibrate": _calibrate}
+COMMANDS = {"run": _run, "live": _live, "batch": _batch, "evaluate": _evaluate, "inspect": _inspect,
+            "simcol3d": _simcol3d, "view": _view, "calibrate": _calibrate}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
-    if args.command == "run" and not args.print_config:
-        missing = [name for name, v in (("sequence", args.sequence), ("--out", args.out)) if v is None]
+    if args.command in ("run", "live") and not args.print_config:
+        first = "sequence" if args.command == "run" else "source"
+        missing = [name for name, v in ((first, getattr(args, first)), ("--out", args.out)) if v is None]
         if missing:
             parser.error(f"the following arguments are required: {', '.join(missing)}")
-    running = args.command == "run" and args.out and not args.print_config
+    running = args.command in ("run", "live") and args.out and not args.print_config
     where = f"; the run so far is in {args.out} (summary.json status error)" if running else ""
     return run_subcommand(COMMANDS, args, where)
