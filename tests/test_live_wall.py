@@ -81,7 +81,7 @@ def test_centreline_rows_follow_the_path_and_never_move():
 
 
 def test_a_camera_that_looks_along_the_tube_sees_its_wall(tube):
-    cfg = CoverageConfig(segment=0.05)
+    cfg = CoverageConfig(segment=0.05, live_min_points=1)  # exact depth: one point in a cell is a view of it
     wall, alerts = _withdrawal(tube, None, cfg)
     segs = {s["index"]: s for s in wall.segments()}
     for k in (1, 2, 3, 4):  # the first segment starts beside the camera: its first cm is never in view
@@ -93,7 +93,7 @@ def test_a_camera_that_looks_along_the_tube_sees_its_wall(tube):
 
 
 def test_a_segment_whose_far_side_was_never_in_view_raises_the_alert(tube):
-    cfg = CoverageConfig(segment=0.05)
+    cfg = CoverageConfig(segment=0.05, live_min_points=1)  # exact depth: one point in a cell is a view of it
     wall, alerts = _withdrawal(tube, (0.085, 0.17), cfg)
     segs = {s["index"]: s for s in wall.segments()}
     assert segs[2]["unseen_share"] > 0.3  # its -x half (10-15 cm) was never in view
@@ -120,7 +120,7 @@ def test_clock_positions_seen_from_the_scope():
 def test_the_cost_of_a_frame_does_not_grow_with_the_length_mapped(tube):
     """Work per frame (rows located against, waiting points) stays bounded along a long path:
     counted, not timed."""
-    cfg = CoverageConfig(segment=0.05)
+    cfg = CoverageConfig(segment=0.05, live_min_points=1)  # exact depth: one point in a cell is a view of it
     wall = IncrementalWall(cfg, K, NEAR_FAR)
     windows, waiting = [], []
     for T in _poses(np.arange(0.0, 0.26, 0.002), None):
@@ -140,3 +140,17 @@ def test_the_watch_needs_a_share_and_a_margin():
         SegmentWatch(0.05, 1.5, 0.01)
     with pytest.raises(ValueError, match="margin"):
         SegmentWatch(0.05, 0.2, -1)
+
+
+def test_a_cell_needs_live_min_points_to_count_as_observed(tube):
+    """Cells with fewer depth points than coverage.live_min_points stay unseen (noise guard)."""
+    seen = {}
+    for k in (1, 3):
+        wall = IncrementalWall(CoverageConfig(segment=0.05, live_min_points=k), K, NEAR_FAR)
+        for T in _poses(np.arange(0.0, 0.1, 0.004), None):
+            wall.add_frame(T, render_pinhole(tube, K, T, W, H)[1])
+        wall.finish()
+        seen[k] = wall.observed()
+    assert np.all(seen[1] | ~seen[3]) and seen[3].sum() < seen[1].sum()
+    with pytest.raises(Exception, match="live_min_points"):
+        CoverageConfig(live_min_points=0)

@@ -67,11 +67,16 @@ class CoverageConfig:
     occlusion_tol_rel: float = 0.02  #: ... plus this share of the distance
     require_surface: bool = True  #: a cell also needs reconstructed surface in it to count as seen
     max_frames: int = 600  #: frames tested for visibility (evenly spaced subset of the registered ones)
+    #: the live estimate (``live``) counts a cell as observed once this many depth points landed in it
+    #: (one stray point of noisy predicted depth is not a view of the wall)
+    live_min_points: int = 4
 
     def __post_init__(self) -> None:
         for name in ("segment", "cell_length", "node_spacing", "max_radius"):
             if not getattr(self, name) > 0:
                 raise InputError(f"coverage.{name} must be > 0 (metres), got {getattr(self, name)}")
+        if self.live_min_points < 1:
+            raise InputError(f"coverage.live_min_points must be >= 1, got {self.live_min_points}")
         if self.angle_bins < 8 or self.max_frames < 1:
             raise InputError(f"coverage.angle_bins must be >= 8 and coverage.max_frames >= 1, got "
                              f"{self.angle_bins}, {self.max_frames}")

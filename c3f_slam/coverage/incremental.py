@@ -12,9 +12,10 @@ metres from the first camera position. They are built as the camera moves:
 - a frame's depth, inside the tissue area and the depth range, is back-projected with the
   frame's pose when it was placed and thinned to one point per voxel; each point lands in the
   cell of the nearest row within reach of the camera (the depth range plus ``max_radius``).
-  The cell is then observed: a depth map holds the first surface along each ray, so a point
-  in a cell is that cell seen unoccluded (and with surface: ``require_surface``). A cell's
-  radius is the mean of its points';
+  A depth map holds the first surface along each ray, so points in a cell are that cell seen
+  unoccluded, with surface (``require_surface``); the cell counts as observed once
+  ``coverage.live_min_points`` points landed in it (a stray point of noisy predicted depth is
+  not a view of the wall). A cell's radius is the mean of its points';
 - points beyond the last row wait, voxel-thinned (the wall within the depth range ahead),
   until the rows reach them.
 
@@ -407,7 +408,7 @@ class IncrementalWall:
         L, seg = self.cfg.cell_length, self.cfg.segment
         radius = self.radius(rows)
         area = 2 * np.pi * L * radius.mean(axis=1)
-        seen = area * (self.count.data[rows] > 0).mean(axis=1)
+        seen = area * (self.count.data[rows] >= self.cfg.live_min_points).mean(axis=1)
         k = ((rows + 0.5) * L / seg).astype(np.int64)
         need = int(k.max()) + 1 if len(k) else 0
         while len(self.seg_area) < need:
@@ -427,7 +428,7 @@ class IncrementalWall:
 
     def observed(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(n, A) bool: cells observed."""
-        return self.count.view[rows] > 0
+        return self.count.view[rows] >= self.cfg.live_min_points
 
     def radius(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(n, A) metres: the mean radius of the points of each cell; unobserved cells filled

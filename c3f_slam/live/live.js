@@ -601,7 +601,7 @@
     reset.hidden = !(snap.wall && snap.wall.epoch > 0);
     if (!reset.hidden) {
       reset.textContent = `Map restarted${snap.wall.epoch > 1 ? ` (${snap.wall.epoch} times)` : ""}: ${snap.wall.reason || "tracking lost"}. ` +
-        "The wall and the map before it were discarded.";
+        "The page shows this map part's wall and map (an earlier part's come back if the scope rejoins it).";
     }
     const r = snap.rates, d = r.delays, pub = d.capture_to_publish_ms, disp = d.capture_to_display_ms;
     const el = $("rates");

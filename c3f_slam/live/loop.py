@@ -271,7 +271,7 @@ class LiveRun:
             end = "interrupted" if interrupted else "finished" if status in ("ok", "truncated") else "error"
             headline = {"out": str(self.out or ""), "status": status, "unseen_share": summary.get("unseen_share"),
                         "registered_share": summary.get("registered_share"), "frames": summary.get("frames"),
-                        "unseen_share_live": record["unseen_share_live"]}
+                        "live_unseen_share": record["unseen_share_live"]}
             self.state.finish(end, error=summary.get("error"), summary=headline)
 
     def record(self, summary: dict) -> dict:
