@@ -633,7 +633,8 @@
     add("frame ", String(S.frameIndex));
     const kind = S.frameDecision || f.decision;
     add("", kindLabel(kind) === kind ? kind : `${kindLabel(kind)} (${kind})`);
-    if (S.shownDelay !== null) add("shown ", `${Math.round(S.shownDelay)} ms after capture`);
+    // a negative delay means this page's clock is not the server's (another machine, or a test browser's virtual time)
+    if (S.shownDelay !== null && S.shownDelay >= 0) add("shown ", `${Math.round(S.shownDelay)} ms after capture`);
     if (S.snap.pose_index !== null && S.snap.latest_index !== null && S.snap.pose_index !== S.snap.latest_index) {
       add("scope placed at frame ", String(S.snap.pose_index));
     }
